@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Set-up and entry points for volrender on Debian (run as root, or with sudo).
+#   bash run.sh demo    install what is missing, then render the bundled demo to demo.png
+#   bash run.sh test    install what is missing, then run the test suite
+#   bash run.sh setup   install only
+# Idempotent: a second run installs nothing new.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+VENV=.venv
+SYS_PY=/usr/bin/python3          # Debian's python3-openvdb is built for this interpreter
+
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; elif command -v sudo >/dev/null; then sudo "$@"; else
+  echo "run.sh: need root (or sudo) to install Debian packages: $*" >&2; exit 1; fi; }
+
+apt_deps() {
+  local missing=()
+  [ -f /usr/lib/python3/dist-packages/pyopenvdb.cpython-311-x86_64-linux-gnu.so ] \
+    || ls /usr/lib/python3/dist-packages/*openvdb*.so >/dev/null 2>&1 || missing+=(python3-openvdb)
+  "$SYS_PY" -c 'import ensurepip, venv' 2>/dev/null || missing+=(python3-venv)
+  # PoCL from Debian (3.1, LLVM 15): the pip wheel's LLVM 14 cannot name newer CPUs
+  # ("unknown target CPU 'generic'") and then builds no kernel at all.
+  [ -f /etc/OpenCL/vendors/pocl.icd ] || missing+=(pocl-opencl-icd)
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "run.sh: installing Debian packages: ${missing[*]}" >&2
+    as_root apt-get update -q
+    DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -q "${missing[@]}"
+  fi
+}
+
+venv() {
+  if [ ! -x "$VENV/bin/python" ]; then
+    echo "run.sh: creating $VENV on $SYS_PY" >&2
+    "$SYS_PY" -m venv "$VENV"
+  fi
+  # Expose only the OpenVDB binding from Debian's site-packages (not the whole directory,
+  # whose numpy and other modules would shadow or mix with the venv's).
+  local site; site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+  for so in /usr/lib/python3/dist-packages/pyopenvdb*.so /usr/lib/python3/dist-packages/openvdb*.so; do
+    [ -e "$so" ] && ln -sf "$so" "$site/"
+  done
+  local stamp="$VENV/.installed" want
+  want=$(sha256sum pyproject.toml | cut -c1-16)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    echo "run.sh: installing Python packages into $VENV" >&2
+    "$VENV/bin/pip" install -q --upgrade pip >/dev/null
+    "$VENV/bin/pip" install -q -e ".[test]"
+    echo "$want" > "$stamp"
+  fi
+  "$VENV/bin/python" -c 'import volrender.vdb as v; v.import_openvdb()' \
+    || { echo "run.sh: OpenVDB's Python binding does not import in $VENV" >&2; exit 1; }
+}
+
+cmd=${1:-demo}
+case "$cmd" in
+  setup) apt_deps; venv ;;
+  demo)  apt_deps; venv
+         "$VENV/bin/volrender" render scenes/demo_cloud.vdb -o demo.png --size 480x360 --spp 4 \
+           --background 0.32,0.42,0.58
+         echo "run.sh: wrote demo.png" >&2 ;;
+  test)  apt_deps; venv; shift || true
+         "$VENV/bin/python" -m pytest -q "$@" ;;
+  *) echo "usage: bash run.sh [demo|test|setup]" >&2; exit 2 ;;
+esac

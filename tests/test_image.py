@@ -1,0 +1,293 @@
+import errno
+import os
+import struct
+import warnings
+import zlib
+
+import numpy as np
+import pytest
+
+from volrender import image
+from volrender.errors import UserError
+from volrender.image import check_output, read_exr_channels, read_image, to_srgb8, write_image
+
+
+def decode_png(blob):
+    """Independent minimal decoder: checks signature and CRCs, expects filter type 0."""
+    assert blob[:8] == b'\x89PNG\r\n\x1a\n'
+    pos, chunks = 8, []
+    while pos < len(blob):
+        length, kind = struct.unpack('>I4s', blob[pos:pos + 8])
+        data = blob[pos + 8:pos + 8 + length]
+        (crc,) = struct.unpack('>I', blob[pos + 8 + length:pos + 12 + length])
+        assert crc == zlib.crc32(kind + data) & 0xFFFFFFFF, kind
+        chunks.append((kind, data))
+        pos += 12 + length
+    assert chunks[0][0] == b'IHDR' and chunks[-1] == (b'IEND', b'')
+    w, h, depth, colour, comp, filt, interlace = struct.unpack('>IIBBBBB', chunks[0][1])
+    assert (depth, colour, comp, filt, interlace) == (8, 2, 0, 0, 0)
+    raw = zlib.decompress(b''.join(d for k, d in chunks if k == b'IDAT'))
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, 1 + 3 * w)
+    assert (rows[:, 0] == 0).all()
+    return rows[:, 1:].reshape(h, w, 3)
+
+
+def marked_image(rng, h=5, w=7):
+    rgba = rng.standard_normal((h, w, 4)).astype(np.float32) * 1e3
+    rgba[0] = [1.0, 2.0, 3.0, 4.0]  # marker in the top row
+    rgba[1, 2] = [np.float32(1e-40), -0.0, np.float32(np.pi), 0.25]  # denormal, -0
+    return rgba
+
+
+# ---------------------------------------------------------------------- round trips
+
+def test_exr_round_trip_bit_exact_with_aovs(tmp_path, rng):
+    rgba = marked_image(rng)
+    depth = rng.random((5, 7), dtype=np.float32) * 100
+    trans = rng.random((5, 7), dtype=np.float32)
+    out = write_image(tmp_path / 'a.exr', rgba, {'depth': depth, 'transmittance': trans,
+                                                 'samples': trans[::-1]})
+    back = read_image(out)
+    assert back.dtype == np.float32 and back.shape == (5, 7, 4)
+    assert back.tobytes() == rgba.tobytes()
+    assert (back[0] == [1, 2, 3, 4]).all()  # rows not flipped
+    ch = read_exr_channels(out)
+    assert set(ch) == {'R', 'G', 'B', 'A', 'Z', 'T', 'samples'}
+    assert ch['Z'].dtype == np.float32 and ch['Z'].tobytes() == depth.tobytes()
+    assert ch['T'].tobytes() == trans.tobytes()
+    assert ch['samples'].tobytes() == np.ascontiguousarray(trans[::-1]).tobytes()
+    import OpenEXR
+    assert OpenEXR.File(str(out), header_only=True).header()['compression'] == \
+        OpenEXR.ZIP_COMPRESSION
+
+
+def test_exr_non_contiguous_input(tmp_path, rng):
+    # The bindings ignore strides; the writer must hand them contiguous arrays.
+    base = marked_image(rng, 6, 8)
+    view = base[::-1, ::2]
+    write_image(tmp_path / 'v.exr', view)
+    assert read_image(tmp_path / 'v.exr').tobytes() == np.ascontiguousarray(view).tobytes()
+
+
+def test_exr_keeps_non_finite(tmp_path):
+    rgba = np.zeros((2, 2, 4), np.float32)
+    rgba[0, 0, 0], rgba[0, 1, 1] = np.nan, np.inf
+    back = read_image(write_image(tmp_path / 'n.exr', rgba))
+    assert np.isnan(back[0, 0, 0]) and back[0, 1, 1] == np.inf
+
+
+def test_npy_round_trip(tmp_path, rng):
+    rgba = marked_image(rng)
+    out = write_image(tmp_path / 'a.npy', rgba)
+    back = read_image(out)
+    assert back.dtype == np.float32 and back.tobytes() == rgba.tobytes()
+    assert np.load(out).shape == (5, 7, 4)
+
+
+def test_write_overwrites_and_leaves_no_temp(tmp_path):
+    for value in (0.25, 0.75):
+        for suffix in image.SUFFIXES:
+            write_image(tmp_path / f'o{suffix}', np.full((3, 4, 4), value, np.float32))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['o.exr', 'o.npy', 'o.png']
+    assert (read_image(tmp_path / 'o.npy') == 0.75).all()
+
+
+# ------------------------------------------------------------------------------ PNG
+
+def test_png_known_values(tmp_path):
+    rgba = np.zeros((2, 3, 4), np.float32)
+    rgba[0, 0, :3] = [0.0, 1.0, 0.5]
+    rgba[0, 1, :3] = [2.0, 0.001, 0.0031308]
+    rgba[1, 2, :3] = [1.0, 0.0, 0.0]  # bottom right is red
+    rgba[..., 3] = 0.3  # alpha is not written
+    out = write_image(tmp_path / 'k.png', rgba, tonemap='clamp')
+    px = decode_png(out.read_bytes())
+    assert px.shape == (2, 3, 3) and px.dtype == np.uint8
+    assert px[0, 0].tolist() == [0, 255, 188]
+    # 2.0 clamps; 0.001 * 12.92 * 255 = 3.29 -> 3; threshold 0.0031308 -> 10.3 -> 10
+    assert px[0, 1].tolist() == [255, 3, 10]
+    assert px[1, 2].tolist() == [255, 0, 0] and px[1, 0].tolist() == [0, 0, 0]
+    assert (read_image(out) == px).all()
+
+
+def test_png_exposure(tmp_path):
+    assert to_srgb8(np.array([0.25]), exposure=1.0, tonemap='clamp')[0] == 188
+    assert to_srgb8(np.array([1.0]), exposure=-1.0, tonemap='clamp')[0] == 188
+
+
+def test_srgb_matches_formula():
+    v = np.linspace(0, 1, 10001)
+    expected = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+    assert (to_srgb8(v, 0.0, 'clamp') == np.floor(expected * 255 + 0.5)).all()
+
+
+def test_filmic_monotonic_and_bounded():
+    x = np.linspace(0, 10, 100001)
+    y = image._filmic(x)
+    assert y[0] == 0 and (np.diff(y) > 0).all() and (y < 1).all()
+    x = np.concatenate([x, np.geomspace(11, 1e30, 1000)])  # far out: rounds to 1.0
+    y = image._filmic(x)
+    assert (np.diff(y) >= 0).all() and (y <= 1).all() and y[-1] == 1.0
+    assert image._filmic(np.inf) == 1.0
+    codes = to_srgb8(x, 0.0, 'filmic')
+    assert codes[0] == 0 and (np.diff(codes.astype(int)) >= 0).all()
+    assert codes[-1] == 255 and to_srgb8(np.array([0.5]))[0] == 188  # knee: mid-tones kept
+    # continuous slope at the knee
+    k, e = image._KNEE, 1e-6
+    assert abs((image._filmic(k + e) - image._filmic(k)) / e - 1) < 1e-5
+
+
+def test_png_non_finite_does_not_crash(tmp_path):
+    rgba = np.zeros((2, 2, 4), np.float32)
+    rgba[0, 0] = np.nan
+    rgba[0, 1] = np.inf
+    rgba[1, 0] = -np.inf
+    rgba[1, 1] = [0.5, 0.5, 0.5, 1]
+    for tonemap in image.TONEMAPS:
+        with pytest.warns(RuntimeWarning, match='non-finite'):
+            out = write_image(tmp_path / f'{tonemap}.png', rgba, tonemap=tonemap)
+        px = decode_png(out.read_bytes())
+        assert px[0, 0].tolist() == [0, 0, 0] and px[0, 1].tolist() == [255, 255, 255]
+        assert px[1, 0].tolist() == [0, 0, 0] and px[1, 1].tolist() == [188] * 3
+
+
+def test_png_finite_input_does_not_warn(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        write_image(tmp_path / 'f.png', np.full((2, 2, 4), 1e30, np.float32), exposure=8.0)
+
+
+def test_png_matches_pillow(tmp_path, rng):
+    PIL = pytest.importorskip('PIL.Image')
+    rgba = rng.random((17, 23, 4), dtype=np.float32) * 2
+    out = write_image(tmp_path / 'p.png', rgba)
+    with PIL.open(out) as im:
+        assert im.mode == 'RGB' and im.size == (23, 17)
+        assert (np.asarray(im) == decode_png(out.read_bytes())).all()
+    # our reader handles Pillow's filtered rows too
+    px = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
+    px[:, :5] = 7  # smooth part so the encoder picks several filter types
+    PIL.fromarray(px).save(tmp_path / 'pil.png', optimize=True)
+    assert (read_image(tmp_path / 'pil.png') == px).all()
+
+
+def test_unknown_tonemap(tmp_path):
+    with pytest.raises(UserError, match='tone map'):
+        write_image(tmp_path / 'x.png', np.zeros((1, 1, 4), np.float32), tonemap='aces')
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------ atomicity
+
+@pytest.mark.parametrize('suffix', image.SUFFIXES)
+def test_failed_write_leaves_existing_file(tmp_path, monkeypatch, suffix):
+    out = tmp_path / f'keep{suffix}'
+    write_image(out, np.full((4, 4, 4), 0.5, np.float32))
+    before = out.read_bytes()
+
+    def failing(tmp, *args):
+        with open(tmp, 'wb') as f:
+            f.write(b'half an image')
+        raise OSError(errno.ENOSPC, 'No space left on device')
+
+    monkeypatch.setitem(image._WRITERS, suffix, failing)
+    with pytest.raises(UserError, match='No space left') as info:
+        write_image(out, np.zeros((4, 4, 4), np.float32))
+    assert str(out) in str(info.value) and '\n' not in str(info.value)
+    assert out.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_unexpected_error_also_cleans_up(tmp_path, monkeypatch):
+    def failing(tmp, *args):
+        open(tmp, 'wb').close()
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(image._WRITERS, '.npy', failing)
+    with pytest.raises(KeyboardInterrupt):
+        write_image(tmp_path / 'x.npy', np.zeros((1, 1, 4), np.float32))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_real_exr_library_failure_is_user_error(tmp_path, monkeypatch):
+    # Make the OpenEXR writer hit a real I/O error: its temp file is a directory.
+    blocker = tmp_path / 'blocker'
+    blocker.mkdir()
+    monkeypatch.setattr(image, '_new_temp', lambda out: blocker)
+    with pytest.raises(UserError, match='cannot write image'):
+        write_image(tmp_path / 'x.exr', np.zeros((2, 2, 4), np.float32))
+    assert not (tmp_path / 'x.exr').exists()
+
+
+# ------------------------------------------------------------------------ validation
+
+def test_check_output_ok(tmp_path):
+    assert check_output(tmp_path / 'a.png') == (tmp_path / 'a.png').resolve()
+    assert check_output(tmp_path / 'a.EXR', ['depth', 'transmittance']).name == 'a.EXR'
+
+
+def test_check_output_bad_suffix(tmp_path):
+    for name in ('a.jpg', 'a', 'a.exr.gz'):
+        with pytest.raises(UserError, match=r'\.exr, \.npy, \.png'):
+            check_output(tmp_path / name)
+
+
+def test_check_output_missing_directory(tmp_path):
+    with pytest.raises(UserError, match='does not exist.*mkdir'):
+        check_output(tmp_path / 'nope' / 'a.exr')
+    (tmp_path / 'file').write_text('x')
+    with pytest.raises(UserError, match='does not exist'):
+        check_output(tmp_path / 'file' / 'a.exr')
+    (tmp_path / 'dir.exr').mkdir()
+    with pytest.raises(UserError, match='is a directory'):
+        check_output(tmp_path / 'dir.exr')
+
+
+def test_check_output_unwritable_directory(tmp_path, monkeypatch):
+    ro = tmp_path / 'ro'
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        if os.access(ro, os.W_OK):  # root ignores permission bits: fake the answer
+            monkeypatch.setattr(image.os, 'access', lambda p, mode: False)
+        with pytest.raises(UserError, match='not writable'):
+            check_output(ro / 'a.png')
+    finally:
+        ro.chmod(0o755)
+
+
+def test_aovs_only_for_exr(tmp_path):
+    for suffix in ('.npy', '.png'):
+        with pytest.raises(UserError, match=r'need an \.exr'):
+            check_output(tmp_path / f'a{suffix}', ['depth'])
+        with pytest.raises(UserError, match=r'need an \.exr'):
+            write_image(tmp_path / f'a{suffix}', np.zeros((1, 1, 4), np.float32),
+                        {'depth': np.zeros((1, 1), np.float32)})
+    with pytest.raises(UserError, match='taken'):
+        check_output(tmp_path / 'a.exr', ['A'])
+    with pytest.raises(UserError, match='taken'):
+        check_output(tmp_path / 'a.exr', ['depth', 'Z'])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_shapes(tmp_path):
+    with pytest.raises(ValueError, match='H x W x 4'):
+        write_image(tmp_path / 'a.npy', np.zeros((2, 2, 3), np.float32))
+    with pytest.raises(ValueError, match='depth'):
+        write_image(tmp_path / 'a.exr', np.zeros((2, 2, 4), np.float32),
+                    {'depth': np.zeros((2, 3), np.float32)})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_errors(tmp_path):
+    with pytest.raises(UserError, match='not found'):
+        read_image(tmp_path / 'missing.exr')
+    (tmp_path / 'junk.exr').write_bytes(b'junk')
+    with pytest.raises(UserError, match='OpenEXR'):
+        read_image(tmp_path / 'junk.exr')
+    good = write_image(tmp_path / 'g.png', np.zeros((2, 2, 4), np.float32)).read_bytes()
+    bad = bytearray(good)
+    bad[-20] ^= 0xFF  # inside IDAT
+    (tmp_path / 'bad.png').write_bytes(bytes(bad))
+    with pytest.raises(UserError, match='corrupt PNG'):
+        read_image(tmp_path / 'bad.png')

@@ -1,0 +1,137 @@
+"""OpenCL device choice, context/queue, and the program cache.
+
+PoCL (the CPU OpenCL) is the default. `--device SUBSTRING` or the environment variable
+VOLRENDER_DEVICE picks another device by a case-insensitive substring of
+"<platform> / <device>" (e.g. "nvidia", "h200") or by "P:D" indices.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+
+from .errors import UserError
+from .paths import cl_dir
+
+log = logging.getLogger("volrender")
+ENV_DEVICE = "VOLRENDER_DEVICE"
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - set-up problem
+        raise UserError(f"pyopencl does not import ({exc})", fix="run `bash run.sh setup`") from None
+    return cl
+
+
+def all_devices():
+    """[(platform index, device index, platform, device)] for every OpenCL device found."""
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:
+        raise UserError(f"no OpenCL platform found ({exc})",
+                        fix="install a runtime: `bash run.sh setup` installs PoCL") from None
+    return [(i, j, p, d) for i, p in enumerate(platforms) for j, d in enumerate(p.get_devices())]
+
+
+def describe(platform, device) -> str:
+    return f"{platform.name.strip()} / {device.name.strip()}"
+
+
+def _is_pocl(platform) -> bool:
+    return "portable computing language" in platform.name.lower() or "pocl" in platform.name.lower()
+
+
+def choose(spec: str | None = None):
+    """Pick (platform, device): spec, else $VOLRENDER_DEVICE, else PoCL."""
+    spec = spec or os.environ.get(ENV_DEVICE) or None
+    found = all_devices()
+    if not found:
+        raise UserError("no OpenCL device found", fix="run `bash run.sh setup` to install PoCL")
+    if spec is None:
+        for _, _, p, d in found:
+            if _is_pocl(p):
+                return p, d
+        warnings.warn(f"PoCL not found; using {describe(*found[0][2:])}")
+        return found[0][2:]
+    for i, j, p, d in found:
+        if spec == f"{i}:{j}" or spec.lower() in describe(p, d).lower():
+            return p, d
+    listing = ", ".join(f"{i}:{j} {describe(p, d)}" for i, j, p, d in found)
+    raise UserError(f"no OpenCL device matches {spec!r}", fix=f"pick one of: {listing}")
+
+
+class BuildError(UserError):
+    """An OpenCL program failed to build; carries the compiler log."""
+
+
+@dataclass
+class Device:
+    """A context and an in-order, profiling queue on one OpenCL device."""
+
+    platform: object
+    device: object
+    context: object = None
+    queue: object = None
+    _programs: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        cl = _cl()
+        self.context = cl.Context([self.device])
+        self.queue = cl.CommandQueue(
+            self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+
+    @property
+    def name(self) -> str:
+        return describe(self.platform, self.device)
+
+    @property
+    def version_string(self) -> str:
+        d = self.device
+        return f"{self.name} ({d.version.strip()}, driver {d.driver_version.strip()})"
+
+    def program(self, entry: str, flags: dict[str, int]):
+        """Build cl/<entry>.cl with -D flags; cached per (sources, flags, device)."""
+        return self.build((cl_dir() / f"{entry}.cl").read_text(), flags, f"cl/{entry}.cl")
+
+    def build(self, source: str, flags: dict[str, int] | None = None, what: str = "program"):
+        """Build OpenCL source with cl/ on the include path and -D flags, cached per
+        (source and headers, flags, device)."""
+        cl = _cl()
+        src_dir = cl_dir()
+        digest = hashlib.sha256(source.encode())
+        for path in sorted(src_dir.glob("*.h")):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+        defines = [f"-D{k}={int(v)}" for k, v in sorted((flags or {}).items())]
+        key = (digest.hexdigest(), tuple(defines))
+        if key in self._programs:
+            return self._programs[key]
+        start = time.perf_counter()
+        try:
+            prg = cl.Program(self.context, source).build(options=["-I", str(src_dir), *defines])
+        except cl.RuntimeError as exc:
+            raise BuildError(
+                f"OpenCL build of {what} failed on {self.name} with {' '.join(defines) or 'no flags'}:"
+                f"\n{exc}", fix="this is a volrender bug; please report it with this log") from None
+        log.info("built %s %s in %.0f ms", what, " ".join(defines),
+                 1e3 * (time.perf_counter() - start))
+        self._programs[key] = prg
+        return prg
+
+
+_DEVICES: dict = {}
+
+
+def get(spec: str | None = None) -> Device:
+    """The Device for spec (see choose), created once per process."""
+    platform, device = choose(spec)
+    key = device.int_ptr
+    if key not in _DEVICES:
+        _DEVICES[key] = Device(platform, device)
+    return _DEVICES[key]

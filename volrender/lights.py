@@ -1,0 +1,65 @@
+"""Lights (DESIGN.md conventions) and their packing for kernels."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import layout
+from .errors import UserError
+
+
+@dataclass(frozen=True)
+class Sun:
+    """Directional light: propagation direction (normalised here) and irradiance E on a
+    plane perpendicular to it."""
+    direction: tuple
+    irradiance: float = 1.0
+    color: tuple = (1.0, 1.0, 1.0)
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
+            raise UserError(f"sun direction must be a non-zero finite vector, got {self.direction}")
+        if not np.isfinite(self.irradiance) or self.irradiance < 0:
+            raise UserError(f"sun irradiance must be finite and >= 0, got {self.irradiance}")
+        object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """Point light: position and intensity I; irradiance I / r^2."""
+    position: tuple
+    intensity: float = 1.0
+    color: tuple = (1.0, 1.0, 1.0)
+
+    def __post_init__(self):
+        if not np.all(np.isfinite(self.position)) or len(self.position) != 3:
+            raise UserError(f"point light position must be 3 finite numbers, got {self.position}")
+        if not np.isfinite(self.intensity) or self.intensity < 0:
+            raise UserError(f"point light intensity must be finite and >= 0, got {self.intensity}")
+
+
+# Used when the user gives no light: from above, behind the viewer's left shoulder.
+DEFAULT_LIGHTS = (Sun((-0.4, -1.0, -0.5), 3.0),)
+
+
+def counts(lights) -> tuple[int, int]:
+    return (sum(isinstance(l, Sun) for l in lights), sum(isinstance(l, PointLight) for l in lights))
+
+
+def pack(lights, world_to_frame=None):
+    """Light structs, suns first; point positions mapped into the render frame. Never
+    empty (a zero record stands in when there are no lights)."""
+    m = np.eye(4) if world_to_frame is None else np.asarray(world_to_frame, np.float64)
+    ordered = [l for l in lights if isinstance(l, Sun)] + [l for l in lights if isinstance(l, PointLight)]
+    out = layout.record("Light", max(1, len(ordered)))
+    for i, light in enumerate(ordered):
+        if isinstance(light, Sun):
+            out[i]["vec"] = [*light.direction, 0.0]
+            out[i]["radiance"] = [*(np.asarray(light.color) * light.irradiance), 0.0]
+        else:
+            pos = m[:3, :3] @ np.asarray(light.position, np.float64) + m[:3, 3]
+            out[i]["vec"] = [*pos, 1.0]
+            out[i]["radiance"] = [*(np.asarray(light.color) * light.intensity), 0.0]
+    return out
