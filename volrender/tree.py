@@ -1,0 +1,238 @@
+"""Balanced median partition tree over spheres, in heap layout.
+
+Node 1 is the root, the children of node i are 2i and 2i+1, index 0 is unused.
+All leaves sit at depth D (the smallest D with ceil(N / 2^D) <= leaf_size), at
+indices 2^D .. 2^(D+1)-1.  Each node covers the contiguous range
+``order[start:start+count]`` of sphere indices; a split sends ceil(count/2)
+spheres (the lower half along the split axis) left, so a leaf holds at most
+ceil(N / 2^D) spheres and only the rightmost leaves of tiny inputs can be empty.
+
+Node bounds are the AABB of (center +- radius) of the node's spheres, inflated
+by ``margin`` on every side (the blend's support width, so that every sphere that
+can influence a point is found).  Empty nodes have lo = +inf, hi = -inf.
+
+The build is vectorised level by level: per level one argsort of an integer key
+(node, rank of the point along the node's split axis), no Python work per node.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import UserError
+
+__all__ = ["Tree", "build", "tree_depth", "check_invariants", "query_point"]
+
+AXES = ("longest", "cycle")
+
+
+@dataclass(frozen=True)
+class Tree:
+    lo: np.ndarray        # float64 (2^(D+1), 3) node bounds, min corner
+    hi: np.ndarray        # float64 (2^(D+1), 3) node bounds, max corner
+    start: np.ndarray     # int64 (2^(D+1),) first position in ``order``
+    count: np.ndarray     # int64 (2^(D+1),) spheres below the node
+    depth: int            # D: the leaves are at depth D
+    leaf_size: int
+    margin: float
+    n_points: int
+    order: np.ndarray     # int64 (N,) sphere indices, grouped leaf by leaf
+
+    @property
+    def n_nodes(self) -> int:
+        """Length of the node arrays, 2^(D+1) (slot 0 unused)."""
+        return 2 << self.depth
+
+    @property
+    def first_leaf(self) -> int:
+        """Index of the leftmost leaf, 2^D."""
+        return 1 << self.depth
+
+    def spheres(self, node: int) -> np.ndarray:
+        """Sphere indices under ``node``."""
+        s = int(self.start[node])
+        return self.order[s:s + int(self.count[node])]
+
+
+def tree_depth(n: int, leaf_size: int) -> int:
+    """Smallest D with ceil(n / 2^D) <= leaf_size."""
+    d = 0
+    while -(-n // (1 << d)) > leaf_size:
+        d += 1
+    return d
+
+
+def build(centers, radii, leaf_size: int = 8, margin: float = 0.0,
+          axis: str = "longest") -> Tree:
+    """Build the tree over spheres ``centers`` (N,3) with ``radii`` (N,) or a scalar.
+
+    axis: 'longest' splits each node across the longest extent of its centres;
+    'cycle' splits at depth d across axis d % 3 (x, y, z, x, ...).
+    """
+    centers = np.asarray(centers, dtype=np.float64)
+    if centers.ndim != 2 or centers.shape[1] != 3:
+        raise ValueError(f"centers must be (N, 3), got {centers.shape}")
+    n = len(centers)
+    if radii is None:
+        raise ValueError("radii must be an array (N,) or a scalar, not None")
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
+    if n == 0:
+        raise UserError("cannot build a tree over zero points", fix="give at least one point")
+    if isinstance(leaf_size, bool) or not isinstance(leaf_size, (int, np.integer)) \
+            or leaf_size < 1:
+        raise UserError(f"leaf_size must be an integer >= 1, got {leaf_size!r}",
+                        fix="use e.g. leaf_size=8")
+    margin = float(margin)
+    if not np.isfinite(margin) or margin < 0:
+        raise UserError(f"margin must be finite and >= 0, got {margin}",
+                        fix="pass the blend's support width (>= 0)")
+    if axis not in AXES:
+        raise UserError(f"unknown split axis rule '{axis}'", fix=f"use one of: {', '.join(AXES)}")
+    if not (np.isfinite(centers).all() and np.isfinite(radii).all()) or (radii < 0).any():
+        raise UserError("sphere centres/radii must be finite and radii >= 0",
+                        fix="remove or repair NaN/Inf points and negative radii")
+
+    depth = tree_depth(n, int(leaf_size))
+    size = 2 << depth
+    start = np.zeros(size, dtype=np.int64)
+    count = np.zeros(size, dtype=np.int64)
+    start[1], count[1] = 0, n
+
+    # rank[a, k]: rank of the k-th point of ``order`` when all points are sorted
+    # along axis a (ties broken arbitrarily but distinctly, so coincident points
+    # still split exactly in half).  ``rank`` and ``pts`` are permuted along with
+    # ``order``, so each level reads them sequentially.
+    rank = np.empty((3, n), dtype=np.int64)
+    for a in range(3):
+        rank[a, np.argsort(centers[:, a])] = np.arange(n)
+    order = np.arange(n, dtype=np.int64)
+    pts = centers.copy()
+    for d in range(depth):
+        first = 1 << d
+        s, c = start[first:2 * first], count[first:2 * first]
+        node = np.repeat(np.arange(first, dtype=np.int64), c)   # level-local node per position
+        if axis == "cycle":
+            key = rank[d % 3]
+        else:
+            ax = _longest_axes(pts, s, c)[node]
+            key = np.where(ax == 0, rank[0], np.where(ax == 1, rank[1], rank[2]))
+        perm = np.argsort(node * n + key)
+        order = order[perm]
+        pts = np.take(pts, perm, axis=0)
+        rank = np.take(rank, perm, axis=1)
+        left = (c + 1) // 2
+        kids = np.arange(2 * first, 4 * first)
+        start[kids[0::2]], count[kids[0::2]] = s, left
+        start[kids[1::2]], count[kids[1::2]] = s + left, c - left
+
+    lo, hi = _bounds(pts, radii[order], start, count, depth, margin)
+    return Tree(lo=lo, hi=hi, start=start, count=count, depth=depth,
+                leaf_size=int(leaf_size), margin=margin, n_points=n, order=order)
+
+
+def _longest_axes(pts, s, c):
+    """Per node of one level: the axis of the largest extent of its centres
+    (``pts`` are the centres in ``order``; node k covers pts[s[k]:s[k]+c[k]])."""
+    axes = np.zeros(len(s), dtype=np.int64)
+    full = c > 0
+    if full.any():
+        idx = s[full]
+        ext = np.maximum.reduceat(pts, idx, axis=0) - np.minimum.reduceat(pts, idx, axis=0)
+        axes[full] = np.argmax(ext, axis=1)
+    return axes
+
+
+def _bounds(pts, rad, start, count, depth, margin):
+    """Leaf AABBs of (center +- radius) +- margin, then parents as unions."""
+    size = 2 << depth
+    lo = np.full((size, 3), np.inf)
+    hi = np.full((size, 3), -np.inf)
+    first = 1 << depth
+    leaves = np.arange(first, 2 * first)
+    full = leaves[count[leaves] > 0]
+    r = rad[:, None]
+    idx = start[full]
+    lo[full] = np.minimum.reduceat(pts - r, idx, axis=0) - margin
+    hi[full] = np.maximum.reduceat(pts + r, idx, axis=0) + margin
+    for d in range(depth - 1, -1, -1):           # parents are the union of children
+        p = np.arange(1 << d, 2 << d)
+        lo[p] = np.minimum(lo[2 * p], lo[2 * p + 1])
+        hi[p] = np.maximum(hi[2 * p], hi[2 * p + 1])
+    return lo, hi
+
+
+def check_invariants(tree: Tree, centers, radii) -> None:
+    """Raise AssertionError (with a message) if ``tree`` is not valid for the spheres."""
+    centers = np.asarray(centers, dtype=np.float64)
+    n = len(centers)
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
+    D, size, first = tree.depth, tree.n_nodes, tree.first_leaf
+    assert tree.n_points == n, f"n_points {tree.n_points} != {n} spheres"
+    assert size == 2 ** (D + 1) and first == 2 ** D, "heap sizes inconsistent with depth"
+    for name in ("lo", "hi"):
+        assert getattr(tree, name).shape == (size, 3), f"{name} shape != ({size}, 3)"
+    for name in ("start", "count"):
+        assert getattr(tree, name).shape == (size,), f"{name} shape != ({size},)"
+    assert D == tree_depth(n, tree.leaf_size), \
+        f"depth {D} is not the smallest with ceil(N/2^D) <= leaf_size"
+    assert tree.start[1] == 0 and tree.count[1] == n, "root does not cover all spheres"
+    assert tree.count[0] == 0, "node 0 must be unused"
+
+    order = np.asarray(tree.order)
+    assert order.shape == (n,), "order must hold one entry per sphere"
+    seen = np.bincount(order, minlength=n) if n else np.zeros(0, int)
+    assert len(seen) == n and (seen == 1).all(), "order is not a permutation: a sphere " \
+        "is in no leaf or in several"
+
+    parents = np.arange(1, first)
+    l, r = 2 * parents, 2 * parents + 1
+    assert (tree.start[l] == tree.start[parents]).all() and \
+        (tree.start[r] == tree.start[l] + tree.count[l]).all() and \
+        (tree.count[l] + tree.count[r] == tree.count[parents]).all(), \
+        "children's [start, count) do not partition the parent's"
+    leaves = np.arange(first, 2 * first)
+    lc = tree.count[leaves]
+    assert (lc >= 0).all() and (lc <= tree.leaf_size).all(), \
+        f"a leaf holds more than leaf_size={tree.leaf_size} spheres (max {lc.max()})"
+    assert (tree.start[leaves] == np.concatenate([[0], np.cumsum(lc)[:-1]])).all(), \
+        "leaf ranges are not contiguous"
+
+    empty = tree.count == 0
+    assert np.isposinf(tree.lo[empty]).all() and np.isneginf(tree.hi[empty]).all(), \
+        "empty nodes must have lo=+inf, hi=-inf"
+    full = parents[~empty[parents]]
+    for kid in (2 * full, 2 * full + 1):
+        ok = ~empty[kid]
+        k, p = kid[ok], kid[ok] // 2
+        assert (tree.lo[k] >= tree.lo[p]).all() and (tree.hi[k] <= tree.hi[p]).all(), \
+            "child bounds are not within the parent bounds"
+
+    # every node's bounds hold each of its spheres inflated by margin
+    leaf_of = np.repeat(leaves, lc)                 # leaf of each position in order
+    c, rr = centers[order], radii[order][:, None]
+    smin, smax = c - rr - tree.margin, c + rr + tree.margin
+    tol = 1e-12 * (np.abs(c) + rr + tree.margin + 1.0)
+    for d in range(D + 1):
+        node = leaf_of >> (D - d)
+        assert (tree.lo[node] <= smin + tol).all() and (tree.hi[node] >= smax - tol).all(), \
+            f"a node at depth {d} does not contain all its spheres (+margin)"
+
+
+def query_point(tree: Tree, x, radius: float) -> np.ndarray:
+    """Sorted indices of the spheres in leaves whose bounds lie within ``radius`` of x.
+
+    A numpy reference traversal (level by level, pruning nodes whose box is farther
+    than ``radius``); the kernels do the same walk per ray.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(3)
+    nodes = np.array([1])
+    for d in range(tree.depth + 1):
+        gap = np.maximum(np.maximum(tree.lo[nodes] - x, x - tree.hi[nodes]), 0.0)
+        nodes = nodes[np.einsum("ij,ij->i", gap, gap) <= radius * radius]
+        if d < tree.depth:
+            nodes = np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
+    if nodes.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    parts = [tree.order[tree.start[k]:tree.start[k] + tree.count[k]] for k in nodes]
+    return np.sort(np.concatenate(parts))
