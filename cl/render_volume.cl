@@ -15,6 +15,7 @@
 
 #define VR_T_CUTOFF 1e-5f          /* stop marching once the view transmittance is below */
 #define VR_SHADOW_TAU_STOP 25.0f   /* exp(-25) ~ 1e-11: light fully blocked */
+#define VR_MAX_LIGHTS 64u          /* lights.MAX_LIGHTS */
 
 #if VR_N_SUNS + VR_N_POINTS > 0
 /* Transmittance from local point p towards light `dl` (local per world unit) over
@@ -42,7 +43,8 @@ inline float3 vr_inscatter(const VrGrid* g, __constant VolumeParams* vp,
                            uint seed, uint pixel, uint s, uint step)
 {
     float3 sum = (float3)(0.0f);
-    uint dim = 16u + step * (uint)(VR_N_SUNS + VR_N_POINTS);
+    /* shadow jitter keyed by (step, light index): adding a light leaves the others' */
+    uint dim = 16u + step * VR_MAX_LIGHTS;
 #if VR_N_SUNS > 0
     for (int i = 0; i < VR_N_SUNS; ++i) {
         float3 d = lights[i].vec.xyz;                       /* propagation, world, unit */

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 import time
 import warnings
@@ -82,7 +83,7 @@ def build_parser():
     g.add_argument("--seed", type=int, default=0, help="random seed")
     g.add_argument("--background", type=floats(1, 3, "--background"), default=(0.0,),
                    metavar="R,G,B", help="radiance behind the volume (one value = grey)")
-    lg = r.add_argument_group("lights (default: one sun, direction -0.4,-1,-0.5, E=3)")
+    lg = r.add_argument_group("lights (default: one sun, direction -0.6,-1,-0.5, E=6)")
     lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=[],
                     metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
     lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
@@ -141,11 +142,10 @@ def cmd_render(args):
     if src.suffix.lower() not in VOLUME_SUFFIXES:
         raise UserError(f"unsupported input type {src.suffix or '(none)'!r}", path=src,
                         fix="give a .vdb or .npz volume")
-    if "transmittance" in args.aov or "depth" in args.aov:
-        aovs = tuple(dict.fromkeys(args.aov))
-    else:
-        aovs = ()
+    aovs = tuple(dict.fromkeys(args.aov))
     out_path = image.check_output(args.output, aovs)
+    if not 0.0 < args.fov < 180.0:
+        raise UserError(f"--fov must be in (0, 180) degrees, got {args.fov}")
 
     bg = args.background * 3 if len(args.background) == 1 else args.background
     phase = (args.phase[0], 0.0, 1.0) if len(args.phase) == 1 else args.phase
@@ -251,13 +251,35 @@ def _warn_one_line(message, category, filename, lineno, file=None, line=None):
     print(f"volrender: warning: {message}", file=sys.stderr)
 
 
+_NUMBER = re.compile(r"^-[0-9.]")
+
+
+def join_negative_values(argv):
+    """`--sun -1,-1,0,3` -> `--sun=-1,-1,0,3`: argparse would read '-1,...' as an option."""
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a.startswith("--") and "=" not in a and i + 1 < len(argv) and _NUMBER.match(argv[i + 1]):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(a)
+            i += 1
+    return out
+
+
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="volrender: %(message)s")
-    if not args.debug:
-        warnings.showwarning = _warn_one_line
+    with warnings.catch_warnings():
+        if not args.debug:
+            warnings.showwarning = _warn_one_line
+        return _run(args)
+
+
+def _run(args) -> int:
     try:
         return COMMANDS[args.command](args)
     except UserError as exc:

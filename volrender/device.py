@@ -99,6 +99,13 @@ class Device:
         """Build cl/<entry>.cl with -D flags; cached per (sources, flags, device)."""
         return self.build((cl_dir() / f"{entry}.cl").read_text(), flags, f"cl/{entry}.cl")
 
+    def kernel(self, entry: str, flags: dict[str, int], name: str | None = None):
+        """A kernel object of cl/<entry>.cl, kept for repeated launches."""
+        key = ("kernel", entry, tuple(sorted(flags.items())), name)
+        if key not in self._programs:
+            self._programs[key] = _cl().Kernel(self.program(entry, flags), name or entry)
+        return self._programs[key]
+
     def build(self, source: str, flags: dict[str, int] | None = None, what: str = "program"):
         """Build OpenCL source with cl/ on the include path and -D flags, cached per
         (source and headers, flags, device)."""

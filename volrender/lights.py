@@ -40,8 +40,10 @@ class PointLight:
             raise UserError(f"point light intensity must be finite and >= 0, got {self.intensity}")
 
 
-# Used when the user gives no light: from above, behind the viewer's left shoulder.
-DEFAULT_LIGHTS = (Sun((-0.4, -1.0, -0.5), 3.0),)
+MAX_LIGHTS = 64    # cl/render_volume.cl: VR_MAX_LIGHTS
+
+# Used when the user gives no light: from above, over the viewer's left shoulder.
+DEFAULT_LIGHTS = (Sun((-0.6, -1.0, -0.5), 6.0),)
 
 
 def counts(lights) -> tuple[int, int]:
@@ -53,6 +55,8 @@ def pack(lights, world_to_frame=None):
     empty (a zero record stands in when there are no lights)."""
     m = np.eye(4) if world_to_frame is None else np.asarray(world_to_frame, np.float64)
     ordered = [l for l in lights if isinstance(l, Sun)] + [l for l in lights if isinstance(l, PointLight)]
+    if len(ordered) > MAX_LIGHTS:
+        raise UserError(f"at most {MAX_LIGHTS} lights are supported, got {len(ordered)}")
     out = layout.record("Light", max(1, len(ordered)))
     for i, light in enumerate(ordered):
         if isinstance(light, Sun):

@@ -87,7 +87,7 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     features = VolumeFeatures(n_suns=n_suns, n_points=n_points, shadows=settings.shadows,
                               phase_mixed=settings.phase[2] < 1.0, skip_empty=settings.skip_empty,
                               emission=bricks.emission is not None, depth=settings.depth)
-    prg = device.program("render_volume", features.flags())
+    kernel = device.kernel("render_volume", features.flags())
 
     l2w = np.asarray(bricks.local_to_world, np.float64)
     w2l = np.linalg.inv(l2w)
@@ -128,7 +128,6 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     d_depth = cl.Buffer(ctx, mf.WRITE_ONLY, depth.nbytes)
 
-    kernel = prg.render_volume
     chunks = _chunks(W, H)
     bar = Progress(len(chunks), "render", progress)
     t_start = time.perf_counter()

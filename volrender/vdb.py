@@ -1,0 +1,672 @@
+"""OpenVDB grids -> sparse brick layout (+ .npz cache).
+
+Layout (the volume kernel depends on it):
+  * local index coordinate p (float) <-> VDB index coordinate origin + p;
+    voxel centres sit at integer coordinates.
+  * the local box [0, dims*BRICK] is cut into bricks of BRICK^3 cells; each stored
+    brick holds APRON^3 = (BRICK+1)^3 values (one extra voxel on the + side), so a
+    trilinear lookup anywhere in a brick's cells reads that brick only.
+  * table[(bx*dims[1] + by)*dims[2] + bz] = slot, or -1 for an all-zero brick.
+  * data[slot, i, j, k] = value of local voxel (bx*8+i, by*8+j, bz*8+k).
+  * majorant[slot] = data[slot].max() (bounds the interpolated density in the brick).
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import struct
+import tempfile
+import warnings
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+
+BRICK = 8
+APRON = BRICK + 1
+NPZ_FORMAT = "volrender-bricks"
+NPZ_VERSION = 1
+MAX_BRICKS = 1 << 27          # table entries (512 MB of int32); more is refused
+VDB_MAGIC = 0x56444220
+_NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
+
+
+# --------------------------------------------------------------------------- OpenVDB
+
+def import_openvdb():
+    """Return the OpenVDB Python module (pyopenvdb, or openvdb from OpenVDB >= 12)."""
+    reasons = []
+    for name in ("pyopenvdb", "openvdb"):
+        try:
+            return importlib.import_module(name)
+        except Exception as e:  # a broken binding can raise more than ImportError
+            reasons.append(f"{name}: {e}".replace("\n", " "))
+    raise UserError("OpenVDB's Python binding is not available (" + "; ".join(reasons) + ")",
+                    fix="run `bash run.sh setup` (installs Debian's python3-openvdb), "
+                        "or use a .npz brick cache converted elsewhere")
+
+
+@dataclass(frozen=True)
+class GridInfo:
+    name: str
+    value_type: str            # 'float', 'vec3s', 'int32', 'double', 'ptdataidx32', ...
+    grid_class: str            # 'fog volume', 'level set', 'staggered' or 'unknown'
+    active_voxels: int | None = None
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.value_type}, {self.grid_class})"
+
+
+class _Corrupt(Exception):
+    pass
+
+
+class _Reader:
+    def __init__(self, f, size):
+        self.f, self.size = f, size
+
+    def read(self, n):
+        b = self.f.read(n)
+        if len(b) != n:
+            raise _Corrupt("unexpected end of file")
+        return b
+
+    def unpack(self, fmt):
+        v = struct.unpack("<" + fmt, self.read(struct.calcsize("<" + fmt)))
+        return v[0] if len(v) == 1 else v
+
+    def string(self):
+        n = self.unpack("I")
+        if n > self.size - self.f.tell():
+            raise _Corrupt(f"string of {n} bytes runs past the end of the file")
+        return self.read(n).decode("utf-8", "replace")
+
+
+def _read_metamap(r: _Reader) -> dict:
+    """MetaMap: count, then (name, type name, uint32 size, value bytes) each."""
+    meta = {}
+    for _ in range(r.unpack("I")):
+        name, type_name = r.string(), r.string()
+        n = r.unpack("I")
+        if n > r.size - r.f.tell():
+            raise _Corrupt(f"metadata {name!r} runs past the end of the file")
+        raw = r.read(n)
+        if type_name == "string":
+            meta[name] = raw.decode("utf-8", "replace")
+        elif type_name in ("int32", "int64") and n in (4, 8):
+            meta[name] = struct.unpack("<i" if n == 4 else "<q", raw)[0]
+    return meta
+
+
+def _value_type(tree_type: str) -> str:
+    """'Tree_float_5_4_3' -> 'float'."""
+    m = re.fullmatch(r"Tree_(.+?)((?:_\d+)+)", tree_type)
+    return m.group(1) if m else tree_type
+
+
+def _parse_vdb(path: Path) -> list[GridInfo] | None:
+    """Grid descriptors straight from the file; None when only OpenVDB can tell."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        r = _Reader(f, size)
+        if size < 8 or r.unpack("q") != VDB_MAGIC:
+            raise UserError("not an OpenVDB file (bad magic number)", path=path,
+                            fix="give a .vdb written by OpenVDB, Houdini, Blender or EmberGen")
+        try:
+            version = r.unpack("I")
+            if version < 222:              # older headers vary; let OpenVDB read them
+                return None
+            r.unpack("II")                 # library major, minor
+            has_offsets = r.read(1) != b"\0"
+            r.read(36)                     # UUID as text
+            _read_metamap(r)               # file metadata
+            if not has_offsets:
+                return None
+            count = r.unpack("i")
+            if count < 0:
+                raise _Corrupt("negative grid count")
+            grids = []
+            for _ in range(count):
+                name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
+                tree = r.string().removesuffix("_HalfFloat")
+                r.string()                 # instance parent
+                grid_pos, _block_pos, end_pos = r.unpack("qqq")
+                if not 0 < grid_pos <= end_pos <= size:
+                    raise _Corrupt(f"grid {name!r} ends past the end of the file")
+                f.seek(grid_pos)
+                r.unpack("I")              # per-grid compression flags
+                meta = _read_metamap(r)
+                grids.append(GridInfo(name, _value_type(tree), meta.get("class", "unknown"),
+                                      meta.get("file_voxel_count")))
+                f.seek(end_pos)
+            return grids
+        except (_Corrupt, struct.error, UnicodeError) as e:
+            raise UserError(f"truncated or corrupt OpenVDB file ({e})", path=path,
+                            fix="re-export or re-download it") from None
+
+
+def _check_file(path) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise UserError("no such file", path=p, fix="check the path")
+    if p.is_dir():
+        raise UserError("is a directory, not a volume file", path=p, fix="give a .vdb or .npz file")
+    return p
+
+
+def list_grids(path) -> list[GridInfo]:
+    """Every grid in a .vdb file, in file order (works where readAllGridMetadata fails)."""
+    p = _check_file(path)
+    grids = _parse_vdb(p)
+    if grids is not None:
+        return grids
+    vdb = import_openvdb()
+    try:
+        return [GridInfo(g.name, g.valueTypeName, g.gridClass, g.metadata.get("file_voxel_count"))
+                for g in vdb.readAllGridMetadata(str(p))]
+    except Exception as e:
+        raise UserError(f"cannot list its grids ({_one_line(e)})", path=p,
+                        fix="re-save it with a current OpenVDB") from None
+
+
+def _one_line(e: Exception) -> str:
+    return f"{type(e).__name__}: {e}".replace("\n", " ").strip()
+
+
+def _listing(grids) -> str:
+    return "available grids: " + ", ".join(g.describe() for g in grids)
+
+
+def _pick(path, grids, name, default=False) -> GridInfo:
+    if name is None and default:
+        names = [g.name for g in grids]
+        if "density" in names:
+            name = "density"
+        else:
+            fog = [g for g in grids if g.value_type == "float" and g.grid_class == "fog volume"]
+            if len(fog) != 1:
+                raise UserError(f"no grid named 'density' and {len(fog)} float fog-volume grids "
+                                "to choose from", path=path,
+                                fix=f"choose one by name (--grid NAME); {_listing(grids)}")
+            name = fog[0].name
+    same = [g for g in grids if g.name == name]
+    if not same:
+        raise UserError(f"no grid named {name!r}", path=path, fix=_listing(grids))
+    if len(same) > 1:
+        warnings.warn(f"{path}: {len(same)} grids are named {name!r}; using the first in the file",
+                      stacklevel=3)
+    _check_kind(path, same[0], grids)
+    return same[0]
+
+
+def _check_kind(path, g: GridInfo, grids):
+    vt, what = g.value_type, f"grid {g.name!r}"
+    fog = [x.name for x in grids if x.value_type == "float" and x.grid_class == "fog volume"]
+    fix = ("choose a float fog-volume grid: " + ", ".join(dict.fromkeys(fog))) if fog \
+        else "this file has no float fog-volume grid; " + _listing(grids)
+    if vt == "double":
+        raise UserError(f"{what} is a double-precision grid, which OpenVDB's Python binding "
+                        "cannot read", path=path,
+                        fix="re-save it as a float grid (e.g. Houdini's VDB Convert SOP)")
+    if vt.startswith("ptdata") or vt.startswith("ptidx"):
+        raise UserError(f"{what} is a point data grid (particles), not a voxel volume",
+                        path=path, fix=fix)
+    if vt.startswith("vec"):
+        raise UserError(f"{what} holds vectors ({vt}), not a scalar density", path=path, fix=fix)
+    if vt != "float":
+        raise UserError(f"{what} holds {vt} values, not float densities", path=path, fix=fix)
+    if g.grid_class == "level set":
+        raise UserError(f"{what} is a level set (a signed distance field to a surface), "
+                        "not a density", path=path,
+                        fix="convert it to a fog volume (OpenVDB's sdfToFogVolume), or " + fix)
+
+
+def _index_to_world(transform) -> np.ndarray:
+    t = np.array(transform.indexToWorld((0.0, 0.0, 0.0)), np.float64)
+    m = np.eye(4)
+    m[:3, 3] = t
+    for c in range(3):
+        e = [0.0, 0.0, 0.0]
+        e[c] = 1.0
+        m[:3, c] = np.array(transform.indexToWorld(tuple(e)), np.float64) - t
+    return m
+
+
+def _read_grid(vdb, path: Path, info: GridInfo):
+    """One grid by name -> (grid, index_to_world, (lo, hi) active bbox or None)."""
+    try:
+        grid = vdb.read(str(path), info.name)
+    except Exception as e:
+        raise UserError(f"cannot read grid {info.name!r} ({_one_line(e)})", path=path,
+                        fix="the file may be truncated or corrupt; re-export it") from None
+    vt = getattr(grid, "valueTypeName", info.value_type)
+    if vt != info.value_type:
+        _check_kind(path, GridInfo(info.name, vt, info.grid_class), [info])
+    if not grid.transform.isLinear:
+        raise UserError(f"grid {info.name!r} has a non-linear (frustum) transform, which is "
+                        "unsupported", path=path,
+                        fix="resample it onto a linear transform (e.g. Houdini's VDB Resample)")
+    bg = float(grid.background)
+    if bg != 0.0:
+        warnings.warn(f"{path}: grid {info.name!r} has background {bg}; space outside its "
+                      "active voxels is treated as 0", stacklevel=3)
+    lo, hi = (np.array(v, np.int64) for v in grid.evalActiveVoxelBoundingBox())
+    box = None if np.any(lo > hi) else (lo, hi)
+    return grid, _index_to_world(grid.transform), box
+
+
+def _vdb_source(grid, box):
+    """(read, is_zero) over VDB index boxes; is_zero skips regions of zero tiles.
+
+    Inside the active box inactive voxels read as the background; outside it, as 0.
+    """
+    acc = grid.getConstAccessor()
+
+    def read(lo, shape):
+        a = np.zeros(tuple(int(s) for s in shape), np.float32)
+        grid.copyToArray(a, ijk=tuple(int(v) for v in lo))
+        for d in range(3):
+            cut = [slice(None)] * 3
+            cut[d] = slice(0, max(int(box[0][d] - lo[d]), 0))
+            a[tuple(cut)] = 0
+            cut[d] = slice(max(int(box[1][d] - lo[d] + 1), 0), None)
+            a[tuple(cut)] = 0
+        return a
+
+    def is_zero(lo, hi):
+        ranges = [range(int(a) // _NODE, int(b) // _NODE + 1) for a, b in zip(lo, hi)]
+        for bx in ranges[0]:
+            for by in ranges[1]:
+                for bz in ranges[2]:
+                    p = tuple(max(int(b) * _NODE, int(a)) for b, a in zip((bx, by, bz), lo))
+                    # depth <= 1: the whole 128^3 node is one tile (or background)
+                    if acc.getValueDepth(p) > 1 or acc.getValue(p) != 0:
+                        return False
+        return True
+
+    return read, is_zero
+
+
+def _dense_source(values: np.ndarray, origin: np.ndarray):
+    shape = np.array(values.shape)
+
+    def read(lo, size):
+        out = np.zeros(tuple(int(s) for s in size), np.float32)
+        a = np.asarray(lo) - origin
+        s, e = np.maximum(a, 0), np.minimum(a + size, shape)
+        if np.all(e > s):
+            out[tuple(slice(i - j, k - j) for i, j, k in zip(s, a, e))] = \
+                values[tuple(slice(i, k) for i, k in zip(s, e))]
+        return out
+
+    return read, (lambda lo, hi: False)
+
+
+def _zero_source():
+    return (lambda lo, shape: np.zeros(tuple(int(s) for s in shape), np.float32)), \
+           (lambda lo, hi: True)
+
+
+# --------------------------------------------------------------------------- layout
+
+def _layout(lo, hi):
+    """Brick origin and dims for an inclusive active box: one zero voxel on each side."""
+    origin = np.asarray(lo, np.int64) - 1
+    dims = (np.asarray(hi, np.int64) - lo + 2 + BRICK - 1) // BRICK
+    return origin, dims.astype(np.int32)
+
+
+def _brick_view(a, nb):
+    s = np.array(a.strides)
+    return np.lib.stride_tricks.as_strided(a, shape=(*nb, APRON, APRON, APRON),
+                                           strides=(*(s * BRICK), *s), writeable=False)
+
+
+def _sanitise(a, own, stats):
+    """Non-finite and negative values -> 0, counted inside the chunk's own voxels."""
+    bad = ~np.isfinite(a)
+    if bad.any():
+        stats[0] += int(bad[own].sum())
+        a[bad] = 0
+    neg = a < 0
+    if neg.any():
+        stats[1] += int(neg[own].sum())
+        a[neg] = 0
+
+
+def _build(label, sources, lo, hi, chunk=16, progress=None):
+    """Bricks from (read, is_zero) sources (density, then emission) over box lo..hi.
+
+    Works chunk^3 bricks at a time, so memory holds one chunk plus the kept bricks.
+    """
+    origin, dims = _layout(lo, hi)
+    if int(np.prod(dims.astype(np.int64))) > MAX_BRICKS:
+        raise UserError(f"the active region ({hi - lo + 1} voxels) needs more than {MAX_BRICKS} "
+                        "bricks", path=label, fix="crop or resample the grid")
+    box_lo, box_hi = lo - origin, hi - origin + 1          # local, half-open
+    stats = [[0, 0] for _ in sources]
+    vmin, vmax = np.inf, -np.inf
+    idx_parts, parts = [], [[] for _ in sources]
+    n_chunks = -(-dims // chunk)
+    total = int(np.prod(n_chunks))
+    for done, c in enumerate(np.ndindex(*n_chunks.tolist())):
+        if progress is not None and done:
+            progress(done / total)
+        b0 = np.array(c) * chunk
+        nb = np.minimum(chunk, dims - b0)
+        v0 = b0 * BRICK
+        shape = nb * BRICK + 1
+        start = origin + v0
+        zero = [is_zero(start, start + shape - 1) for _, is_zero in sources]
+        # the voxels this chunk owns (the + apron belongs to the next chunk) and, of
+        # those, the ones inside the active box
+        own = tuple(slice(0, int(n * BRICK + (b + n == d))) for n, b, d in zip(nb, b0, dims))
+        sub = tuple(slice(int(max(a - v, 0)), int(max(min(b - v, o.stop), 0)))
+                    for a, b, v, o in zip(box_lo, box_hi, v0, own))
+        in_box = all(s.stop > s.start for s in sub)
+        if all(zero):
+            if in_box:
+                vmin, vmax = min(vmin, 0.0), max(vmax, 0.0)
+            continue
+        arrays = [np.zeros(tuple(shape), np.float32) if z else read(start, shape)
+                  for (read, _), z in zip(sources, zero)]
+        mask = np.zeros(tuple(nb), bool)
+        for a, st in zip(arrays, stats):
+            _sanitise(a, own, st)
+            mask |= _brick_view(a, nb).any(axis=(3, 4, 5))
+        if in_box:
+            vmin = min(vmin, float(arrays[0][sub].min()))
+            vmax = max(vmax, float(arrays[0][sub].max()))
+        if mask.any():
+            b = b0 + np.argwhere(mask)
+            idx_parts.append((b[:, 0] * dims[1] + b[:, 1]) * np.int64(dims[2]) + b[:, 2])
+            for a, part in zip(arrays, parts):
+                part.append(_brick_view(a, nb)[mask])
+    if progress is not None:
+        progress(1.0)
+    idx = np.concatenate(idx_parts) if idx_parts else np.zeros(0, np.int64)
+    order = np.argsort(idx, kind="stable")
+    table = np.full(int(np.prod(dims.astype(np.int64))), -1, np.int32)
+    table[idx[order]] = np.arange(len(idx), dtype=np.int32)
+    out = []
+    for p in parts:                # free each chunk's pieces before the sorted copy
+        a = np.concatenate(p) if p else np.zeros((0,) + (APRON,) * 3, np.float32)
+        p.clear()
+        out.append(a[order])
+        del a
+    return origin, dims, table, out, stats, (float(vmin), float(vmax))
+
+
+def _warn_sanitised(label, name, stats):
+    bad, neg = stats
+    if bad:
+        warnings.warn(f"{label}: grid {name!r} has {bad} NaN/Inf voxels; replaced by 0",
+                      stacklevel=3)
+    if neg:
+        warnings.warn(f"{label}: grid {name!r} has {neg} negative voxels; clamped to 0 "
+                      "(a density cannot be negative)", stacklevel=3)
+
+
+def _max_per_slot(data):
+    return data.reshape(len(data), -1).max(axis=1) if len(data) else np.zeros(0, np.float32)
+
+
+@dataclass(eq=False)
+class Bricks:
+    """A scalar grid (and optional emission grid) as sparse bricks; see the module doc."""
+    origin: np.ndarray             # int64 (3,): VDB index of local voxel (0,0,0)
+    dims: np.ndarray               # int32 (3,): bricks per axis
+    table: np.ndarray              # int32 (prod(dims),): slot or -1
+    data: np.ndarray               # float32 (n, 9, 9, 9)
+    majorant: np.ndarray           # float32 (n,)
+    index_to_world: np.ndarray     # float64 (4, 4): world = M @ [i, j, k, 1]
+    emission: np.ndarray | None = None
+    emission_max: np.ndarray | None = None
+    grid_name: str = "density"
+    emission_grid_name: str | None = None
+    source: str = ""
+    background: float = 0.0
+    value_range: tuple = (0.0, 0.0)   # density min/max over the active box, sanitised
+    active_voxels: int = 0
+
+    @property
+    def n_slots(self) -> int:
+        return len(self.data)
+
+    @property
+    def local_to_world(self) -> np.ndarray:
+        t = np.eye(4)
+        t[:3, 3] = self.origin
+        return self.index_to_world @ t
+
+    @property
+    def voxel_size(self) -> float:
+        return float(np.cbrt(abs(np.linalg.det(self.index_to_world[:3, :3]))))
+
+    def world_bounds(self):
+        ext = self.dims.astype(np.float64) * BRICK
+        corners = np.array([[x, y, z, 1.0] for x in (0, ext[0])
+                            for y in (0, ext[1]) for z in (0, ext[2])])
+        w = (self.local_to_world @ corners.T)[:3].T
+        return w.min(axis=0), w.max(axis=0)
+
+    def sample_local(self, p, emission=False) -> np.ndarray:
+        """Trilinear value at local index coordinates p (N, 3); 0 outside the layout."""
+        vals = self.emission if emission else self.data
+        p = np.asarray(p, np.float64).reshape(-1, 3)
+        out = np.zeros(len(p))
+        ext = self.dims * BRICK
+        inside = np.all((p >= 0) & (p <= ext), axis=1)
+        q = p[inside]
+        b = np.clip(np.floor(q / BRICK).astype(np.int64), 0, self.dims - 1)
+        f = q - b * BRICK
+        i0 = np.clip(np.floor(f).astype(np.int64), 0, BRICK - 1)
+        t = f - i0
+        slot = self.table[(b[:, 0] * self.dims[1] + b[:, 1]) * self.dims[2] + b[:, 2]]
+        ok = slot >= 0
+        s, i0, t = slot[ok], i0[ok], t[ok]
+        acc = np.zeros(len(s))
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    w = ((t[:, 0] if dx else 1 - t[:, 0]) * (t[:, 1] if dy else 1 - t[:, 1])
+                         * (t[:, 2] if dz else 1 - t[:, 2]))
+                    acc += w * vals[s, i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz]
+        res = np.zeros(len(q))
+        res[ok] = acc
+        out[inside] = res
+        return out
+
+    def sample_world(self, x, emission=False) -> np.ndarray:
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        m = np.linalg.inv(self.local_to_world)
+        return self.sample_local(x @ m[:3, :3].T + m[:3, 3], emission)
+
+    @classmethod
+    def from_dense(cls, values, index_to_world=None, origin=(0, 0, 0), emission=None,
+                   name="density", chunk=16) -> "Bricks":
+        """Bricks from a dense array: values[i, j, k] is VDB index origin + (i, j, k)."""
+        values = np.asarray(values, np.float32)
+        if values.ndim != 3 or values.size == 0:
+            raise ValueError(f"from_dense needs a non-empty 3-D array, got shape {values.shape}")
+        origin = np.asarray(origin, np.int64).reshape(3)
+        sources = [_dense_source(values, origin)]
+        if emission is not None:
+            emission = np.asarray(emission, np.float32)
+            if emission.shape != values.shape:
+                raise ValueError(f"emission shape {emission.shape} != density {values.shape}")
+            sources.append(_dense_source(emission, origin))
+        hi = origin + np.array(values.shape) - 1
+        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk)
+        _warn_sanitised("<dense>", name, stats[0])
+        m = np.eye(4) if index_to_world is None else np.asarray(index_to_world, np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"index_to_world must be 4x4, got shape {m.shape}")
+        b = cls(lo_, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=name,
+                source="<dense>", value_range=vrange,
+                active_voxels=int(np.count_nonzero(values)))
+        if emission is not None:
+            _warn_sanitised("<dense>", "emission", stats[1])
+            b.emission, b.emission_max = out[1], _max_per_slot(out[1])
+            b.emission_grid_name = "emission"
+        return b
+
+    def save_npz(self, path):
+        """Write a brick cache atomically (temporary file, then rename)."""
+        path = Path(path)
+        arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(NPZ_VERSION),
+                      origin=self.origin, dims=self.dims, table=self.table, data=self.data,
+                      majorant=self.majorant, index_to_world=self.index_to_world,
+                      grid_name=np.array(self.grid_name), source=np.array(self.source),
+                      background=np.array(self.background, np.float64),
+                      value_range=np.array(self.value_range, np.float64),
+                      active_voxels=np.array(self.active_voxels, np.int64))
+        if self.emission is not None:
+            arrays.update(emission=self.emission, emission_max=self.emission_max,
+                          emission_grid_name=np.array(self.emission_grid_name or ""))
+        try:
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        except OSError as e:
+            raise UserError(f"cannot write ({e.strerror})", path=path,
+                            fix="check that the folder exists and is writable") from None
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+
+
+def load_npz(path) -> Bricks:
+    """Read a brick cache written by Bricks.save_npz, validating it."""
+    p = _check_file(path)
+    fix = "convert the .vdb again (volrender convert)"
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise UserError(f"not a readable .npz file ({_one_line(e)})", path=p, fix=fix) from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
+    with z:
+        try:
+            if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
+                raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
+            if int(z["version"]) != NPZ_VERSION:
+                raise UserError(f"brick cache version {int(z['version'])} is not supported "
+                                f"(this volrender reads {NPZ_VERSION})", path=p, fix=fix)
+            b = Bricks(origin=z["origin"], dims=z["dims"], table=z["table"], data=z["data"],
+                       majorant=z["majorant"], index_to_world=z["index_to_world"],
+                       grid_name=str(z["grid_name"]), source=str(z["source"]),
+                       background=float(z["background"]),
+                       value_range=tuple(float(v) for v in z["value_range"]),
+                       active_voxels=int(z["active_voxels"]))
+            if "emission" in z.files:
+                b.emission, b.emission_max = z["emission"], z["emission_max"]
+                b.emission_grid_name = str(z["emission_grid_name"])
+            problem = _validate(b)
+        except (KeyError, ValueError, TypeError, OSError, zipfile.BadZipFile) as e:
+            raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
+    if problem:
+        raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
+    return b
+
+
+def _validate(b: Bricks) -> str | None:
+    """Problem with a loaded cache, or None. Casts to the layout's dtypes."""
+    checks = [(b.origin, "iu", (3,)), (b.dims, "iu", (3,)), (b.index_to_world, "f", (4, 4)),
+              (b.table, "iu", None), (b.data, "f", None), (b.majorant, "f", None)]
+    for a, kinds, shape in checks:
+        if a.dtype.kind not in kinds or (shape and a.shape != shape):
+            return f"array of dtype {a.dtype} and shape {a.shape} where {kinds!r} {shape} expected"
+    n = len(b.data)
+    if np.any(b.dims <= 0) or b.table.shape != (int(np.prod(b.dims.astype(np.int64))),):
+        return "table does not match dims"
+    if b.data.shape != (n, APRON, APRON, APRON) or b.majorant.shape != (n,):
+        return f"data shape {b.data.shape} is not (n, {APRON}, {APRON}, {APRON})"
+    if len(b.table) and (b.table.min() < -1 or b.table.max() >= n):
+        return "table points past the data"
+    if not np.all(np.isfinite(b.index_to_world)) or np.linalg.det(b.index_to_world[:3, :3]) == 0:
+        return "index_to_world is not an invertible affine matrix"
+    if b.emission is not None and (b.emission.shape != b.data.shape
+                                   or b.emission_max.shape != (n,)):
+        return "emission does not match data"
+    b.origin, b.dims = b.origin.astype(np.int64), b.dims.astype(np.int32)
+    b.table, b.data = b.table.astype(np.int32), b.data.astype(np.float32)
+    b.majorant = b.majorant.astype(np.float32)
+    if b.emission is not None:
+        b.emission = b.emission.astype(np.float32)
+        b.emission_max = b.emission_max.astype(np.float32)
+    return None
+
+
+# --------------------------------------------------------------------------- loading
+
+def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16) -> Bricks:
+    """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time."""
+    p = _check_file(path)
+    grids = list_grids(p)
+    info = _pick(p, grids, grid, default=True)
+    einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
+    vdb = import_openvdb()
+    g, m, box = _read_grid(vdb, p, info)
+    if box is None:
+        raise UserError(f"grid {info.name!r} is empty (0 active voxels)", path=p,
+                        fix="nothing to render; choose another grid or frame; " + _listing(grids))
+    lo, hi = box
+    sources = [_vdb_source(g, box)]
+    if einfo is not None:
+        eg, em, ebox = (g, m, box) if einfo.name == info.name else _read_grid(vdb, p, einfo)
+        if not np.allclose(em, m, rtol=1e-6, atol=1e-6 * _cbrt_det(m)):
+            raise UserError(f"emission grid {einfo.name!r} has a different transform from "
+                            f"{info.name!r}, which is unsupported", path=p,
+                            fix="resample it onto the density grid's transform")
+        if ebox is None:
+            warnings.warn(f"{p}: emission grid {einfo.name!r} is empty; it adds no light",
+                          stacklevel=2)
+            sources.append(_zero_source())
+        else:
+            lo, hi = np.minimum(lo, ebox[0]), np.maximum(hi, ebox[1])
+            sources.append(_vdb_source(eg, ebox))
+    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress)
+    _warn_sanitised(p, info.name, stats[0])
+    if len(out[0]) == 0:
+        warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
+                      stacklevel=2)
+    b = Bricks(origin, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=info.name,
+               source=str(p), background=float(g.background), value_range=vrange,
+               active_voxels=int(g.activeVoxelCount()))
+    if einfo is not None:
+        _warn_sanitised(p, einfo.name, stats[1])
+        b.emission, b.emission_max = out[1], _max_per_slot(out[1])
+        b.emission_grid_name = einfo.name
+    return b
+
+
+def _cbrt_det(m):
+    return float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
+
+
+def load_volume(path, grid=None, emission_grid=None) -> Bricks:
+    """A .vdb grid or a .npz brick cache, by file suffix."""
+    p = _check_file(path)
+    suffix = p.suffix.lower()
+    if suffix == ".vdb":
+        return load_bricks(p, grid, emission_grid)
+    if suffix == ".npz":
+        b = load_npz(p)
+        if grid is not None and grid != b.grid_name:
+            raise UserError(f"this brick cache holds grid {b.grid_name!r}, not {grid!r}",
+                            path=p, fix=f"convert the .vdb again with grid {grid!r}")
+        if emission_grid is not None and emission_grid != b.emission_grid_name:
+            have = f"emission grid {b.emission_grid_name!r}" if b.emission is not None \
+                else "no emission grid"
+            raise UserError(f"this brick cache has {have}, not {emission_grid!r}", path=p,
+                            fix=f"convert the .vdb again with emission grid {emission_grid!r}")
+        return b
+    raise UserError(f"unsupported volume file type {suffix or '(no suffix)'!r}", path=p,
+                    fix="give an OpenVDB .vdb file or a .npz brick cache")
