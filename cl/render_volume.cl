@@ -103,18 +103,22 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             if (t >= t1 || T < VR_T_CUTOFF)
                 break;
             float3 p = o + t * d;
+            float3 cf = floor(p);
+            int3 c = convert_int3(cf);
+            int slot = vr_brick_slot(&g, c);
+            if (slot < 0) {            /* empty brick: density and emission are zero */
 #if VR_SKIP_EMPTY
-            if (vr_brick_slot(&g, convert_int3(floor(p))) < 0) {
                 float te = vr_brick_exit(o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
+#endif
                 continue;
             }
-#endif
-            float sigma_t = vp->density_scale * vr_lookup(&g, data, p);
+            float3 f = p - cf;
+            float sigma_t = vp->density_scale * vr_trilinear(data, slot, c, f);
             float tau = sigma_t * dt;
             float a = 1.0f - vr_transmit(tau);              /* opacity of this step */
 #if VR_EMISSION
-            float e = vr_lookup(&g, emission, p);
+            float e = vr_trilinear(emission, slot, c, f);
             if (e > 0.0f) {
                 /* integral of T(s) over the step, per unit emission: (1-e^-tau)/sigma_t */
                 float len = tau > 1e-4f ? a / sigma_t : dt;

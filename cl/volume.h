@@ -23,20 +23,23 @@ inline int vr_brick_slot(const VrGrid* g, int3 c)
     return g->table[(b.x * g->dims.y + b.y) * g->dims.z + b.z];
 }
 
+/* Trilinear value of brick `slot` at cell c with fractional offset f. */
+inline float vr_trilinear(__global const float* data, int slot, int3 c, float3 f)
+{
+    int3 l = c & (VR_BRICK - 1);
+    __global const float* v = data + slot * VR_BRICK_VALUES + (l.x * 9 + l.y) * 9 + l.z;
+    float c00 = mix(v[0],   v[1],   f.z), c01 = mix(v[9],  v[10], f.z);
+    float c10 = mix(v[81],  v[82],  f.z), c11 = mix(v[90], v[91], f.z);
+    return mix(mix(c00, c01, f.y), mix(c10, c11, f.y), f.x);
+}
+
 /* Trilinear value of the brick data at local point p (0 outside the layout). */
 inline float vr_lookup(const VrGrid* g, __global const float* data, float3 p)
 {
     float3 cf = floor(p);
     int3 c = convert_int3(cf);
     int slot = vr_brick_slot(g, c);
-    if (slot < 0)
-        return 0.0f;
-    float3 f = p - cf;
-    int3 l = c & (VR_BRICK - 1);
-    __global const float* v = data + slot * VR_BRICK_VALUES + (l.x * 9 + l.y) * 9 + l.z;
-    float c00 = mix(v[0],   v[1],   f.z), c01 = mix(v[9],  v[10], f.z);
-    float c10 = mix(v[81],  v[82],  f.z), c11 = mix(v[90], v[91], f.z);
-    return mix(mix(c00, c01, f.y), mix(c10, c11, f.y), f.x);
+    return slot < 0 ? 0.0f : vr_trilinear(data, slot, c, p - cf);
 }
 
 /* World parameter where the ray leaves the brick containing point p. */
@@ -60,15 +63,17 @@ inline float vr_optical_depth(const VrGrid* g, float3 o, float3 d, float t0, flo
         if (t >= t1 || tau > tau_stop)
             break;
         float3 p = o + t * d;
+        float3 cf = floor(p);
+        int3 c = convert_int3(cf);
+        int slot = vr_brick_slot(g, c);
+        if (slot < 0) {                /* empty brick: density is exactly zero */
 #if VR_SKIP_EMPTY
-        if (vr_brick_slot(g, convert_int3(floor(p))) < 0) {
             float te = vr_brick_exit(o, inv_d, p);
-            int kn = (int)ceil((te - t0) / dt - u);
-            k = max(k, kn - 1);
+            k = max(k, (int)ceil((te - t0) / dt - u) - 1);
+#endif
             continue;
         }
-#endif
-        tau += scale * vr_lookup(g, g->data, p) * dt;
+        tau += scale * vr_trilinear(g->data, slot, c, p - cf) * dt;
     }
     return tau;
 }
