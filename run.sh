@@ -55,8 +55,8 @@ cmd=${1:-demo}
 case "$cmd" in
   setup) apt_deps; venv ;;
   demo)  apt_deps; venv
-         "$VENV/bin/volrender" render scenes/demo_cloud.vdb -o demo.png --size 480x360 --spp 4 \
-           --background 0.32,0.42,0.58
+         "$VENV/bin/volrender" render scenes/demo_cloud.vdb -o demo.png --size 640x480 --spp 4 \
+           --density-scale 6 --sun=-0.6,-1,-0.5,10 --fov 28 --background 0.32,0.42,0.58
          echo "run.sh: wrote demo.png" >&2 ;;
   test)  apt_deps; venv; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
