@@ -40,4 +40,38 @@ typedef struct {  /* 208 bytes */
     float _pad2;
 } VolumeParams;
 
+typedef struct {  /* 32 bytes */
+    float lo_x;
+    float lo_y;
+    float lo_z;
+    int start;
+    float hi_x;
+    float hi_y;
+    float hi_z;
+    int count;
+} TreeNode;
+
+typedef struct {  /* 128 bytes */
+    float4 box_lo;
+    float4 box_hi;
+    float4 absorption;
+    float4 color;
+    float blend;
+    float ior;
+    float reflectivity;
+    float glow;
+    float epsilon;
+    float shininess;
+    float scale;
+    int n_spheres;
+    int first_leaf;
+    int bounces;
+    int max_steps;
+    int env_width;
+    int env_height;
+    float _pad0;
+    float _pad1;
+    float _pad2;
+} GlassParams;
+
 #endif

@@ -20,3 +20,18 @@ class VolumeFeatures:
 
     def flags(self) -> dict[str, int]:
         return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}
+
+
+@dataclass(frozen=True)
+class GlassFeatures:
+    tree: bool = True          # partition tree traversal (False: brute force over all spheres)
+    n_suns: int = 0
+    n_points: int = 0
+    shadows: bool = True       # sphere-traced hard shadows toward lights
+    refraction: bool = True    # False: opaque shading, no refraction code
+    absorption: bool = True    # Beer-Lambert inside glass
+    glow: bool = False         # hot-glass emission inside glass
+    env_map: bool = False      # equirectangular image (False: procedural sky)
+
+    def flags(self) -> dict[str, int]:
+        return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}

@@ -64,6 +64,38 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("_pad1", "float"),
         ("_pad2", "float"),
     ],
+    # Partition tree node (heap index: root 1, children 2i, 2i+1). Bounds are the AABB of
+    # the node's spheres (centre +- radius) in the render frame, rounded outwards; empty
+    # nodes have lo = +inf, hi = -inf. Spheres of a node: spheres[start : start+count].
+    "TreeNode": [
+        ("lo_x", "float"), ("lo_y", "float"), ("lo_z", "float"),
+        ("start", "int"),
+        ("hi_x", "float"), ("hi_y", "float"), ("hi_z", "float"),
+        ("count", "int"),
+    ],
+    # Glass: render frame = world minus the scene centre (float64 on the host).
+    "GlassParams": [
+        ("box_lo", "float4"),            # clip box for rays (root box + blend bulge)
+        ("box_hi", "float4"),
+        ("absorption", "float4"),        # rgb Beer-Lambert coefficient, per world unit
+        ("color", "float4"),             # rgb glow colour (and diffuse tint when opaque)
+        ("blend", "float"),              # smooth-union k, world units
+        ("ior", "float"),
+        ("reflectivity", "float"),       # scale on the Fresnel-weighted environment reflection
+        ("glow", "float"),               # emission per unit length inside glass
+        ("epsilon", "float"),            # relative hit threshold and ray offset
+        ("shininess", "float"),          # Blinn-Phong exponent
+        ("scale", "float"),              # scene radius, world units (offsets, thresholds)
+        ("n_spheres", "int"),
+        ("first_leaf", "int"),           # 2^depth: nodes >= first_leaf are leaves
+        ("bounces", "int"),              # surface events per path
+        ("max_steps", "int"),            # sphere-tracing steps per segment
+        ("env_width", "int"),
+        ("env_height", "int"),
+        ("_pad0", "float"),
+        ("_pad1", "float"),
+        ("_pad2", "float"),
+    ],
 }
 
 

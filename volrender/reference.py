@@ -30,3 +30,18 @@ def slab_single_scatter_normal(tau, albedo, p, irradiance):
     in along the same normal from the viewer's side (view and light paths coincide):
     L = albedo p E (1 - exp(-2 tau)) / 2."""
     return albedo * p * irradiance * (1.0 - np.exp(-2.0 * tau)) / 2.0
+
+
+def smooth_union(x, centers, radii, k):
+    """Order-independent smooth union of spheres (cl/sdf.h) at points x (M,3), brute force:
+    F = m - (k/4) sum_{i != argmin} h_i^2, h_i = max(0, 1 - (d_i - m)/k), m = min_i d_i."""
+    x = np.atleast_2d(np.asarray(x, np.float64))
+    c = np.asarray(centers, np.float64)
+    r = np.broadcast_to(np.asarray(radii, np.float64), (len(c),))
+    d = np.linalg.norm(x[:, None, :] - c[None, :, :], axis=2) - r[None, :]
+    m = d.min(axis=1)
+    if k <= 1e-20:
+        return m
+    h = np.maximum(0.0, 1.0 - (d - m[:, None]) / k)
+    h[np.arange(len(x)), d.argmin(axis=1)] = 0.0
+    return m - 0.25 * k * (h * h).sum(axis=1)

@@ -1,0 +1,195 @@
+/* Smooth union of spheres, tree traversal and sphere tracing.
+   Field: d_i = |x - c_i| - r_i, m = min_i d_i, h_i = max(0, 1 - (d_i - m)/k),
+   F = m - (k/4) sum_{i != argmin} h_i^2 (a plain sum: independent of visiting order).
+   Support: sphere i matters only where d_i < m + k. Flags: VR_TREE. */
+#ifndef VR_SDF_H
+#define VR_SDF_H
+
+#if !defined(VR_TREE)
+#error "sdf.h: VR_TREE is missing (see volrender/features.py)"
+#endif
+
+#define VR_TREE_STACK 48      /* glass.MAX_TREE_DEPTH + 1: one push per level */
+#define VR_BLEND_MIN 1e-20f   /* k at or below: plain union */
+
+typedef struct {
+    __global const float4* spheres;   /* centre xyz, radius w; render frame, tree order */
+    __global const TreeNode* nodes;   /* heap layout, root 1 (unused when VR_TREE == 0) */
+    int n_spheres;
+    int first_leaf;
+    float k;                          /* blend, world units */
+} SdfScene;
+
+typedef struct {
+    float f;      /* field value */
+    float lip;    /* local bound on |grad F|: 1 + sum_{i != argmin} h_i */
+    float3 grad;  /* analytic gradient (not normalised) */
+} SdfSample;
+
+inline float sdf_sphere(float4 s, float3 x)
+{
+    return length(x - s.xyz) - s.w;
+}
+
+inline float3 sdf_sphere_normal(float4 s, float3 x)
+{
+    float3 v = x - s.xyz;
+    float len = length(v);
+    return len > 0.0f ? v / len : (float3)(0.0f);
+}
+
+/* Lower bound of d_i over a node's spheres: distance to its box, -inf inside it. */
+inline float sdf_node_bound(__global const TreeNode* nd, float3 x)
+{
+    float3 lo = (float3)(nd->lo_x, nd->lo_y, nd->lo_z);
+    float3 hi = (float3)(nd->hi_x, nd->hi_y, nd->hi_z);
+    float3 g = fmax(fmax(lo - x, x - hi), (float3)(0.0f));
+    float q = dot(g, g);
+    return q > 0.0f ? sqrt(q) * 0.999999f : -INFINITY;   /* shrunk: rounding-safe */
+}
+
+/* Pass 1: m = min_i d_i and its index (-1 when there are no spheres). */
+inline float sdf_min(const SdfScene* sc, float3 x, int* arg)
+{
+    float m = INFINITY;
+    int a = -1;
+#if VR_TREE
+    int stack[VR_TREE_STACK];
+    float sb[VR_TREE_STACK];
+    int sp = 0;
+    int node = sdf_node_bound(sc->nodes + 1, x) < m ? 1 : 0;
+    while (node) {
+        if (node >= sc->first_leaf) {
+            __global const TreeNode* nd = sc->nodes + node;
+            int end = nd->start + nd->count;
+            for (int i = nd->start; i < end; ++i) {
+                float d = sdf_sphere(sc->spheres[i], x);
+                if (d < m) { m = d; a = i; }
+            }
+            node = 0;
+        } else {
+            /* nearer child first, the other on the stack with its bound */
+            int c0 = 2 * node, c1 = c0 + 1;
+            float b0 = sdf_node_bound(sc->nodes + c0, x), b1 = sdf_node_bound(sc->nodes + c1, x);
+            if (b1 < b0) { int ci = c0; c0 = c1; c1 = ci; float bt = b0; b0 = b1; b1 = bt; }
+            node = 0;
+            if (b0 < m) {
+                node = c0;
+                if (b1 < m) { stack[sp] = c1; sb[sp] = b1; ++sp; }
+            }
+        }
+        while (!node && sp > 0) {
+            --sp;
+            if (sb[sp] < m)
+                node = stack[sp];
+        }
+    }
+#else
+    for (int i = 0; i < sc->n_spheres; ++i) {
+        float d = sdf_sphere(sc->spheres[i], x);
+        if (d < m) { m = d; a = i; }
+    }
+#endif
+    *arg = a;
+    return m;
+}
+
+/* One sphere's blend terms: h, h^2 and h * normal, for d < thr = m + k. */
+#define SDF_ACCUMULATE(s4)                                            \
+    {                                                                 \
+        float d = sdf_sphere(s4, x);                                  \
+        if (d < thr) {                                                \
+            float h = fmax(1.0f - (d - m) * inv_k, 0.0f);             \
+            s1 += h; s2 += h * h; g += h * sdf_sphere_normal(s4, x);  \
+        }                                                             \
+    }
+
+/* Pass 2: sums over all spheres with d_i < m + k (the argmin included, h = 1). */
+inline void sdf_blend_sums(const SdfScene* sc, float3 x, float m, float* s1_out,
+                           float* s2_out, float3* g_out)
+{
+    float thr = m + sc->k, inv_k = 1.0f / sc->k;
+    float s1 = 0.0f, s2 = 0.0f;
+    float3 g = (float3)(0.0f);
+#if VR_TREE
+    int stack[VR_TREE_STACK];
+    int sp = 0;
+    int node = sdf_node_bound(sc->nodes + 1, x) < thr ? 1 : 0;
+    while (node) {
+        if (node >= sc->first_leaf) {
+            __global const TreeNode* nd = sc->nodes + node;
+            int end = nd->start + nd->count;
+            for (int i = nd->start; i < end; ++i)
+                SDF_ACCUMULATE(sc->spheres[i])
+            node = 0;
+        } else {
+            int c0 = 2 * node, c1 = c0 + 1;
+            int in0 = sdf_node_bound(sc->nodes + c0, x) < thr;
+            int in1 = sdf_node_bound(sc->nodes + c1, x) < thr;
+            node = in0 ? c0 : (in1 ? c1 : 0);
+            if (in0 && in1)
+                stack[sp++] = c1;
+        }
+        if (!node && sp > 0)
+            node = stack[--sp];
+    }
+#else
+    for (int i = 0; i < sc->n_spheres; ++i)
+        SDF_ACCUMULATE(sc->spheres[i])
+#endif
+    *s1_out = s1;
+    *s2_out = s2;
+    *g_out = g;
+}
+
+/* F, its Lipschitz bound and analytic gradient at x (render frame). */
+inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
+{
+    int a;
+    float m = sdf_min(sc, x, &a);
+    SdfSample r;
+    r.f = m;
+    r.lip = 1.0f;
+    r.grad = (float3)(0.0f);
+    if (a < 0)
+        return r;
+    float3 na = sdf_sphere_normal(sc->spheres[a], x);
+    r.grad = na;
+    /* k -> 0, or k below m's precision: the plain union */
+    if (!(sc->k > VR_BLEND_MIN) || !(m + sc->k > m))
+        return r;
+    float s1, s2;
+    float3 g;
+    sdf_blend_sums(sc, x, m, &s1, &s2, &g);
+    s1 = fmax(s1 - 1.0f, 0.0f);            /* drop the argmin's h = 1 */
+    s2 = fmax(s2 - 1.0f, 0.0f);
+    g -= na;
+    r.f = m - 0.25f * sc->k * s2;
+    r.lip = 1.0f + s1;
+    /* grad F = n_a + (1/2) sum' h_i (n_i - n_a) */
+    r.grad = na + 0.5f * (g - s1 * na);
+    return r;
+}
+
+/* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
+   Hit when side * F < eps * (base + t); step (side * F) / lip. Returns 1 on a hit with
+   *t and *s at the hit; else 0 with *t where marching stopped (<= t1). */
+inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
+                     float eps, float base, int max_steps, float* t_out, SdfSample* s_out)
+{
+    float t = t0;
+    for (int i = 0; i < max_steps && t <= t1; ++i) {
+        SdfSample s = sdf_eval(sc, o + t * d);
+        float f = side * s.f;
+        if (f < eps * (base + t)) {
+            *t_out = t;
+            *s_out = s;
+            return 1;
+        }
+        t += f / s.lip;
+    }
+    *t_out = fmin(t, t1);
+    return 0;
+}
+
+#endif

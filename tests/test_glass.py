@@ -1,0 +1,315 @@
+"""Glass point clouds: smooth-union field vs the numpy oracle, tree vs brute force,
+optics against closed forms, invisibility at IOR 1, and degenerate inputs."""
+import math
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from volrender import glass, points, reference
+from volrender.camera import Camera
+from volrender.errors import UserError
+from volrender.lights import PointLight, Sun
+from volrender.points import PointCloud
+
+# Field values are float32 sums of O(10) terms of size ~scale: relative error ~1e-6.
+ATOL_FIELD = 2e-5     # blob of radius ~1
+# Images: tree and brute force differ only in summation order, so hit points move by
+# ~1e-6 of the path; radiance changes by far less than this.
+ATOL_IMAGE = 2e-3
+SIZE = 24
+
+PROBE = """
+#include "common.h"
+#include "structs.h"
+#include "sdf.h"
+#include "glass.h"
+
+__kernel void field(__global const float4* spheres, __global const TreeNode* nodes, int n,
+                    int first_leaf, float k, __global const float4* pts, __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = { spheres, nodes, n, first_leaf, k };
+    SdfSample s = sdf_eval(&sc, pts[i].xyz);
+    out[i] = (float4)(s.grad, s.f);
+}
+
+__kernel void trace(__global const float4* spheres, __global const TreeNode* nodes, int n,
+                    int first_leaf, float k, __global const float4* o, __global const float4* d,
+                    __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = { spheres, nodes, n, first_leaf, k };
+    float t;
+    SdfSample s;
+    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, 1.0f, 1e-5f, 1.0f, 512, &t, &s);
+    float3 g = normalize(s.grad);
+    out[i] = hit ? (float4)(g, t) : (float4)(0.0f, 0.0f, 0.0f, -1.0f);
+}
+
+/* in: incident direction xyz, eta w; normal +z. out: refracted xyz (0 on TIR), Fresnel w */
+__kernel void optics(__global const float4* in, __global float4* out)
+{
+    int i = get_global_id(0);
+    float3 d = in[i].xyz, n = (float3)(0.0f, 0.0f, 1.0f), t = (float3)(0.0f);
+    float eta = in[i].w;
+    if (!glass_refract(d, n, eta, &t))
+        t = (float3)(0.0f);
+    out[i] = (float4)(t, glass_fresnel(-dot(d, n), eta));
+}
+"""
+
+
+class _Probe:
+    """The probe kernels of one build (kernel objects kept: no repeated retrieval)."""
+
+    def __init__(self, prg):
+        for name in ("field", "trace", "optics"):
+            setattr(self, name, cl.Kernel(prg, name))
+
+
+_PROBES = {}
+
+
+def _probe(dev, use_tree):
+    key = (id(dev), bool(use_tree))
+    if key not in _PROBES:
+        _PROBES[key] = _Probe(dev.build(PROBE, {"VR_TREE": int(use_tree)}, "glass probe"))
+    return _PROBES[key]
+
+
+def _run(dev, kernel, scene, k, *arrays, n_out):
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                      hostbuf=np.ascontiguousarray(a)) for a in (scene.spheres, scene.nodes, *arrays)]
+    out = np.zeros((n_out, 4), np.float32)
+    d_out = cl.Buffer(dev.context, mf.WRITE_ONLY, out.nbytes)
+    kernel(dev.queue, (n_out,), None, bufs[0], bufs[1], np.int32(len(scene.spheres)),
+           np.int32(scene.first_leaf), np.float32(k), *bufs[2:], d_out)
+    cl.enqueue_copy(dev.queue, out, d_out)
+    return out
+
+
+def _f4(a):
+    out = np.zeros((len(a), 4), np.float32)
+    out[:, :3] = a
+    return out
+
+
+def field(dev, cloud, settings, x):
+    """(F, grad) from the kernel at world points x, and the scene."""
+    scene = glass.pack_scene(cloud, settings)
+    prg = _probe(dev, settings.use_tree)
+    out = _run(dev, prg.field, scene, scene.blend, _f4(x - scene.centre), n_out=len(x))
+    return out[:, 3], out[:, :3], scene
+
+
+def _render(dev, cloud, settings, cam=None, lights=(), size=SIZE):
+    cam = cam or glass.default_camera(cloud, size, size, radius=settings.radius)
+    return glass.render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+
+
+def _samples(rng, cloud, n=400):
+    lo, hi = cloud.centers.min(0) - 0.3, cloud.centers.max(0) + 0.3
+    return rng.uniform(lo, hi, size=(n, 3))
+
+
+# ------------------------------------------------------------------ field vs oracle
+
+@pytest.mark.parametrize("use_tree", [True, False])
+@pytest.mark.parametrize("k", [0.0, 0.05, 0.15, 2.0])
+def test_field_matches_oracle(cl_device, rng, use_tree, k):
+    cloud = points.blob(300, seed=3)
+    s = glass.GlassSettings(blend=k, leaf_size=2, use_tree=use_tree)
+    x = _samples(rng, cloud)
+    f, _, _ = field(cl_device, cloud, s, x)
+    ref = reference.smooth_union(x, cloud.centers, cloud.radii, k)
+    atol = ATOL_FIELD * (1.0 + 0.25 * k * 10)   # large k: more (float32) terms
+    np.testing.assert_allclose(f, ref, atol=atol)
+
+
+def test_two_spheres_equal_polynomial_smin():
+    c = np.array([[0.0, 0, 0], [0.9, 0, 0]])
+    x = np.random.default_rng(1).uniform(-1, 2, size=(50, 3))
+    k = 0.4
+    a = np.linalg.norm(x - c[0], axis=1) - 0.5
+    b = np.linalg.norm(x - c[1], axis=1) - 0.5
+    h = np.maximum(k - np.abs(a - b), 0.0) / k
+    np.testing.assert_allclose(reference.smooth_union(x, c, 0.5, k),
+                               np.minimum(a, b) - h * h * k / 4, atol=1e-12)
+
+
+def test_gradient_matches_finite_difference(cl_device, rng):
+    cloud = points.blob(100, seed=4)
+    s = glass.GlassSettings(blend=0.2, leaf_size=4)
+    x = _samples(rng, cloud, 50)
+    _, g, _ = field(cl_device, cloud, s, x)
+    h = 1e-5
+    fd = np.stack([(reference.smooth_union(x + h * e, cloud.centers, cloud.radii, 0.2)
+                    - reference.smooth_union(x - h * e, cloud.centers, cloud.radii, 0.2)) / (2 * h)
+                   for e in np.eye(3)], axis=1)
+    assert np.median(np.linalg.norm(g - fd, axis=1)) < 1e-3
+
+
+# ------------------------------------------------------------------ tree vs brute force
+
+# Paths through many refractions are chaotic: in brute force alone, moving the camera by
+# 3e-6 changes ~3% of 48x48 pixels at 6 bounces. So: all pixels agree at 2 bounces, and
+# nearly all at 6 (the differences are float noise amplified, not missed spheres).
+@pytest.mark.parametrize("leaf_size,bounces,min_frac", [(1, 2, 1.0), (3, 2, 1.0), (2, 6, 0.97)])
+def test_tree_and_brute_force_images_agree(cl_device, leaf_size, bounces, min_frac):
+    cloud = points.blob(250, seed=5)
+    spacing = (4.0 / 250) ** (1 / 3)          # blend ~ spacing: many spheres straddle leaves
+    base = glass.GlassSettings(blend=spacing, leaf_size=leaf_size, bounces=bounces)
+    lights = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
+    a = _render(cl_device, cloud, base, lights=lights)
+    b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "use_tree": False}),
+                lights=lights)
+    assert np.isfinite(a).all()
+    assert a[..., 3].mean() > 0.2
+    close = np.abs(a - b).max(axis=-1) <= ATOL_IMAGE
+    assert close.mean() >= min_frac, f"{(~close).sum()} pixels differ"
+    np.testing.assert_array_equal(a[..., 3], b[..., 3])     # same coverage
+
+
+# ------------------------------------------------------------------ single sphere, optics
+
+def test_single_sphere_hit_and_normal(cl_device, rng):
+    r, c = 0.7, np.array([0.3, -0.2, 0.1])
+    cloud = PointCloud(c[None], np.array([r]))
+    scene = glass.pack_scene(cloud, glass.GlassSettings())
+    o = np.tile([0.0, 0.0, 5.0], (64, 1)) + rng.uniform(-0.1, 0.1, (64, 3))
+    aim = c + rng.uniform(-0.4, 0.4, (64, 3))
+    d = (aim - o) / np.linalg.norm(aim - o, axis=1, keepdims=True)
+    out = _run(cl_device, _probe(cl_device, True).trace, scene, 0.0,
+               _f4(o - scene.centre), _f4(d), n_out=64)
+    oc = o - c
+    b = np.einsum("ij,ij->i", d, oc)
+    t_ref = -b - np.sqrt(b * b - (np.einsum("ij,ij->i", oc, oc) - r * r))
+    np.testing.assert_allclose(out[:, 3], t_ref, atol=1e-4)
+    n_ref = (o + t_ref[:, None] * d - c) / r
+    np.testing.assert_allclose(out[:, :3], n_ref, atol=1e-4)
+
+
+def _optics(dev, d, eta):
+    inp = np.zeros((len(d), 4), np.float32)
+    inp[:, :3], inp[:, 3] = d, eta
+    mf = cl.mem_flags
+    d_in = cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=inp)
+    out = np.zeros_like(inp)
+    d_out = cl.Buffer(dev.context, mf.WRITE_ONLY, out.nbytes)
+    _probe(dev, True).optics(dev.queue, (len(d),), None, d_in, d_out)
+    cl.enqueue_copy(dev.queue, out, d_out)
+    return out
+
+
+def test_refraction_follows_snell(cl_device):
+    theta = np.radians(np.linspace(0, 89, 30))
+    d = np.stack([np.sin(theta), 0 * theta, -np.cos(theta)], axis=1)
+    for eta in (1 / 1.5, 1 / 1.33, 1.2):
+        out = _optics(cl_device, d, eta)
+        ok = eta * np.sin(theta) < 1
+        sin_t = out[ok, 0]
+        np.testing.assert_allclose(sin_t, eta * np.sin(theta[ok]), atol=2e-6)
+        np.testing.assert_allclose(np.linalg.norm(out[ok, :3], axis=1), 1, atol=1e-6)
+        assert (out[ok, 2] < 0).all()                      # continues through the surface
+
+
+def test_fresnel_normal_incidence_and_tir(cl_device):
+    for n in (1.0, 1.33, 1.5, 2.4):
+        out = _optics(cl_device, np.array([[0.0, 0, -1]]), 1 / n)
+        assert out[0, 3] == pytest.approx(((n - 1) / (n + 1)) ** 2, abs=1e-6)
+    crit = math.asin(1 / 1.5)
+    theta = np.array([crit - 0.02, crit + 0.02, 1.5])
+    d = np.stack([np.sin(theta), 0 * theta, -np.cos(theta)], axis=1)
+    out = _optics(cl_device, d, 1.5)                         # from inside glass
+    assert out[0, 3] < 1 and np.linalg.norm(out[0, :3]) > 0.99
+    assert (out[1:, 3] == 1).all() and (out[1:, :3] == 0).all()
+
+
+# ------------------------------------------------------------------ invisibility
+
+def test_ior_one_is_invisible(cl_device):
+    cloud = points.blob(120, seed=6)
+    s = glass.GlassSettings(ior=1.0, absorption=(0, 0, 0), reflectivity=0.0, glow=0.0)
+    cam = glass.default_camera(cloud, SIZE, SIZE)
+    lights = [Sun((0.3, -1.0, -0.2), 4.0)]
+    img = _render(cl_device, cloud, s, cam, lights)
+    empty = _render(cl_device, PointCloud(np.zeros((0, 3))), s, cam, lights)
+    assert img[..., 3].mean() > 0.2 and (empty[..., 3] == 0).all()
+    np.testing.assert_array_equal(img[..., :3], empty[..., :3])
+    tinted = _render(cl_device, cloud, glass.GlassSettings(), cam, lights)
+    assert np.abs(tinted[..., :3] - empty[..., :3]).max() > 0.1
+
+
+# ------------------------------------------------------------------ degenerate and extreme
+
+def test_tiny_blend_is_plain_union(cl_device, rng):
+    cloud = points.blob(80, seed=7)
+    x = _samples(rng, cloud, 200)
+    f, _, _ = field(cl_device, cloud, glass.GlassSettings(blend=1e-30), x)
+    d = np.linalg.norm(x[:, None] - cloud.centers[None], axis=2) - cloud.radii
+    np.testing.assert_allclose(f, d.min(1), atol=ATOL_FIELD)
+
+
+@pytest.mark.parametrize("case", ["huge_blend", "zero_radius", "one_point", "coincident"])
+def test_degenerate_clouds_render_finite(cl_device, case):
+    c = points.blob(60, seed=8)
+    cloud, s = {
+        "huge_blend": (c, glass.GlassSettings(blend=50.0, bounces=2)),
+        "zero_radius": (PointCloud(c.centers, np.zeros(60)), glass.GlassSettings(blend=0.3)),
+        "one_point": (PointCloud(np.array([[1.0, 2.0, 3.0]]), np.array([0.5])),
+                      glass.GlassSettings()),
+        "coincident": (PointCloud(np.zeros((20, 3)), np.full(20, 0.5)),
+                       glass.GlassSettings(blend=0.2)),
+    }[case]
+    img = _render(cl_device, cloud, s, lights=[Sun((0, -1, 0))])
+    assert np.isfinite(img).all() and (img >= 0).all()
+    if case != "zero_radius":
+        assert img[..., 3].mean() > 0.05
+
+
+def test_far_from_origin_renders_the_same(cl_device):
+    cloud = points.blob(150, seed=9)
+    offset = np.array([1e5, -2e5, 1e5])
+    far = PointCloud(cloud.centers + offset, cloud.radii)
+    s = glass.GlassSettings(blend=0.1)
+    cam = glass.default_camera(cloud, SIZE, SIZE)
+    cam_far = Camera(tuple(np.add(cam.origin, offset)), tuple(np.add(cam.target, offset)),
+                     cam.up, cam.fov, SIZE, SIZE)
+    lights = [Sun((0.3, -1, -0.2), 3.0), PointLight((1.5, 2.0, 1.0), 4.0)]
+    lights_far = [lights[0], PointLight(tuple(np.add((1.5, 2.0, 1.0), offset)), 4.0)]
+    a = _render(cl_device, cloud, s, cam, lights)
+    b = _render(cl_device, far, s, cam_far, lights_far)
+    np.testing.assert_allclose(a, b, atol=ATOL_IMAGE)
+
+
+def test_camera_inside_glass_is_finite(cl_device):
+    cloud = points.blob(100, seed=10)
+    cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=SIZE, height=SIZE)
+    img = _render(cl_device, cloud, glass.GlassSettings(blend=0.15), cam, [Sun((0, -1, 0))])
+    assert np.isfinite(img).all()
+    assert (img[..., 3] == 1).all()          # every primary ray starts in glass
+
+
+def test_opaque_mode_and_env_map(cl_device, tmp_path):
+    from volrender.image import write_image
+    env = np.zeros((8, 16, 4), np.float32)
+    env[:4, :, 0] = 2.0                     # red sky, blue ground
+    env[4:, :, 2] = 1.0
+    write_image(tmp_path / "env.exr", env)
+    cloud = points.blob(60, seed=11)
+    s = glass.GlassSettings(env=str(tmp_path / "env.exr"), refraction=False)
+    img = _render(cl_device, cloud, s, lights=[Sun((0, -1, 0))])
+    assert np.isfinite(img).all()
+    top = img[0, :, :3].mean(0)
+    assert top[0] > 1.0 and top[1] == 0.0
+
+
+def test_settings_are_validated():
+    for bad in ({"ior": 0.0}, {"blend": -1.0}, {"bounces": 0}, {"absorption": (1, 2)},
+                {"epsilon": 0.0}, {"radius": float("nan")}, {"spp": 0}):
+        with pytest.raises(UserError):
+            glass.GlassSettings(**bad)
+    with pytest.raises(UserError, match="radius"):
+        glass.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())

@@ -1,0 +1,280 @@
+"""Point clouds as molten glass: settings, scene packing and the render orchestration.
+
+Every point is a sphere; the spheres melt together through the order-independent smooth
+union of cl/sdf.h (support: sphere i matters only where d_i < min_j d_j + blend). The
+render frame is world minus the scene centre (float64 on the host), so clouds far from the
+origin keep their float32 precision.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import layout, lights as lights_mod, tree as tree_mod
+from .camera import DEFAULT_FOV, frame_bounds
+from .errors import UserError
+from .features import GlassFeatures
+from .progress import Progress
+
+PIXELS_PER_LAUNCH = 1 << 14
+MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
+
+
+@dataclass(frozen=True)
+class GlassSettings:
+    """Molten-glass look and tracing knobs. Lengths are world units.
+
+    radius: one radius for every point (None: the cloud's own radii).
+    blend: smooth-union width k (None: the median radius; much wider blends
+        grow crests in dense clouds, see pack_scene). 0 gives the plain union.
+    absorption: rgb Beer-Lambert coefficient inside glass, per unit length.
+    color: rgb colour of the glow (and the diffuse tint when refraction is off).
+    reflectivity: scale on the Fresnel-weighted environment reflection.
+    glow: hot-glass emission per unit length inside glass (weighted by absorption).
+    epsilon: relative hit threshold (times the path length) and ray offset.
+    env: None for the procedural sky, or a path to an equirectangular .exr.
+    """
+    radius: float | None = None
+    blend: float | None = None
+    leaf_size: int = 8
+    use_tree: bool = True
+    bounces: int = 6
+    ior: float = 1.5
+    absorption: tuple = (0.15, 0.6, 1.6)
+    color: tuple = (1.0, 0.42, 0.12)
+    reflectivity: float = 1.0
+    glow: float = 0.6
+    shininess: float = 200.0
+    epsilon: float = 1e-4
+    max_steps: int = 256
+    spp: int = 1
+    seed: int = 0
+    env: str | None = None
+    shadows: bool = True
+    refraction: bool = True
+
+    def __post_init__(self):
+        def check(ok, msg):
+            if not ok:
+                raise UserError(msg)
+
+        def finite(v):
+            return isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v)
+
+        def rgb(v):
+            return len(v) == 3 and all(finite(c) and c >= 0 for c in v)
+
+        check(self.radius is None or (finite(self.radius) and self.radius >= 0),
+              f"--radius must be finite and >= 0, got {self.radius}")
+        check(self.blend is None or (finite(self.blend) and self.blend >= 0),
+              f"--blend must be finite and >= 0, got {self.blend}")
+        check(isinstance(self.leaf_size, (int, np.integer)) and self.leaf_size >= 1,
+              f"--leaf-size must be an integer >= 1, got {self.leaf_size}")
+        check(isinstance(self.bounces, (int, np.integer)) and 1 <= self.bounces <= 64,
+              f"--bounces must be in [1, 64], got {self.bounces}")
+        check(finite(self.ior) and 1.0 / 16 <= self.ior <= 16,
+              f"--ior must be in [1/16, 16], got {self.ior}")
+        check(rgb(self.absorption), f"--absorption takes three finite values >= 0, got {self.absorption}")
+        check(rgb(self.color), f"--color takes three finite values >= 0, got {self.color}")
+        check(finite(self.reflectivity) and self.reflectivity >= 0,
+              f"--reflectivity must be finite and >= 0, got {self.reflectivity}")
+        check(finite(self.glow) and self.glow >= 0, f"--glow must be finite and >= 0, got {self.glow}")
+        check(finite(self.shininess) and 1 <= self.shininess <= 1e5,
+              f"--shininess must be in [1, 1e5], got {self.shininess}")
+        check(finite(self.epsilon) and 1e-7 <= self.epsilon <= 1e-1,
+              f"--epsilon must be in [1e-7, 0.1], got {self.epsilon}")
+        check(isinstance(self.max_steps, (int, np.integer)) and 1 <= self.max_steps <= 1 << 16,
+              f"--max-steps must be in [1, 65536], got {self.max_steps}")
+        check(isinstance(self.spp, (int, np.integer)) and 1 <= self.spp <= 1 << 16,
+              f"--spp must be in [1, 65536], got {self.spp}")
+
+
+@dataclass(frozen=True)
+class GlassScene:
+    """Everything the kernel reads about the spheres, in the render frame."""
+    centre: np.ndarray      # float64 (3,): world position of the render-frame origin
+    spheres: np.ndarray     # float32 (N, 4): centre - scene centre, radius; tree order
+    nodes: np.ndarray       # TreeNode records (one zero record without a tree)
+    first_leaf: int         # 2^depth (1 without a tree)
+    box_lo: np.ndarray      # float32 (3,): clip box, render frame
+    box_hi: np.ndarray
+    blend: float
+    scale: float            # bounding radius of the spheres
+    tree_ms: float
+
+
+def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
+    """Per-point radii: settings.radius if given, else the cloud's own."""
+    n = len(cloud.centers)
+    if settings.radius is not None:
+        return np.full(n, float(settings.radius))
+    if cloud.radii is None:
+        raise UserError(f"the point cloud {cloud.source or ''} has no radii".replace("  ", " "),
+                        fix="give a radius (--radius)")
+    r = np.asarray(cloud.radii, np.float64)
+    if not (np.isfinite(r).all() and (r >= 0).all()):
+        raise UserError("point radii must be finite and >= 0", fix="repair the radius column")
+    return r
+
+
+def sphere_bounds(cloud, radii):
+    """(lo, hi) float64 of centre +- radius over all points."""
+    c = np.asarray(cloud.centers, np.float64)
+    return (c - radii[:, None]).min(axis=0), (c + radii[:, None]).max(axis=0)
+
+
+def blend_width(radii, settings: GlassSettings) -> float:
+    """The smooth-union width k: settings.blend, else the median radius."""
+    if settings.blend is not None:
+        return float(settings.blend)
+    return float(np.median(radii)) if len(radii) else 0.0
+
+
+def _outward(a, down: bool):
+    """float32 of a float64 array, rounded away from the box interior (inf kept)."""
+    a32 = a.astype(np.float32)
+    step = np.nextafter(a32, np.float32(-np.inf if down else np.inf))
+    return np.where(np.isfinite(a32), step, a32)
+
+
+def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
+    """Spheres and tree in the render frame; builds the tree only when use_tree."""
+    centers = np.asarray(cloud.centers, np.float64)
+    n = len(centers)
+    radii = sphere_radii(cloud, settings) if n else np.zeros(0)
+    if not np.isfinite(centers).all():
+        raise UserError("point coordinates must be finite", fix="remove NaN/Inf points")
+    k = blend_width(radii, settings)
+    nodes = layout.record("TreeNode", 1)
+    first_leaf, tree_ms = 1, 0.0
+    if n == 0:
+        centre, lo, hi = np.zeros(3), np.full(3, np.inf), np.full(3, -np.inf)
+        return GlassScene(centre, np.zeros((0, 4), np.float32), nodes, 1,
+                          lo.astype(np.float32), hi.astype(np.float32), k, 1.0, 0.0)
+    lo, hi = sphere_bounds(cloud, radii)
+    centre = 0.5 * (lo + hi)
+    order = np.arange(n)
+    if settings.use_tree:
+        t0 = time.perf_counter()
+        tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0)
+        tree_ms = 1e3 * (time.perf_counter() - t0)
+        if tree.depth > MAX_TREE_DEPTH:
+            raise UserError(f"tree depth {tree.depth} exceeds {MAX_TREE_DEPTH}",
+                            fix="raise --leaf-size")
+        order, first_leaf = tree.order, tree.first_leaf
+        nodes = layout.record("TreeNode", tree.n_nodes)
+        tlo, thi = tree.lo - centre, tree.hi - centre
+        tlo, thi = _outward(tlo, True), _outward(thi, False)
+        for a, ax in enumerate("xyz"):
+            nodes[f"lo_{ax}"], nodes[f"hi_{ax}"] = tlo[:, a], thi[:, a]
+        nodes["start"], nodes["count"] = tree.start, tree.count
+    spheres = np.empty((n, 4), np.float32)
+    spheres[:, :3] = centers[order] - centre
+    spheres[:, 3] = radii[order]
+    # The sum-form union bulges by k/4 per extra sphere within reach of the nearest one
+    # (where many are about equally near, valleys fill and crests grow when k exceeds the
+    # spacing); at most (k/4)(N-1) for N coincident spheres, so the clip box grows by that.
+    bulge = k * (1.0 + 0.25 * (n - 1))
+    scale = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
+    box_lo = _outward(lo - centre - bulge, True)
+    box_hi = _outward(hi - centre + bulge, False)
+    return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms)
+
+
+def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFeatures:
+    """Compile only what the scene uses."""
+    n_suns, n_points = lights_mod.counts(lights)
+    refr = settings.refraction
+    return GlassFeatures(tree=settings.use_tree and len(scene.spheres) > 0,
+                         n_suns=n_suns, n_points=n_points,
+                         shadows=settings.shadows and n_suns + n_points > 0,
+                         refraction=refr, absorption=refr and any(a > 0 for a in settings.absorption),
+                         glow=refr and settings.glow > 0, env_map=settings.env is not None)
+
+
+def _env(settings: GlassSettings):
+    """(float32 (H*W, 4) texels, width, height); a 1-texel stand-in without a map."""
+    if settings.env is None:
+        return np.zeros((1, 4), np.float32), 0, 0
+    from .image import read_image
+    img = np.asarray(read_image(settings.env))
+    if img.dtype == np.uint8 or img.ndim != 3 or img.shape[2] < 3:
+        raise UserError("the environment must be a float image (.exr or .npy)", path=settings.env,
+                        fix="convert it to an equirectangular .exr")
+    h, w = img.shape[:2]
+    tex = np.zeros((h * w, 4), np.float32)
+    tex[:, :3] = np.nan_to_num(img[..., :3].reshape(-1, 3), nan=0.0, posinf=0.0, neginf=0.0)
+    return tex, w, h
+
+
+def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
+    """Camera framing the spheres' bounds (camera.frame_bounds)."""
+    radii = sphere_radii(cloud, GlassSettings(radius=radius))
+    lo, hi = sphere_bounds(cloud, radii)
+    return frame_bounds(lo, hi, width, height, fov)
+
+
+def _chunks(width, height):
+    rows = max(1, min(height, PIXELS_PER_LAUNCH // max(1, width)))
+    return [(y, min(rows, height - y)) for y in range(0, height, rows)]
+
+
+def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None):
+    """Render a PointCloud as glass. Returns a dict with 'rgba' (H, W, 4 float32; alpha =
+    coverage), 'kernel_ms', 'wall_ms', 'tree_ms', 'flags'."""
+    import pyopencl as cl
+
+    scene = pack_scene(cloud, settings)
+    features = features_for(scene, lights, settings)
+    kernel = device.kernel("render_glass", features.flags())
+    w2f = np.eye(4)
+    w2f[:3, 3] = -scene.centre
+    cam = camera.pack(w2f, settings.spp, settings.seed)
+    env, env_w, env_h = _env(settings)
+    params = layout.record(
+        "GlassParams", box_lo=[*scene.box_lo, 0], box_hi=[*scene.box_hi, 0],
+        absorption=[*settings.absorption, 0], color=[*settings.color, 0],
+        blend=scene.blend, ior=settings.ior, reflectivity=settings.reflectivity,
+        glow=settings.glow, epsilon=settings.epsilon, shininess=settings.shininess,
+        scale=scene.scale, n_spheres=len(scene.spheres), first_leaf=scene.first_leaf,
+        bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
+        env_height=env_h)
+    light_rec = lights_mod.pack(lights, w2f)
+
+    ctx, queue = device.context, device.queue
+    mf = cl.mem_flags
+
+    def buf(arr):
+        arr = np.ascontiguousarray(arr)
+        if arr.nbytes == 0:
+            arr = np.zeros(1, arr.dtype) if arr.ndim == 1 else np.zeros((1,) + arr.shape[1:], arr.dtype)
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=arr)
+
+    W, H = camera.width, camera.height
+    d_cam, d_params, d_lights = buf(cam), buf(params), buf(light_rec)
+    d_spheres, d_nodes, d_env = buf(scene.spheres), buf(scene.nodes), buf(env)
+    out = np.empty((H, W, 4), np.float32)
+    d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+
+    chunks = _chunks(W, H)
+    bar = Progress(len(chunks), "render", progress)
+    t_start = time.perf_counter()
+    kernel_ns = 0
+    try:
+        for y0, rows in chunks:
+            kernel.set_args(d_cam, d_params, d_lights, d_spheres, d_nodes, d_env, d_out,
+                            np.int32(y0))
+            ev = cl.enqueue_nd_range_kernel(queue, kernel, (W, rows), None)
+            ev.wait()
+            kernel_ns += ev.profile.end - ev.profile.start
+            bar.update()
+        cl.enqueue_copy(queue, out, d_out)
+        queue.finish()
+    finally:
+        bar.close()
+    return {"rgba": out, "kernel_ms": kernel_ns * 1e-6,
+            "wall_ms": 1e3 * (time.perf_counter() - t_start), "tree_ms": scene.tree_ms,
+            "flags": features.flags()}
