@@ -17,7 +17,7 @@ from . import layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
 from .errors import UserError
 from .features import GlassFeatures
-from .progress import Progress
+from .dispatch import run_rows, upload
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
@@ -217,11 +217,6 @@ def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
     return frame_bounds(lo, hi, width, height, fov)
 
 
-def _chunks(width, height):
-    rows = max(1, min(height, PIXELS_PER_LAUNCH // max(1, width)))
-    return [(y, min(rows, height - y)) for y in range(0, height, rows)]
-
-
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None):
     """Render a PointCloud as glass. Returns a dict with 'rgba' (H, W, 4 float32; alpha =
     coverage), 'kernel_ms', 'wall_ms', 'tree_ms', 'flags'."""
@@ -244,37 +239,15 @@ def render_points(cloud, camera, lights, settings: GlassSettings, device, progre
         env_height=env_h)
     light_rec = lights_mod.pack(lights, w2f)
 
-    ctx, queue = device.context, device.queue
-    mf = cl.mem_flags
-
-    def buf(arr):
-        arr = np.ascontiguousarray(arr)
-        if arr.nbytes == 0:
-            arr = np.zeros(1, arr.dtype) if arr.ndim == 1 else np.zeros((1,) + arr.shape[1:], arr.dtype)
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=arr)
-
+    ctx = device.context
     W, H = camera.width, camera.height
-    d_cam, d_params, d_lights = buf(cam), buf(params), buf(light_rec)
-    d_spheres, d_nodes, d_env = buf(scene.spheres), buf(scene.nodes), buf(env)
     out = np.empty((H, W, 4), np.float32)
-    d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-
-    chunks = _chunks(W, H)
-    bar = Progress(len(chunks), "render", progress)
+    d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    bufs = [upload(ctx, a) for a in (cam, params, light_rec, scene.spheres, scene.nodes, env)]
     t_start = time.perf_counter()
-    kernel_ns = 0
-    try:
-        for y0, rows in chunks:
-            kernel.set_args(d_cam, d_params, d_lights, d_spheres, d_nodes, d_env, d_out,
-                            np.int32(y0))
-            ev = cl.enqueue_nd_range_kernel(queue, kernel, (W, rows), None)
-            ev.wait()
-            kernel_ns += ev.profile.end - ev.profile.start
-            bar.update()
-        cl.enqueue_copy(queue, out, d_out)
-        queue.finish()
-    finally:
-        bar.close()
-    return {"rgba": out, "kernel_ms": kernel_ns * 1e-6,
+    kernel_ms = run_rows(device, kernel, [*bufs, d_out], W, H, PIXELS_PER_LAUNCH, progress)
+    cl.enqueue_copy(device.queue, out, d_out)
+    device.queue.finish()
+    return {"rgba": out, "kernel_ms": kernel_ms,
             "wall_ms": 1e3 * (time.perf_counter() - t_start), "tree_ms": scene.tree_ms,
             "flags": features.flags()}

@@ -12,7 +12,7 @@ import numpy as np
 from . import layout, lights as lights_mod
 from .errors import UserError
 from .features import VolumeFeatures
-from .progress import Progress
+from .dispatch import run_rows, upload
 
 G_MAX = 0.999          # |g| is clamped here: HG at |g| = 1 is a delta
 PIXELS_PER_LAUNCH = 1 << 16
@@ -73,11 +73,6 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     return spectral / spectral.max()
 
 
-def _chunks(width, height):
-    rows = max(1, min(height, PIXELS_PER_LAUNCH // max(1, width)))
-    return [(y, min(rows, height - y)) for y in range(0, height, rows)]
-
-
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
     """Render a Bricks volume. Returns a dict with 'rgba' (H, W, 4 float32), optionally
     'depth' (H, W), plus 'kernel_ms', 'wall_ms', 'flags'."""
@@ -107,46 +102,23 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
         point_r2_min=(0.5 * vs) ** 2)
     light_rec = lights_mod.pack(lights, w2l)
 
-    ctx, queue = device.context, device.queue
-    mf = cl.mem_flags
-    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-
-    def buf(arr):
-        arr = np.ascontiguousarray(arr)
-        if arr.nbytes == 0:
-            arr = np.zeros(1, arr.dtype)
-        return cl.Buffer(ctx, ro, hostbuf=arr)
-
+    ctx = device.context
     W, H = camera.width, camera.height
     emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
-    d_cam, d_params, d_lights = buf(cam), buf(params), buf(light_rec)
-    d_table = buf(np.asarray(bricks.table, np.int32))
-    d_data = buf(np.asarray(bricks.data, np.float32))
-    d_emis = buf(np.asarray(emission, np.float32))
+    bufs = [upload(ctx, a) for a in (cam, params, light_rec, np.asarray(bricks.table, np.int32),
+                                      np.asarray(bricks.data, np.float32),
+                                      np.asarray(emission, np.float32))]
     out = np.empty((H, W, 4), np.float32)
     depth = np.empty((H, W), np.float32) if settings.depth else np.empty(1, np.float32)
-    d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    d_depth = cl.Buffer(ctx, mf.WRITE_ONLY, depth.nbytes)
-
-    chunks = _chunks(W, H)
-    bar = Progress(len(chunks), "render", progress)
+    d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    d_depth = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, depth.nbytes)
     t_start = time.perf_counter()
-    kernel_ns = 0
-    try:
-        for y0, rows in chunks:
-            kernel.set_args(d_cam, d_params, d_lights, d_table, d_data, d_emis, d_out, d_depth,
-                            np.int32(y0))
-            ev = cl.enqueue_nd_range_kernel(queue, kernel, (W, rows), None)
-            ev.wait()
-            kernel_ns += ev.profile.end - ev.profile.start
-            bar.update()
-        cl.enqueue_copy(queue, out, d_out)
-        if settings.depth:
-            cl.enqueue_copy(queue, depth, d_depth)
-        queue.finish()
-    finally:
-        bar.close()
-    result = {"rgba": out, "kernel_ms": kernel_ns * 1e-6,
+    kernel_ms = run_rows(device, kernel, [*bufs, d_out, d_depth], W, H, PIXELS_PER_LAUNCH, progress)
+    cl.enqueue_copy(device.queue, out, d_out)
+    if settings.depth:
+        cl.enqueue_copy(device.queue, depth, d_depth)
+    device.queue.finish()
+    result = {"rgba": out, "kernel_ms": kernel_ms,
               "wall_ms": 1e3 * (time.perf_counter() - t_start), "flags": features.flags()}
     if settings.depth:
         result["depth"] = depth
