@@ -1,6 +1,9 @@
 /* Smooth union of spheres, tree traversal and sphere tracing.
    Field: d_i = |x - c_i| - r_i, m = min_i d_i, h_i = max(0, 1 - (d_i - m)/k),
-   F = m - (k/4) sum_{i != argmin} h_i^2 (a plain sum: independent of visiting order).
+   S = sum_i h_i^2 (the nearest sphere gives 1), F = m - (k/2) ln S: a plain sum, so
+   independent of visiting order. For two spheres F is C1 across the seam (slopes 1/2 and
+   1/2 where d_a = d_b); the bulge over the plain union is at most (k/2) ln N (N spheres
+   at equal distance), instead of growing linearly with N as a sum of pairwise smins does.
    Support: sphere i matters only where d_i < m + k. Flags: VR_TREE. */
 #ifndef VR_SDF_H
 #define VR_SDF_H
@@ -22,7 +25,7 @@ typedef struct {
 
 typedef struct {
     float f;      /* field value */
-    float lip;    /* local bound on |grad F|: 1 + sum_{i != argmin} h_i */
+    float lip;    /* local bound on |grad F|: 1 + 2 sum_{i != argmin} h_i / S */
     float3 grad;  /* analytic gradient (not normalised) */
 } SdfSample;
 
@@ -161,13 +164,14 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
     float s1, s2;
     float3 g;
     sdf_blend_sums(sc, x, m, &s1, &s2, &g);
-    s1 = fmax(s1 - 1.0f, 0.0f);            /* drop the argmin's h = 1 */
-    s2 = fmax(s2 - 1.0f, 0.0f);
-    g -= na;
-    r.f = m - 0.25f * sc->k * s2;
-    r.lip = 1.0f + s1;
-    /* grad F = n_a + (1/2) sum' h_i (n_i - n_a) */
-    r.grad = na + 0.5f * (g - s1 * na);
+    s2 = fmax(s2, 1.0f);                   /* the argmin's h = 1 is in the sums */
+    float s1o = fmax(s1 - 1.0f, 0.0f);     /* sum of h over the other spheres */
+    float inv_s = 1.0f / s2;
+    r.f = m - 0.5f * sc->k * log(s2);
+    /* |grad F| <= |grad m| + (1/S) sum' h_i |grad d_i - grad m| <= 1 + 2 sum' h_i / S */
+    r.lip = 1.0f + 2.0f * s1o * inv_s;
+    /* grad F = grad m + (1/S) sum_i h_i (n_i - n_a) */
+    r.grad = na + (g - s1 * na) * inv_s;
     return r;
 }
 

@@ -198,3 +198,49 @@ def test_installed_entry_point_reports_errors_without_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.startswith("volrender: error: ") and "Traceback" not in proc.stderr
     assert not out.exists()
+
+
+def test_render_point_inputs_and_scene(tmp_path, capsys):
+    """A generator, a text file and the bundled scene render through the CLI, and
+    command-line options override the scene."""
+    xyz = tmp_path / "p.xyz"
+    xyz.write_text("0 0 0 0.3\n0.4 0 0 0.3\n0 0.4 0 0.25\n")
+    for src, extra in (("blob:300", []), (xyz, ["--blend", "0.1"]),
+                       (ROOT / "scenes" / "molten_glass.toml", ["--bounces", "2", "--spp", "1"])):
+        out = tmp_path / "g.npy"
+        code, _, err = run(capsys, "render", src, "-o", out, *SMALL, *extra)
+        assert code == 0, err
+        img = np.load(out)
+        assert img.shape == (18, 24, 4) and np.all(np.isfinite(img))
+        assert 0.0 < img[..., 3].mean() < 1.0          # the glass covers part of the frame
+
+
+def test_no_tree_matches_tree_through_the_cli(tmp_path, capsys):
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    assert run(capsys, "render", "blob:500", "-o", a, *SMALL, "--bounces", "2")[0] == 0
+    assert run(capsys, "render", "blob:500", "-o", b, *SMALL, "--bounces", "2", "--no-tree")[0] == 0
+    np.testing.assert_allclose(np.load(a), np.load(b), atol=2e-3)
+
+
+@pytest.mark.parametrize("src, args, words", [
+    ("blob:abc", [], ["blob:abc"]),
+    ("teapot:100", [], ["unsupported", "glass_gather"]),
+    ("blob:100", ["--ior", "0"], ["ior"]),
+    ("blob:100", ["--aov", "depth"], ["volumes only"]),
+])
+def test_bad_point_inputs(tmp_path, capsys, src, args, words):
+    out = tmp_path / "o.png"
+    code, _, err = run(capsys, "render", src, "-o", out, *SMALL, *args)
+    assert_clean_failure(code, err, out, *words)
+
+
+def test_tree_command_screenshot_and_export(tmp_path, capsys):
+    shot, vtm = tmp_path / "t.png", tmp_path / "t.vtm"
+    code, _, err = run(capsys, "tree", "blob:400", "--screenshot", shot, "--export", vtm,
+                       "--max-depth", "3", "--window-size", "320x240")
+    assert code == 0, err
+    assert shot.stat().st_size > 1000 and vtm.exists()
+    code, _, err = run(capsys, "tree", DEMO, "--screenshot", tmp_path / "b.png", "--window-size", "320x240")
+    assert code == 0, err
+    code, _, err = run(capsys, "tree", "blob:400", "--depth", "99", "--screenshot", tmp_path / "x.png")
+    assert code == 2 and "depth" in err and "Traceback" not in err

@@ -128,15 +128,24 @@ def test_field_matches_oracle(cl_device, rng, use_tree, k):
     np.testing.assert_allclose(f, ref, atol=atol)
 
 
-def test_two_spheres_equal_polynomial_smin():
-    c = np.array([[0.0, 0, 0], [0.9, 0, 0]])
-    x = np.random.default_rng(1).uniform(-1, 2, size=(50, 3))
+def test_two_sphere_blend_is_c1_and_compact():
+    """Two spheres: F equals the plain union where |a - b| >= k, lies below it inside,
+    by (k/2) ln 2 on the seam, and its slope along a-b is 1/2 from both sides there."""
     k = 0.4
+    c = np.array([[0.0, 0, 0], [0.9, 0, 0]])
+    x = np.random.default_rng(1).uniform(-1, 2, size=(400, 3))
     a = np.linalg.norm(x - c[0], axis=1) - 0.5
     b = np.linalg.norm(x - c[1], axis=1) - 0.5
-    h = np.maximum(k - np.abs(a - b), 0.0) / k
-    np.testing.assert_allclose(reference.smooth_union(x, c, 0.5, k),
-                               np.minimum(a, b) - h * h * k / 4, atol=1e-12)
+    f = reference.smooth_union(x, c, 0.5, k)
+    far = np.abs(a - b) >= k
+    np.testing.assert_allclose(f[far], np.minimum(a, b)[far], atol=1e-12)
+    assert np.all(f[~far] < np.minimum(a, b)[~far])
+    seam = np.array([[0.45, 0.3, 0.0]])
+    assert reference.smooth_union(seam, c, 0.5, k)[0] == pytest.approx(
+        np.linalg.norm(seam - c[0]) - 0.5 - 0.5 * k * np.log(2.0))
+    e = 1e-6                       # along x, d_a grows and d_b shrinks at the same rate
+    fx = [reference.smooth_union(seam + [[s, 0, 0]], c, 0.5, k)[0] for s in (-e, 0.0, e)]
+    assert (fx[1] - fx[0]) / e == pytest.approx((fx[2] - fx[1]) / e, abs=1e-4)
 
 
 def test_gradient_matches_finite_difference(cl_device, rng):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import re
@@ -65,22 +66,26 @@ def build_parser():
     parser.add_argument("--version", action="version", version=f"volrender {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    r = sub.add_parser("render", formatter_class=Formatter, help="render a volume to an image",
+    r = sub.add_parser("render", formatter_class=Formatter, help="render a volume or a point cloud",
                        description="Render an OpenVDB grid (.vdb) or a converted brick file "
                                    "(.npz) with single scattering, shadow rays and a mixed "
-                                   "Henyey-Greenstein phase.")
-    r.add_argument("input", help="IN.vdb or IN.npz")
+                                   "Henyey-Greenstein phase; or a point cloud (.ply, .xyz, "
+                                   ".csv, .txt, .npy, a generator NAME:COUNT such as "
+                                   "glass_gather:2000, or a scene .toml) as molten glass. "
+                                   "Command-line options override the scene file.")
+    r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
+                                 "GENERATOR:COUNT, or SCENE.toml")
     r.add_argument("-o", "--output", required=True, help="OUT.exr (linear RGBA), .npy, or .png")
     g = r.add_argument_group("image and camera")
-    g.add_argument("--size", type=size, default=(640, 480), metavar="WxH", help="image size")
+    g.add_argument("--size", type=size, default=None, metavar="WxH", help="image size (default: 640x480)")
     g.add_argument("--origin", type=floats(3, name="--origin"), metavar="X,Y,Z",
                    help="camera position (default: frame the volume's bounds)")
     g.add_argument("--target", type=floats(3, name="--target"), metavar="X,Y,Z",
                    help="point looked at (default: the bounds' centre)")
     g.add_argument("--up", type=floats(3, name="--up"), default=(0.0, 1.0, 0.0), metavar="X,Y,Z")
-    g.add_argument("--fov", type=float, default=40.0, help="vertical field of view, degrees")
-    g.add_argument("--spp", type=int, default=1, help="samples per pixel (box filter)")
-    g.add_argument("--seed", type=int, default=0, help="random seed")
+    g.add_argument("--fov", type=float, default=None, help="vertical field of view, degrees (default: 40)")
+    g.add_argument("--spp", type=int, default=None, help="samples per pixel, box filter (default: 1)")
+    g.add_argument("--seed", type=int, default=None, help="random seed (default: 0)")
     g.add_argument("--background", type=floats(1, 3, "--background"), default=(0.0,),
                    metavar="R,G,B", help="radiance behind the volume (one value = grey)")
     lg = r.add_argument_group("lights (default: one sun, direction -0.6,-1,-0.5, E=6)")
@@ -104,9 +109,30 @@ def build_parser():
     q.add_argument("--step", type=float, default=0.5, help="primary step, voxels")
     q.add_argument("--shadow-step", type=float, default=1.0, help="shadow-ray step, voxels")
     q.add_argument("--no-skip", action="store_true", help="march empty bricks too (reference for skipping)")
+    gl = r.add_argument_group("molten glass (point clouds; defaults in volrender.glass.GlassSettings)")
+    gl.add_argument("--radius", type=float, default=None,
+                    help="sphere radius for every point (default: the file's radii, else half "
+                         "the median neighbour spacing)")
+    gl.add_argument("--blend", type=float, default=None,
+                    help="smooth-union width k, world units; 0 = plain union (default: twice the median radius)")
+    gl.add_argument("--leaf-size", type=int, default=None, help="points per tree leaf (default: 8)")
+    gl.add_argument("--no-tree", action="store_true", help="brute force over all spheres (reference)")
+    gl.add_argument("--bounces", type=int, default=None, help="surface events per path (default: 6)")
+    gl.add_argument("--ior", type=float, default=None, help="index of refraction (default: 1.5)")
+    gl.add_argument("--absorption", type=floats(3, name="--absorption"), default=None, metavar="R,G,B",
+                    help="Beer-Lambert coefficient inside glass, per unit length (default: 0.15,0.6,1.6)")
+    gl.add_argument("--color", type=floats(3, name="--color"), default=None, metavar="R,G,B",
+                    help="colour of the glow (default: 1,0.42,0.12)")
+    gl.add_argument("--reflectivity", type=float, default=None, help="scale on Fresnel reflection (default: 1)")
+    gl.add_argument("--glow", type=float, default=None, help="hot-glass emission per unit length (default: 0.6)")
+    gl.add_argument("--epsilon", type=float, default=None, help="relative hit threshold (default: 1e-4)")
+    gl.add_argument("--max-steps", type=int, default=None, help="sphere-tracing steps per ray (default: 256)")
+    gl.add_argument("--env", default=None, metavar="ENV.exr",
+                    help="equirectangular environment (default: procedural sky)")
+    gl.add_argument("--opaque", action="store_true", help="no refraction: shaded opaque spheres")
     o = r.add_argument_group("output")
     o.add_argument("--aov", action="append", default=[], choices=["depth", "transmittance"],
-                   help="extra EXR layer (repeatable): depth -> Z, transmittance -> T")
+                   help="volumes: extra EXR layer (repeatable): depth -> Z, transmittance -> T")
     o.add_argument("--exposure", type=float, default=0.0, help="PNG only: exposure in stops")
     o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic", help="PNG only")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -124,6 +150,29 @@ def build_parser():
     c.add_argument("--debug", action="store_true", help="show tracebacks")
     c.add_argument("-v", "--verbose", action="store_true")
 
+    t = sub.add_parser("tree", formatter_class=Formatter,
+                       help="show the partition tree of a point cloud, or a volume's bricks (pyvista)",
+                       description="Draw the node boxes of the partition tree the renderer builds "
+                                   "(coloured by depth, points coloured by leaf), or the occupied "
+                                   "bricks of a volume (coloured by their maximum density).")
+    t.add_argument("input", help="POINTS (.ply/.xyz/.csv/.txt/.npy), GENERATOR:COUNT, SCENE.toml, "
+                                 "or a volume (.vdb/.npz)")
+    t.add_argument("--leaf-size", type=int, default=8, help="points per leaf")
+    t.add_argument("--radius", type=float, default=None,
+                   help="sphere radius (default: the file's, else half the median spacing)")
+    t.add_argument("--blend", type=float, default=0.0, help="inflate node boxes by this margin")
+    t.add_argument("--grid", default=None, help="volume grid name")
+    lv = t.add_mutually_exclusive_group()
+    lv.add_argument("--depth", type=int, default=None, help="show only this level")
+    lv.add_argument("--leaves", action="store_true", help="show only the leaves")
+    lv.add_argument("--max-depth", type=int, default=None, help="show levels 0..D")
+    t.add_argument("--show", action="store_true", help="open an interactive window")
+    t.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to a PNG")
+    t.add_argument("--export", default=None, metavar="OUT.vtm", help="write the boxes (.vtm, .vtk, .vtp)")
+    t.add_argument("--window-size", type=size, default=(1024, 768), metavar="WxH")
+    t.add_argument("--debug", action="store_true", help="show tracebacks")
+    t.add_argument("-v", "--verbose", action="store_true")
+
     i = sub.add_parser("info", formatter_class=Formatter,
                        help="list OpenCL devices and versions, or describe an input file")
     i.add_argument("input", nargs="?", help="optional: a .vdb or .npz to describe")
@@ -133,47 +182,83 @@ def build_parser():
 
 # ---------------------------------------------------------------- commands
 
-def cmd_render(args):
-    from . import camera as camera_mod, device as device_mod, image, vdb
-    from .lights import DEFAULT_LIGHTS, PointLight, Sun
-    from .render import VolumeSettings, render_volume
+POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy")
 
-    src = Path(args.input)
-    if src.suffix.lower() not in VOLUME_SUFFIXES:
-        raise UserError(f"unsupported input type {src.suffix or '(none)'!r}", path=src,
-                        fix="give a .vdb or .npz volume")
-    aovs = tuple(dict.fromkeys(args.aov))
-    out_path = image.check_output(args.output, aovs)
-    if not 0.0 < args.fov < 180.0:
-        raise UserError(f"--fov must be in (0, 180) degrees, got {args.fov}")
 
-    bg = args.background * 3 if len(args.background) == 1 else args.background
-    phase = (args.phase[0], 0.0, 1.0) if len(args.phase) == 1 else args.phase
-    settings = VolumeSettings(
-        density_scale=args.density_scale, albedo=args.albedo, phase=phase, background=bg,
-        step=args.step, shadow_step=args.shadow_step, spp=args.spp, seed=args.seed,
-        shadows=not args.no_shadows, skip_empty=not args.no_skip,
-        emission_scale=args.emission_scale, emission_temperature=args.emission_temperature,
-        depth="depth" in aovs)
+def input_kind(text: str) -> str:
+    """'volume', 'points', 'scene' or 'generator' for a render input."""
+    from . import points
+    suffix = Path(text).suffix.lower()
+    if suffix in VOLUME_SUFFIXES:
+        return "volume"
+    if suffix in POINT_SUFFIXES:
+        return "points"
+    if suffix == ".toml":
+        return "scene"
+    if ":" in text and text.split(":", 1)[0] in points.GENERATORS:
+        return "generator"
+    raise UserError(f"unsupported input type {suffix or '(none)'!r}", path=text,
+                    fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
+                        f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
+                        f"with GENERATOR one of {', '.join(points.GENERATORS)}")
+
+
+def generated_cloud(text: str, seed: int = 0):
+    """PointCloud from GENERATOR:COUNT."""
+    from . import points
+    name, _, count = text.partition(":")
+    try:
+        n = int(float(count))
+    except ValueError:
+        raise UserError(f"expected GENERATOR:COUNT such as {name}:2000, got {text!r}") from None
+    if not 1 <= n <= 50_000_000:
+        raise UserError(f"point count must be in [1, 5e7], got {n}")
+    return points.generate(name, n, seed)
+
+
+def pick(*values):
+    """The first value that is not None."""
+    return next((v for v in values if v is not None), None)
+
+
+def cli_lights(args):
+    from .lights import PointLight, Sun
     if args.no_lights and (args.sun or args.point_light):
         raise UserError("--no-lights contradicts --sun/--point-light; drop one of them")
     lights = [Sun(tuple(s[:3]), s[3]) for s in args.sun]
     lights += [PointLight(tuple(p[:3]), p[3]) for p in args.point_light]
-    if not lights and not args.no_lights:
-        lights = list(DEFAULT_LIGHTS)
+    return lights or None
 
-    dev = device_mod.get(args.device)
-    t0 = time.perf_counter()
-    bricks = vdb.load_volume(src, grid=args.grid, emission_grid=args.emission_grid)
-    t_load = time.perf_counter() - t0
-    lo, hi = bricks.world_bounds()
-    width, height = args.size
-    cam = camera_mod.frame_bounds(lo, hi, width, height, fov=args.fov, up=args.up)
-    if args.origin or args.target:
-        cam = camera_mod.Camera(args.origin or cam.origin, args.target or cam.target,
-                                args.up, args.fov, width, height)
 
-    result = render_volume(bricks, cam, lights, settings, dev, progress=args.progress)
+def make_camera(args, lo, hi, scene_cam=None, scene_size=None):
+    from . import camera as camera_mod
+    scene_cam = scene_cam or {}
+    width, height = pick(args.size, scene_size, (640, 480))
+    fov = pick(args.fov, scene_cam.get("fov"), camera_mod.DEFAULT_FOV)
+    if not 0.0 < fov < 180.0:
+        raise UserError(f"--fov must be in (0, 180) degrees, got {fov}")
+    up = pick(args.up if args.up != (0.0, 1.0, 0.0) else None, scene_cam.get("up"), (0.0, 1.0, 0.0))
+    cam = camera_mod.frame_bounds(lo, hi, width, height, fov=fov, up=up)
+    origin, target = pick(args.origin, scene_cam.get("origin")), pick(args.target, scene_cam.get("target"))
+    if origin or target:
+        cam = camera_mod.Camera(origin or cam.origin, target or cam.target, up, fov, width, height)
+    return cam
+
+
+def cmd_render(args):
+    from . import image
+    kind = input_kind(args.input)
+    aovs = tuple(dict.fromkeys(args.aov))
+    if aovs and kind != "volume":
+        raise UserError(f"--aov {aovs[0]} is available for volumes only", path=args.input)
+    out_path = image.check_output(args.output, aovs)
+    if args.fov is not None and not 0.0 < args.fov < 180.0:
+        raise UserError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+    lights = cli_lights(args)
+    if kind == "volume":
+        result, what = render_volume_input(args, lights, aovs)
+    else:
+        result, what = render_points_input(args, kind, lights)
     layers = {}
     if "depth" in aovs:
         layers["depth"] = result["depth"]
@@ -181,9 +266,89 @@ def cmd_render(args):
         layers["transmittance"] = 1.0 - result["rgba"][..., 3]
     image.write_image(out_path, result["rgba"], layers or None,
                       exposure=args.exposure, tonemap=args.tonemap)
-    print(f"wrote {out_path} ({width}x{height}, {args.spp} spp) in "
-          f"{result['wall_ms'] / 1e3:.2f} s (load {t_load:.2f} s) on {dev.name}", file=sys.stderr)
+    h, w = result["rgba"].shape[:2]
+    print(f"wrote {out_path} ({w}x{h}, {what}) in {result['wall_ms'] / 1e3:.2f} s "
+          f"(kernel {result['kernel_ms'] / 1e3:.2f} s) on {result['device']}", file=sys.stderr)
     return 0
+
+
+def render_volume_input(args, lights, aovs):
+    from . import device as device_mod, vdb
+    from .lights import DEFAULT_LIGHTS
+    from .render import VolumeSettings, render_volume
+
+    bg = args.background * 3 if len(args.background) == 1 else args.background
+    phase = (args.phase[0], 0.0, 1.0) if len(args.phase) == 1 else args.phase
+    spp = pick(args.spp, 1)
+    settings = VolumeSettings(
+        density_scale=args.density_scale, albedo=args.albedo, phase=phase, background=bg,
+        step=args.step, shadow_step=args.shadow_step, spp=spp, seed=pick(args.seed, 0),
+        shadows=not args.no_shadows, skip_empty=not args.no_skip,
+        emission_scale=args.emission_scale, emission_temperature=args.emission_temperature,
+        depth="depth" in aovs)
+    if lights is None:
+        lights = [] if args.no_lights else list(DEFAULT_LIGHTS)
+    dev = device_mod.get(args.device)
+    bricks = vdb.load_volume(Path(args.input), grid=args.grid, emission_grid=args.emission_grid)
+    cam = make_camera(args, *bricks.world_bounds())
+    result = render_volume(bricks, cam, lights, settings, dev, progress=args.progress)
+    result["device"] = dev.name
+    return result, f"{spp} spp"
+
+
+def render_points_input(args, kind, lights):
+    from . import device as device_mod, glass, points, scene as scene_mod
+    from .lights import DEFAULT_LIGHTS, PointLight, Sun
+
+    scene, radius = {}, None
+    if kind == "scene":
+        scene = scene_mod.load(args.input)
+        cloud, radius = scene_mod.load_cloud(scene)
+    elif kind == "generator":
+        cloud = generated_cloud(args.input, pick(args.seed, 0))
+    else:
+        cloud = points.load_points(args.input)
+    mat, rnd = scene.get("material", {}), scene.get("render", {})
+    radius = pick(args.radius, radius)
+    if radius is None and cloud.radii is None:
+        radius = points.default_radius(cloud.centers)
+        print(f"volrender: {len(cloud.centers)} points without radii: using radius {radius:.4g} "
+              "(half the median neighbour spacing); set --radius", file=sys.stderr)
+    values = dict(
+        radius=radius, blend=pick(args.blend, rnd.get("blend")),
+        leaf_size=pick(args.leaf_size, rnd.get("leaf_size")),
+        use_tree=False if args.no_tree else rnd.get("tree"),
+        bounces=pick(args.bounces, rnd.get("bounces")), ior=pick(args.ior, mat.get("ior")),
+        absorption=pick(args.absorption, mat.get("absorption")),
+        color=pick(args.color, mat.get("color")),
+        reflectivity=pick(args.reflectivity, mat.get("reflectivity")),
+        glow=pick(args.glow, mat.get("glow")), epsilon=pick(args.epsilon, rnd.get("epsilon")),
+        max_steps=pick(args.max_steps, rnd.get("max_steps")), spp=pick(args.spp, rnd.get("spp")),
+        seed=pick(args.seed, rnd.get("seed")),
+        env=pick(args.env, scene.get("environment", {}).get("map")),
+        shadows=False if args.no_shadows else rnd.get("shadows"),
+        refraction=False if args.opaque else None)
+    settings = glass.GlassSettings(**{k: v for k, v in values.items() if v is not None})
+    if settings.env is not None:
+        settings = dataclasses.replace(settings, env=str(settings.env))
+        if not Path(settings.env).is_file():
+            raise UserError("no such environment map", path=settings.env)
+    if lights is None:
+        lights = [Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                  if l["type"] == "sun" else
+                  PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                  for l in scene.get("lights", [])]
+        if not lights and not args.no_lights:
+            lights = list(DEFAULT_LIGHTS)
+    if args.no_lights:
+        lights = []
+    dev = device_mod.get(args.device)
+    radii = glass.sphere_radii(cloud, settings)
+    cam = make_camera(args, *glass.sphere_bounds(cloud, radii), scene.get("camera"), rnd.get("size"))
+    result = glass.render_points(cloud, cam, lights, settings, dev, progress=args.progress)
+    result["device"] = dev.name
+    return result, (f"{len(cloud.centers)} spheres, {settings.spp} spp, "
+                    f"{'tree' if settings.use_tree else 'no tree'}")
 
 
 def cmd_convert(args):
@@ -203,6 +368,23 @@ def cmd_convert(args):
     print(f"wrote {dst}: grid {bricks.grid_name!r}, {n} bricks of 8^3 "
           f"(of {int(bricks.dims.prod())}), voxel size {bricks.voxel_size:.6g}, "
           f"in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
+    return 0
+
+
+def cmd_tree(args):
+    from . import inspect
+    view = dict(depth=args.depth, leaves=args.leaves, max_depth=args.max_depth,
+                screenshot=args.screenshot, export=args.export, show=args.show,
+                window_size=args.window_size)
+    if input_kind(args.input) == "generator":
+        t = inspect.show_cloud(generated_cloud(args.input), leaf_size=args.leaf_size, radius=args.radius,
+                               blend=args.blend, **view)
+    else:
+        t = inspect.inspect_input(args.input, leaf_size=args.leaf_size, radius=args.radius,
+                                  blend=args.blend, grid=args.grid, **view)
+    done = [p for p in (args.screenshot, args.export) if p]
+    if done:
+        print(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})", file=sys.stderr)
     return 0
 
 
@@ -244,7 +426,7 @@ def cmd_info(args):
     return 0
 
 
-COMMANDS = {"render": cmd_render, "convert": cmd_convert, "info": cmd_info}
+COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "info": cmd_info}
 
 
 def _warn_one_line(message, category, filename, lineno, file=None, line=None):

@@ -28,8 +28,7 @@ class GlassSettings:
     """Molten-glass look and tracing knobs. Lengths are world units.
 
     radius: one radius for every point (None: the cloud's own radii).
-    blend: smooth-union width k (None: the median radius; much wider blends
-        grow crests in dense clouds, see pack_scene). 0 gives the plain union.
+    blend: smooth-union width k (None: twice the median radius). 0 gives the plain union.
     absorption: rgb Beer-Lambert coefficient inside glass, per unit length.
     color: rgb colour of the glow (and the diffuse tint when refraction is off).
     reflectivity: scale on the Fresnel-weighted environment reflection.
@@ -127,10 +126,10 @@ def sphere_bounds(cloud, radii):
 
 
 def blend_width(radii, settings: GlassSettings) -> float:
-    """The smooth-union width k: settings.blend, else the median radius."""
+    """The smooth-union width k: settings.blend, else twice the median radius."""
     if settings.blend is not None:
         return float(settings.blend)
-    return float(np.median(radii)) if len(radii) else 0.0
+    return 2.0 * float(np.median(radii)) if len(radii) else 0.0
 
 
 def _outward(a, down: bool):
@@ -174,10 +173,9 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     spheres = np.empty((n, 4), np.float32)
     spheres[:, :3] = centers[order] - centre
     spheres[:, 3] = radii[order]
-    # The sum-form union bulges by k/4 per extra sphere within reach of the nearest one
-    # (where many are about equally near, valleys fill and crests grow when k exceeds the
-    # spacing); at most (k/4)(N-1) for N coincident spheres, so the clip box grows by that.
-    bulge = k * (1.0 + 0.25 * (n - 1))
+    # The union bulges by at most (k/2) ln N over the plain union (N spheres at equal
+    # distance), so the clip box grows by that plus the support k.
+    bulge = k * (1.0 + 0.5 * np.log(n))
     scale = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)

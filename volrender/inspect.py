@@ -450,8 +450,21 @@ def _inspect_volume(path, opts):
 
 def _inspect_points(path, opts):
     from .points import load_points
+    return _show_cloud(load_points(path), opts)
+
+
+def _inspect_scene(path, opts):
+    from . import scene
+    cloud, radius = scene.load_cloud(scene.load(path))
+    return _show_cloud(cloud, {**opts, "radius": pick_radius(opts["radius"], radius)})
+
+
+def pick_radius(*values):
+    return next((v for v in values if v is not None), None)
+
+
+def _show_cloud(cloud, opts):
     from .tree import build
-    cloud = load_points(path)
     if opts["radius"] is not None:
         radii = float(opts["radius"])
         if not np.isfinite(radii) or radii < 0:
@@ -466,9 +479,19 @@ def _inspect_points(path, opts):
     return t
 
 
+def show_cloud(cloud, *, leaf_size=8, radius=None, blend=0.0, depth=None, leaves=False,
+               max_depth=None, screenshot=None, export=None, show=False, window_size=(1024, 768)):
+    """Build the tree of a PointCloud (as the renderer does) and show it; see inspect_input."""
+    _check_outputs(screenshot, export, show)
+    opts = dict(leaf_size=leaf_size, radius=radius, blend=blend,
+                output=dict(screenshot=screenshot, export=export, show=show, window_size=window_size),
+                view=dict(depth=depth, leaves=leaves, max_depth=max_depth))
+    return _show_cloud(cloud, opts)
+
+
 # suffix -> handler(path, opts) returning the object shown; a new input kind (e.g. a
 # .toml scene) registers its handler here.
-INPUTS = {".vdb": _inspect_volume, ".npz": _inspect_volume,
+INPUTS = {".vdb": _inspect_volume, ".npz": _inspect_volume, ".toml": _inspect_scene,
           **{s: _inspect_points for s in (".ply", ".xyz", ".csv", ".txt", ".npy")}}
 INPUT_SUFFIXES = tuple(INPUTS)
 

@@ -34,7 +34,7 @@ def slab_single_scatter_normal(tau, albedo, p, irradiance):
 
 def smooth_union(x, centers, radii, k):
     """Order-independent smooth union of spheres (cl/sdf.h) at points x (M,3), brute force:
-    F = m - (k/4) sum_{i != argmin} h_i^2, h_i = max(0, 1 - (d_i - m)/k), m = min_i d_i."""
+    F = m - (k/2) ln(sum_i h_i^2), h_i = max(0, 1 - (d_i - m)/k), m = min_i d_i."""
     x = np.atleast_2d(np.asarray(x, np.float64))
     c = np.asarray(centers, np.float64)
     r = np.broadcast_to(np.asarray(radii, np.float64), (len(c),))
@@ -43,5 +43,4 @@ def smooth_union(x, centers, radii, k):
     if k <= 1e-20:
         return m
     h = np.maximum(0.0, 1.0 - (d - m[:, None]) / k)
-    h[np.arange(len(x)), d.argmin(axis=1)] = 0.0
-    return m - 0.25 * k * (h * h).sum(axis=1)
+    return m - 0.5 * k * np.log((h * h).sum(axis=1))

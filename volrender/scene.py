@@ -50,7 +50,7 @@ SCHEMA = {
     "camera": {"origin": VEC3, "target": VEC3, "up": VEC3, "fov": NUM},
     "lights": {"type": str, "direction": VEC3, "irradiance": NUM, "position": VEC3,
                "intensity": NUM, "color": VEC3},
-    "environment": {"map": PATH, "color": VEC3},
+    "environment": {"map": PATH},
     "render": {"size": SIZE, "spp": int, "seed": int, "bounces": int, "blend": NUM,
                "leaf_size": int, "epsilon": NUM, "max_steps": int, "shadows": bool,
                "tree": bool},
@@ -156,3 +156,16 @@ def _light(d, i):
     if extra:
         raise UserError(f"{where}: a {kind} light has no {', '.join(sorted(extra))}")
     return d
+
+
+def load_cloud(scene: dict):
+    """(PointCloud, radius or None) from a parsed scene's [points] section."""
+    from . import points
+    pts = scene["points"]
+    if "file" in pts:
+        cloud = points.load_points(pts["file"])
+    else:
+        if pts["count"] < 1:
+            raise UserError(f"[points].count must be >= 1, got {pts['count']}")
+        cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
+    return cloud, pts.get("radius")
