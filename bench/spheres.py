@@ -52,9 +52,17 @@ def main(argv=None):
     dev = device.get(args.device)
     base = glass.GlassSettings(bounces=args.bounces)
     compare, growth = [], []
+    tag = args.tag or device_tag(dev)
+    path = RESULTS / f"spheres_{tag}.json"
+
+    def save():          # after every row, so a run cut short still leaves its data
+        return write_json(path, {"benchmark": "spheres", "size": [width, height],
+                                 "generator": args.generator, "bounces": args.bounces, "spp": 1,
+                                 "repeat": args.repeat, **device_info(dev),
+                                 "compare": compare, "growth": growth})
     for n in args.compare:
         cloud = points.generate(args.generator, n, seed=1)
-        cam = glass.default_camera(cloud, base, width, height)
+        cam = glass.default_camera(cloud, width, height)
         img_t, t = measure(cloud, cam, base, dev, args.repeat, [SUN])
         img_b, b = measure(cloud, cam, glass.GlassSettings(bounces=args.bounces, use_tree=False),
                            dev, args.repeat, [SUN])
@@ -62,21 +70,19 @@ def main(argv=None):
                "speedup": b["kernel_ms"]["median"] / t["kernel_ms"]["median"],
                "max_abs_diff": float(np.abs(img_t - img_b).max())}
         compare.append(row)
+        save()
         print(f"n={n:8d} tree {t['kernel_ms']['median']:9.1f} ms  brute {b['kernel_ms']['median']:9.1f} ms"
               f"  x{row['speedup']:.1f}  max|diff| {row['max_abs_diff']:.1e}", flush=True)
     for n in args.growth:
         cloud = points.generate(args.generator, n, seed=1)
-        cam = glass.default_camera(cloud, base, width, height)
+        cam = glass.default_camera(cloud, width, height)
         for lit in (True, False):
             _, t = measure(cloud, cam, base, dev, args.repeat, [SUN] if lit else [])
             growth.append({"n": n, "lit": lit, "tree": t})
+            save()
             print(f"n={n:8d} {'lit  ' if lit else 'unlit'} tree {t['kernel_ms']['median']:9.1f} ms"
                   f"  build {t['tree_ms']['median']:8.1f} ms", flush=True)
-    tag = args.tag or device_tag(dev)
-    out = write_json(RESULTS / f"spheres_{tag}.json",
-                     {"benchmark": "spheres", "size": [width, height], "generator": args.generator,
-                      "bounces": args.bounces, "spp": 1, "repeat": args.repeat, **device_info(dev),
-                      "compare": compare, "growth": growth})
+    out = save()
     plot(compare, growth, dev, out.with_suffix(".png"), width, height)
     print(f"wrote {out}")
 
