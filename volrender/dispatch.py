@@ -1,10 +1,65 @@
-"""Kernel launches shared by the renderers: uploads, and one-work-item-per-pixel
-launches split into row bands (for progress) that each write their own pixels."""
+"""Kernel launches shared by the renderers: uploads, and the two dispatch variants.
+
+fragment: one independent work-item per pixel, the runtime picks the local size, no
+          local memory.
+tiled:    one work-group per screen tile of tile_w x tile_h pixels; the kernel culls the
+          scene against its tile cooperatively into local memory first. The global size is
+          rounded up to whole tiles (work-items past the image edge still help the group).
+
+Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the
+bands are large, since small launches leave most of the device idle.
+"""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import UserError
 from .progress import Progress
+
+DISPATCHES = ("fragment", "tiled")
+GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
+
+
+@dataclass(frozen=True)
+class Dispatch:
+    """How to launch: `kind` in DISPATCHES and, for tiled, the tile size in pixels."""
+    kind: str = "fragment"
+    tile: tuple = (8, 8)
+
+    def __post_init__(self):
+        if self.kind not in DISPATCHES:
+            raise UserError(f"unknown dispatch {self.kind!r}", fix=f"use one of {', '.join(DISPATCHES)}")
+        tw, th = self.tile
+        if not (isinstance(tw, (int, np.integer)) and isinstance(th, (int, np.integer))
+                and 1 <= tw <= 64 and 1 <= th <= 64 and tw * th <= 1024):
+            raise UserError(f"tile {tw}x{th} is out of range",
+                            fix="give --tile WxH with 1..64 each and W*H <= 1024")
+
+    @property
+    def tiled(self) -> bool:
+        return self.kind == "tiled"
+
+    def check(self, device, kernel):
+        """Refuse a tile the device cannot run as one work-group."""
+        if not self.tiled:
+            return
+        import pyopencl as cl
+        limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device.device)
+        n = self.tile[0] * self.tile[1]
+        if n > limit:
+            raise UserError(f"tile {self.tile[0]}x{self.tile[1]} ({n} work-items) exceeds this "
+                            f"kernel's work-group limit {limit} on {device.name}",
+                            fix="give a smaller --tile")
+
+
+def parse_tile(text: str) -> tuple:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise UserError(f"--tile takes WxH, got {text!r}", fix="e.g. --tile 8x8") from None
+    return w, h
 
 
 def upload(ctx, arr):
@@ -17,23 +72,42 @@ def upload(ctx, arr):
     return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=arr)
 
 
-def row_bands(width: int, height: int, pixels: int):
-    """(first row, rows) bands of about `pixels` pixels each."""
+def is_gpu(device) -> bool:
+    import pyopencl as cl
+    return bool(device.device.type & cl.device_type.GPU)
+
+
+def row_bands(width: int, height: int, pixels: int, unit: int = 1):
+    """(first row, rows) bands of about `pixels` pixels each; rows a multiple of `unit`
+    except possibly the last."""
     rows = max(1, min(height, pixels // max(1, width)))
+    rows = max(unit, rows - rows % unit)
     return [(y, min(rows, height - y)) for y in range(0, height, rows)]
 
 
-def run_rows(device, kernel, args, width, height, pixels, progress=None) -> float:
-    """Launch `kernel(*args, y0)` over a width x rows range for each band; returns the
-    kernel time in ms (OpenCL profiling events)."""
+def run_rows(device, kernel, args, width, height, pixels, progress=None,
+             dispatch: Dispatch | None = None) -> float:
+    """Launch `kernel(*args, y0)` band by band over the image; returns the kernel time in
+    ms (OpenCL profiling events). `pixels` is the band size on CPUs; GPUs get
+    GPU_BAND_PIXELS."""
     import pyopencl as cl
-    bands = row_bands(width, height, pixels)
+    dispatch = dispatch or Dispatch()
+    dispatch.check(device, kernel)
+    tw, th = dispatch.tile if dispatch.tiled else (1, 1)
+    if is_gpu(device):
+        pixels = max(pixels, GPU_BAND_PIXELS)
+    bands = row_bands(width, height, pixels, th)
     bar = Progress(len(bands), "render", progress)
     kernel_ns = 0
+    gx = -(-width // tw) * tw
     try:
         for y0, rows in bands:
             kernel.set_args(*args, np.int32(y0))
-            ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (width, rows), None)
+            if dispatch.tiled:
+                gy = -(-rows // th) * th
+                ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (gx, gy), (tw, th))
+            else:
+                ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (width, rows), None)
             ev.wait()
             kernel_ns += ev.profile.end - ev.profile.start
             bar.update()
