@@ -1,15 +1,21 @@
-"""Molten-glass speed against sphere count: the partition tree vs brute force (same
-image), and the tree's growth from 10^3 to 10^6 spheres at a fixed image size.
+"""Molten glass against sphere count: fragment vs tiled dispatch, tree vs brute force,
+lit vs unlit, and the kernel-specialisation effect (uber-kernel vs only what is needed).
 
-    .venv/bin/python bench/spheres.py [--device SPEC] [--size 320x240]
-        [--compare 1000,3000,10000] [--growth 1000,10000,100000,1000000] [--repeat 3]
+    volrender bench spheres [--device SPEC] [--size 640x480] [--counts 1000,...,1000000]
+        [--repeat 3] [--brute-limit 60] [--tile 8x8] [--bounces 2]
 
-Writes bench/results/spheres_<device>.json and .png.
+Each variant: one warm-up (program build, first launch), then --repeat timed renders;
+kernel time from OpenCL profiling events, wall time around the launches, tree build time.
+Brute force (no tree) runs only while one render of it takes under --brute-limit seconds.
+Writes bench/results/spheres_<device>.json (every run) and .png (log-log, one line per
+variant) and prints a table in the layout of the paper's Tables 1 and 2.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +23,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
 from volrender import device, glass, points  # noqa: E402
+from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 
 SUN = Sun((-0.5, -1.0, -0.4), 3.0)
+COUNTS = [1000, 1500, 2000, 3000, 10_000, 100_000, 1_000_000]
+# the paper's consumer-GPU figures (ms), for the printed comparison
+PAPER = {("fragment", False, 1000): 56.7, ("fragment", False, 1500): 375.9,
+         ("compute", False, 2000): 54.6, ("compute", False, 3000): 238.0,
+         ("compute", True, 2000, True): 32.3, ("compute", True, 2000, False): 13.2,
+         ("compute", True, 3000, True): 120.7, ("compute", True, 3000, False): 14.3}
 
 
 def ints(text):
@@ -27,88 +40,159 @@ def ints(text):
 
 
 def measure(cloud, cam, settings, dev, repeat, lights):
-    glass.render_points(cloud, cam, lights, settings, dev)          # warm-up and build
+    """Warm-up at a tiny size (builds the program), then `repeat` timed renders."""
+    glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings, dev)
     kernel, wall, tree = [], [], []
     for _ in range(repeat):
         r = glass.render_points(cloud, cam, lights, settings, dev)
         kernel.append(r["kernel_ms"])
         wall.append(r["wall_ms"])
-        tree.append(r.get("tree_ms", 0.0))
+        tree.append(r["tree_ms"])
     return r["rgba"], {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "tree_ms": stats(tree)}
 
 
+def variant_name(v):
+    return (f"{v['dispatch']}, {'tree' if v['tree'] else 'brute force'}, "
+            f"{'lit' if v['lit'] else 'unlit'}" + (", uber" if v.get("uber") else ""))
+
+
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="volrender bench spheres", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default=None)
-    ap.add_argument("--size", default="320x240")
+    ap.add_argument("--size", default="640x480")
     ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS))
-    ap.add_argument("--compare", type=ints, default=[1000, 3000, 10000])
-    ap.add_argument("--growth", type=ints, default=[1000, 10000, 100000, 1000000])
+    ap.add_argument("--counts", type=ints, default=COUNTS)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--bounces", type=int, default=2)
+    ap.add_argument("--tile", type=parse_tile, default=(8, 8))
+    ap.add_argument("--brute-limit", type=float, default=60.0,
+                    help="seconds: stop brute force once one render takes longer")
+    ap.add_argument("--dispatch", default="fragment,tiled")
+    ap.add_argument("--uber-count", type=int, default=3000,
+                    help="sphere count of the uber-kernel comparison (0: skip)")
     ap.add_argument("--tag", default=None)
     args = ap.parse_args(argv)
-    width, height = (int(v) for v in args.size.split("x"))
+    width, height = (int(v) for v in args.size.lower().split("x"))
     dev = device.get(args.device)
-    base = glass.GlassSettings(bounces=args.bounces)
-    compare, growth = [], []
     tag = args.tag or device_tag(dev)
     path = RESULTS / f"spheres_{tag}.json"
+    rows, uber_rows = [], []
+    dispatches = [d for d in args.dispatch.split(",") if d]
 
     def save():          # after every row, so a run cut short still leaves its data
         return write_json(path, {"benchmark": "spheres", "size": [width, height],
                                  "generator": args.generator, "bounces": args.bounces, "spp": 1,
-                                 "repeat": args.repeat, **device_info(dev),
-                                 "compare": compare, "growth": growth})
-    for n in args.compare:
+                                 "tile": list(args.tile), "repeat": args.repeat,
+                                 **device_info(dev), "rows": rows, "uber": uber_rows})
+
+    brute_ok = {(d, lit): True for d in dispatches for lit in (True, False)}
+    for n in args.counts:
         cloud = points.generate(args.generator, n, seed=1)
         cam = glass.default_camera(cloud, width, height)
-        img_t, t = measure(cloud, cam, base, dev, args.repeat, [SUN])
-        img_b, b = measure(cloud, cam, glass.GlassSettings(bounces=args.bounces, use_tree=False),
-                           dev, args.repeat, [SUN])
-        row = {"n": n, "tree": t, "brute": b,
-               "speedup": b["kernel_ms"]["median"] / t["kernel_ms"]["median"],
-               "max_abs_diff": float(np.abs(img_t - img_b).max())}
-        compare.append(row)
-        save()
-        print(f"n={n:8d} tree {t['kernel_ms']['median']:9.1f} ms  brute {b['kernel_ms']['median']:9.1f} ms"
-              f"  x{row['speedup']:.1f}  max|diff| {row['max_abs_diff']:.1e}", flush=True)
-    for n in args.growth:
-        cloud = points.generate(args.generator, n, seed=1)
+        ref = None
+        for lit in (True, False):
+            for disp in dispatches:
+                for use_tree in (True, False):
+                    if not use_tree and not brute_ok[(disp, lit)]:
+                        continue
+                    s = glass.GlassSettings(bounces=args.bounces, use_tree=use_tree,
+                                            dispatch=disp, tile=args.tile)
+                    t0 = time.perf_counter()
+                    img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
+                    if not use_tree and (time.perf_counter() - t0) / (args.repeat + 1) > args.brute_limit:
+                        brute_ok[(disp, lit)] = False
+                    if lit and ref is None:
+                        ref = img
+                    row = {"n": n, "dispatch": disp, "tree": use_tree, "lit": lit, **t}
+                    if lit:   # every lit variant against the first (fragment, tree)
+                        diff = np.abs(img - ref).max(axis=-1)
+                        row["max_abs_diff"] = float(diff.max())
+                        row["frac_pixels_over_1e-3"] = float((diff > 1e-3).mean())
+                    rows.append(row)
+                    save()
+                    print(f"n={n:8d} {variant_name(row):32s} kernel {t['kernel_ms']['median']:10.2f} ms "
+                          f"wall {t['wall_ms']['median']:10.2f} ms build {t['tree_ms']['median']:8.1f} ms"
+                          + (f"  max|diff| {row['max_abs_diff']:.1e}" if lit else ""), flush=True)
+    if args.uber_count:
+        cloud = points.generate(args.generator, args.uber_count, seed=1)
         cam = glass.default_camera(cloud, width, height)
         for lit in (True, False):
-            _, t = measure(cloud, cam, base, dev, args.repeat, [SUN] if lit else [])
-            growth.append({"n": n, "lit": lit, "tree": t})
-            save()
-            print(f"n={n:8d} {'lit  ' if lit else 'unlit'} tree {t['kernel_ms']['median']:9.1f} ms"
-                  f"  build {t['tree_ms']['median']:8.1f} ms", flush=True)
+            for uber in (False, True):
+                s = glass.GlassSettings(bounces=args.bounces, uber=uber)
+                img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
+                uber_rows.append({"n": args.uber_count, "dispatch": "fragment", "tree": True,
+                                  "lit": lit, "uber": uber, **t})
+                save()
+                print(f"n={args.uber_count:8d} {variant_name(uber_rows[-1]):32s} kernel "
+                      f"{t['kernel_ms']['median']:10.2f} ms", flush=True)
     out = save()
-    plot(compare, growth, dev, out.with_suffix(".png"), width, height)
+    plot(rows, dev, out.with_suffix(".png"), width, height)
+    print(table(rows, uber_rows, width, height, dev.name))
     print(f"wrote {out}")
+    return 0
 
 
-def plot(compare, growth, dev, path, width, height):
+def _median(rows, **key):
+    for r in rows:
+        if all(r.get(k) == v for k, v in key.items()):
+            return r["kernel_ms"]["median"]
+    return None
+
+
+def table(rows, uber_rows, width, height, name):
+    """Markdown table: kernel ms per sphere count and variant, like the paper's tables."""
+    counts = sorted({r["n"] for r in rows})
+    variants = []
+    for r in rows:
+        key = (r["dispatch"], r["tree"], r["lit"])
+        if key not in variants:
+            variants.append(key)
+    head = "| spheres | " + " | ".join(f"{d}, {'tree' if t else 'no tree'}, {'lit' if l else 'unlit'}"
+                                      for d, t, l in variants) + " |"
+    lines = [f"Kernel ms per frame, {width}x{height}, {name}", "", head,
+             "|" + "---|" * (len(variants) + 1)]
+    for n in counts:
+        cells = []
+        for d, t, l in variants:
+            v = _median(rows, n=n, dispatch=d, tree=t, lit=l)
+            cells.append("—" if v is None else f"{v:.1f}")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    if uber_rows:
+        lines += ["", "| uber-kernel vs specialised | specialised ms | uber ms | uber / specialised |",
+                  "|---|---|---|---|"]
+        for lit in (True, False):
+            a = _median(uber_rows, lit=lit, uber=False)
+            b = _median(uber_rows, lit=lit, uber=True)
+            if a and b:
+                lines.append(f"| {uber_rows[0]['n']} spheres, {'lit' if lit else 'unlit'} | "
+                             f"{a:.1f} | {b:.1f} | {b / a:.2f} |")
+    return "\n".join(lines)
+
+
+def plot(rows, dev, path, width, height):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    if compare:
-        n = [r["n"] for r in compare]
-        ax.loglog(n, [r["brute"]["kernel_ms"]["median"] for r in compare], "o-", label="brute force, lit")
-        ax.loglog(n, [r["tree"]["kernel_ms"]["median"] for r in compare], "s-", label="tree, lit (compare)")
-    for lit in (True, False):
-        rows = [g for g in growth if g["lit"] == lit]
-        if rows:
-            ax.loglog([g["n"] for g in rows], [g["tree"]["kernel_ms"]["median"] for g in rows],
-                      "^--" if lit else "v--", label=f"tree, {'lit' if lit else 'unlit'}")
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    keys = []
+    for r in rows:
+        key = (r["dispatch"], r["tree"], r["lit"])
+        if key not in keys:
+            keys.append(key)
+    for d, t, lit in keys:
+        sel = [r for r in rows if (r["dispatch"], r["tree"], r["lit"]) == (d, t, lit)]
+        ax.loglog([r["n"] for r in sel], [r["kernel_ms"]["median"] for r in sel],
+                  ("o" if t else "x") + ("-" if d == "fragment" else "--"),
+                  label=variant_name({"dispatch": d, "tree": t, "lit": lit}))
     ax.set_xlabel("spheres")
-    ax.set_ylabel("kernel ms per frame")
+    ax.set_ylabel("kernel ms per frame (median)")
     ax.set_title(f"molten glass {width}x{height}, 1 spp\n{dev.name}", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

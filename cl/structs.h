@@ -51,7 +51,7 @@ typedef struct {  /* 32 bytes */
     int count;
 } TreeNode;
 
-typedef struct {  /* 128 bytes */
+typedef struct {  /* 144 bytes */
     float4 box_lo;
     float4 box_hi;
     float4 absorption;
@@ -69,9 +69,13 @@ typedef struct {  /* 128 bytes */
     int max_steps;
     int env_width;
     int env_height;
+    float tile_margin;
+    float shadow_cone;
+    int uber;
+    int n_suns;
+    int n_points;
     float _pad0;
     float _pad1;
-    float _pad2;
 } GlassParams;
 
 #endif

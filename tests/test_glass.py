@@ -74,7 +74,8 @@ _PROBES = {}
 def _probe(dev, use_tree):
     key = (id(dev), bool(use_tree))
     if key not in _PROBES:
-        _PROBES[key] = _Probe(dev.build(PROBE, {"VR_TREE": int(use_tree)}, "glass probe"))
+        _PROBES[key] = _Probe(dev.build(PROBE, {"VR_TREE": int(use_tree), "VR_TILED": 0, "VR_COLORS": 0},
+                                            "glass probe"))
     return _PROBES[key]
 
 

@@ -17,10 +17,14 @@ from . import layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
 from .errors import UserError
 from .features import GlassFeatures
-from .dispatch import run_rows, upload
+from .dispatch import Dispatch, run_rows, upload
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
+TILE_CAP = 512               # tiled dispatch: spheres per tile list (a power of two)
+# uber-kernel runtime feature bits (cl/render_glass.cl VR_BIT_*)
+UBER_BITS = {"shadows": 1, "refraction": 2, "absorption": 4, "glow": 8, "env_map": 16,
+             "colors": 32}
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,11 @@ class GlassSettings:
     glow: hot-glass emission per unit length inside glass (weighted by absorption).
     epsilon: relative hit threshold (times the path length) and ray offset.
     env: None for the procedural sky, or a path to an equirectangular .exr.
+    shadow_angle: angular radius of the lights in degrees; 0 gives hard shadows, more
+        gives soft ones (a penumbra estimate from the sphere-traced distances).
+    point_colors: tint each point's glass with the cloud's own colours, if it has any.
+    dispatch, tile: volrender.dispatch.Dispatch (fragment, or tiled with WxH tiles).
+    uber: compile every feature in and choose at run time (the specialisation baseline).
     """
     radius: float | None = None
     blend: float | None = None
@@ -54,6 +63,11 @@ class GlassSettings:
     env: str | None = None
     shadows: bool = True
     refraction: bool = True
+    shadow_angle: float = 0.0
+    point_colors: bool = True
+    dispatch: str = "fragment"
+    tile: tuple = (8, 8)
+    uber: bool = False
 
     def __post_init__(self):
         def check(ok, msg):
@@ -89,6 +103,9 @@ class GlassSettings:
               f"--max-steps must be in [1, 65536], got {self.max_steps}")
         check(isinstance(self.spp, (int, np.integer)) and 1 <= self.spp <= 1 << 16,
               f"--spp must be in [1, 65536], got {self.spp}")
+        check(finite(self.shadow_angle) and 0 <= self.shadow_angle <= 45,
+              f"--shadow-angle must be in [0, 45] degrees, got {self.shadow_angle}")
+        Dispatch(self.dispatch, tuple(self.tile))
 
 
 @dataclass(frozen=True)
@@ -103,6 +120,8 @@ class GlassScene:
     blend: float
     scale: float            # bounding radius of the spheres
     tree_ms: float
+    colors: np.ndarray | None = None   # float32 (N, 4) rgb per sphere, tree order
+    margin: float = 0.0     # tiled dispatch: list spheres within this of a tile's frustum
 
 
 def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
@@ -173,24 +192,46 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     spheres = np.empty((n, 4), np.float32)
     spheres[:, :3] = centers[order] - centre
     spheres[:, 3] = radii[order]
+    colors = None
+    if settings.point_colors and cloud.colors is not None:
+        colors = np.zeros((n, 4), np.float32)
+        colors[:, :3] = np.asarray(cloud.colors, np.float32)[order]
+    # Tiled lists hold spheres within 2k of the frustum: evaluations with m + k <= 2k (up
+    # to k outside the nearest sphere, which covers the surface) use the list alone.
+    margin = 2.0 * k
     # The union bulges by at most (k/2) ln N over the plain union (N spheres at equal
     # distance), so the clip box grows by that plus the support k.
     bulge = k * (1.0 + 0.5 * np.log(n))
     scale = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
-    return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms)
+    return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
+                      colors, margin)
 
 
 def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFeatures:
-    """Compile only what the scene uses."""
+    """Compile only what the scene uses (with settings.uber: everything, light counts
+    and feature bits read at run time instead)."""
     n_suns, n_points = lights_mod.counts(lights)
     refr = settings.refraction
-    return GlassFeatures(tree=settings.use_tree and len(scene.spheres) > 0,
-                         n_suns=n_suns, n_points=n_points,
+    tree = settings.use_tree and len(scene.spheres) > 0
+    tiled = settings.dispatch == "tiled"
+    tiling = dict(tiled=tiled, tile_w=settings.tile[0] if tiled else 0,
+                  tile_h=settings.tile[1] if tiled else 0, tile_cap=TILE_CAP if tiled else 0)
+    if settings.uber:
+        return GlassFeatures(tree=tree, shadows=True, refraction=True, absorption=True,
+                             glow=True, env_map=True, colors=True, uber=True, **tiling)
+    return GlassFeatures(tree=tree, n_suns=n_suns, n_points=n_points,
                          shadows=settings.shadows and n_suns + n_points > 0,
                          refraction=refr, absorption=refr and any(a > 0 for a in settings.absorption),
-                         glow=refr and settings.glow > 0, env_map=settings.env is not None)
+                         glow=refr and settings.glow > 0, env_map=settings.env is not None,
+                         colors=scene.colors is not None, **tiling)
+
+
+def uber_bits(scene: GlassScene, lights, settings: GlassSettings) -> int:
+    """The runtime feature bits the specialised flags would have compiled in."""
+    f = features_for(scene, lights, GlassSettings(**{**settings.__dict__, "uber": False}))
+    return sum(bit for name, bit in UBER_BITS.items() if getattr(f, name))
 
 
 def _env(settings: GlassSettings):
@@ -223,6 +264,7 @@ def render_points(cloud, camera, lights, settings: GlassSettings, device, progre
     scene = pack_scene(cloud, settings)
     features = features_for(scene, lights, settings)
     kernel = device.kernel("render_glass", features.flags())
+    n_suns, n_points = lights_mod.counts(lights)
     w2f = np.eye(4)
     w2f[:3, 3] = -scene.centre
     cam = camera.pack(w2f, settings.spp, settings.seed)
@@ -234,16 +276,22 @@ def render_points(cloud, camera, lights, settings: GlassSettings, device, progre
         glow=settings.glow, epsilon=settings.epsilon, shininess=settings.shininess,
         scale=scene.scale, n_spheres=len(scene.spheres), first_leaf=scene.first_leaf,
         bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
-        env_height=env_h)
+        env_height=env_h, tile_margin=scene.margin,
+        shadow_cone=math.tan(math.radians(settings.shadow_angle)),
+        uber=uber_bits(scene, lights, settings) if settings.uber else 0,
+        n_suns=n_suns, n_points=n_points)
     light_rec = lights_mod.pack(lights, w2f)
 
     ctx = device.context
     W, H = camera.width, camera.height
     out = np.empty((H, W, 4), np.float32)
     d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    bufs = [upload(ctx, a) for a in (cam, params, light_rec, scene.spheres, scene.nodes, env)]
+    colors = scene.colors if scene.colors is not None else np.zeros((1, 4), np.float32)
+    bufs = [upload(ctx, a) for a in (cam, params, light_rec, scene.spheres, scene.nodes, env,
+                                      colors)]
     t_start = time.perf_counter()
-    kernel_ms = run_rows(device, kernel, [*bufs, d_out], W, H, PIXELS_PER_LAUNCH, progress)
+    kernel_ms = run_rows(device, kernel, [*bufs, d_out], W, H, PIXELS_PER_LAUNCH, progress,
+                         Dispatch(settings.dispatch, tuple(settings.tile)))
     cl.enqueue_copy(device.queue, out, d_out)
     device.queue.finish()
     return {"rgba": out, "kernel_ms": kernel_ms,

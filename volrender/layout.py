@@ -92,9 +92,13 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("max_steps", "int"),            # sphere-tracing steps per segment
         ("env_width", "int"),
         ("env_height", "int"),
+        ("tile_margin", "float"),        # tiled dispatch: spheres farther from a tile's frustum are left out
+        ("shadow_cone", "float"),        # tan of the lights' angular radius; 0: hard shadows
+        ("uber", "int"),                 # uber-kernel: runtime feature bits (glass.UBER_BITS)
+        ("n_suns", "int"),               # uber-kernel: light counts at run time
+        ("n_points", "int"),
         ("_pad0", "float"),
         ("_pad1", "float"),
-        ("_pad2", "float"),
     ],
 }
 

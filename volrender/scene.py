@@ -53,7 +53,7 @@ SCHEMA = {
     "environment": {"map": PATH},
     "render": {"size": SIZE, "spp": int, "seed": int, "bounces": int, "blend": NUM,
                "leaf_size": int, "epsilon": NUM, "max_steps": int, "shadows": bool,
-               "tree": bool},
+               "tree": bool, "shadow_angle": NUM, "dispatch": str},
 }
 
 
@@ -78,16 +78,26 @@ def _check(value, kind, where, base: Path):
         return tuple(float(v) for v in value)
     if kind == SIZE:
         if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(v, int) and 1 <= v <= 32768 for v in value)):
+                or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32768
+                           for v in value)):
             bad("[width, height] with integers 1..32768")
         return tuple(value)
     if kind == PATH:
         if not isinstance(value, str) or not value:
             bad("a file path")
-        path = (base / value).resolve()
-        if not path.exists():
+        try:        # a NUL byte or an over-long name raise ValueError / OSError here
+            path = (base / value).resolve()
+            exists, is_dir = path.exists(), path.is_dir()
+        except (OSError, ValueError) as exc:
+            reason = getattr(exc, "strerror", None) or str(exc)
+            raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
+                            fix="give the path of an existing file") from None
+        if not exists:
             raise UserError(f"{where} names {value!r}, which does not exist (paths are relative "
                             f"to the scene file)")
+        if is_dir:
+            raise UserError(f"{where} names {value!r}, which is a directory",
+                            fix="give the path of a file")
         return path
     raise AssertionError(kind)
 
@@ -165,7 +175,7 @@ def load_cloud(scene: dict):
     if "file" in pts:
         cloud = points.load_points(pts["file"])
     else:
-        if pts["count"] < 1:
-            raise UserError(f"[points].count must be >= 1, got {pts['count']}")
+        if not 1 <= pts["count"] <= 50_000_000:     # the CLI's GENERATOR:COUNT limit
+            raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
         cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
     return cloud, pts.get("radius")
