@@ -71,17 +71,20 @@ def main(argv=None):
     ap.add_argument("--dispatch", default="fragment,tiled")
     ap.add_argument("--uber-count", type=int, default=3000,
                     help="sphere count of the uber-kernel comparison (0: skip)")
+    ap.add_argument("--opaque", action="store_true",
+                    help="opaque spheres (no refraction): one surface hit per primary ray, as in the paper")
     ap.add_argument("--tag", default=None)
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
     dev = device.get(args.device)
-    tag = args.tag or device_tag(dev)
+    tag = (args.tag or device_tag(dev)) + ("-opaque" if args.opaque else "")
     path = RESULTS / f"spheres_{tag}.json"
     rows, uber_rows = [], []
     dispatches = [d for d in args.dispatch.split(",") if d]
 
     def save():          # after every row, so a run cut short still leaves its data
         return write_json(path, {"benchmark": "spheres", "size": [width, height],
+                                 "opaque": args.opaque,
                                  "generator": args.generator, "bounces": args.bounces, "spp": 1,
                                  "tile": list(args.tile), "repeat": args.repeat,
                                  **device_info(dev), "rows": rows, "uber": uber_rows})
@@ -97,14 +100,16 @@ def main(argv=None):
                     if not use_tree and not brute_ok[(disp, lit)]:
                         continue
                     s = glass.GlassSettings(bounces=args.bounces, use_tree=use_tree,
-                                            dispatch=disp, tile=args.tile)
+                                            dispatch=disp, tile=args.tile,
+                                            refraction=not args.opaque)
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
                     if not use_tree and (time.perf_counter() - t0) / (args.repeat + 1) > args.brute_limit:
                         brute_ok[(disp, lit)] = False
                     if lit and ref is None:
                         ref = img
-                    row = {"n": n, "dispatch": disp, "tree": use_tree, "lit": lit, **t}
+                    row = {"n": n, "dispatch": disp, "tree": use_tree, "lit": lit,
+                           "opaque": args.opaque, **t}
                     if lit:   # every lit variant against the first (fragment, tree)
                         diff = np.abs(img - ref).max(axis=-1)
                         row["max_abs_diff"] = float(diff.max())
@@ -119,7 +124,7 @@ def main(argv=None):
         cam = glass.default_camera(cloud, width, height)
         for lit in (True, False):
             for uber in (False, True):
-                s = glass.GlassSettings(bounces=args.bounces, uber=uber)
+                s = glass.GlassSettings(bounces=args.bounces, uber=uber, refraction=not args.opaque)
                 img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
                 uber_rows.append({"n": args.uber_count, "dispatch": "fragment", "tree": True,
                                   "lit": lit, "uber": uber, **t})
@@ -187,7 +192,8 @@ def plot(rows, dev, path, width, height):
                   label=variant_name({"dispatch": d, "tree": t, "lit": lit}))
     ax.set_xlabel("spheres")
     ax.set_ylabel("kernel ms per frame (median)")
-    ax.set_title(f"molten glass {width}x{height}, 1 spp\n{dev.name}", fontsize=9)
+    what = "opaque spheres" if rows and rows[0].get("opaque") else "molten glass"
+    ax.set_title(f"{what} {width}x{height}, 1 spp\n{dev.name}", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()

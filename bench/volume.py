@@ -1,8 +1,16 @@
-"""Volume rendering speed on real VDB files, and the speed-up of empty-space skipping
-over plain marching at equal image.
+"""Volume rendering speed on real VDB files: the speed-up of empty-space skipping over
+plain marching, and the fragment vs tiled dispatch (issue #4), each at equal image.
 
     .venv/bin/python bench/volume.py [--device SPEC] [--size 640x480] [--repeat 3]
-        [FILE.vdb|FILE.npz ...]
+        [--tiles 8x8,16x16] [FILE.vdb|FILE.npz ...]
+
+Per file it renders, with one sun and shadows: fragment dispatch with skipping ("skip"),
+fragment without ("plain"), and tiled dispatch (skipping, tile-frustum culling of the
+occupied bricks) for each tile size. The configurations run interleaved, one round per
+repeat, so load from other processes spreads over all of them; on a CPU device the
+process CPU time of each render is recorded beside the kernel (wall) time, since it is
+far less disturbed by a shared machine. Also records, per tile size, how many occupied
+bricks the tiles' local lists hold and how many tiles overflow.
 
 Writes bench/results/volume_<device>.json and .png. Without files it uses the real
 files in ../shared/data/vdb (or their converted .npz beside them in bench/data/).
@@ -10,16 +18,19 @@ files in ../shared/data/vdb (or their converted .npz beside them in bench/data/)
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
-from volrender import camera, device, vdb  # noqa: E402
+from volrender import camera, device, features, layout, vdb  # noqa: E402
+from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.render import VolumeSettings, render_volume  # noqa: E402
+from volrender.render import VolumeSettings, occupied_bricks, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "vdb"
@@ -52,21 +63,73 @@ def sparse_pair():
     return vdb.Bricks.from_dense(dense, m, name="sparse_pair")
 
 
+# The tiled kernel's culling alone, to report list lengths and overflows per tile.
+_CULL_SRC = r'''
+#include "render_volume.cl"
+__kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
+void tile_counts(__constant Camera* cam, __constant VolumeParams* vp,
+                 __global const int4* occ, int n_occ, __global int* counts, int y0)
+{
+    __local float4 list[VR_TILE_CAP];
+    __local volatile int n_list;
+    vr_tile_cull(cam, vp, occ, n_occ, y0, 0.0f, list, &n_list);
+    if (get_local_id(0) == 0 && get_local_id(1) == 0)
+        counts[get_group_id(1) * get_num_groups(0) + get_group_id(0)] = n_list;
+}
+'''
+
+
+def tile_list_stats(dev, b, cam, tile) -> dict:
+    """Occupied bricks per tile list (the frustum test without padding, one launch)."""
+    import pyopencl as cl
+    f = features.VolumeFeatures(**features.VolumeFeatures.dispatch_fields(Dispatch("tiled", tuple(tile))))
+    k = cl.Kernel(dev.build(_CULL_SRC, f.flags(), "bench tile_counts"), "tile_counts")
+    w2l = np.linalg.inv(np.asarray(b.local_to_world, np.float64))
+    params = layout.record("VolumeParams", world_to_local0=[*w2l[0, :3], 0],
+                           world_to_local1=[*w2l[1, :3], 0], world_to_local2=[*w2l[2, :3], 0],
+                           box_hi=[*(b.dims * 8.0), 0], dims=[*b.dims, 0])
+    occ = occupied_bricks(b)
+    nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
+    counts = np.zeros(nx * ny, np.int32)
+    d = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, counts.nbytes)
+    k(dev.queue, (nx * tile[0], ny * tile[1]), tuple(tile), upload(dev.context, cam.pack(w2l)),
+      upload(dev.context, params), upload(dev.context, occ), np.int32(len(occ)), d, np.int32(0))
+    cl.enqueue_copy(dev.queue, counts, d)
+    dev.queue.finish()
+    seen = counts[counts > 0]
+    return {"tiles": int(counts.size), "tiles_with_bricks": int(seen.size),
+            "bricks_per_list_mean": float(seen.mean()) if seen.size else 0.0,
+            "bricks_per_list_max": int(counts.max()), "capacity": f.tile_cap,
+            "tiles_overflowed": int((counts > f.tile_cap).sum())}
+
+
+def timed(b, cam, lights, s, dev, cpu: bool):
+    t = time.process_time()
+    r = render_volume(b, cam, lights, s, dev)
+    if cpu:
+        r["cpu_ms"] = 1e3 * (time.process_time() - t)
+    return r
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="*", type=Path)
     ap.add_argument("--device", default=None)
     ap.add_argument("--size", default="640x480")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--tiles", default="8x8,16x16", help="tile sizes for the tiled dispatch")
     ap.add_argument("--tag", default=None, help="results file suffix (default: from the device)")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.split("x"))
+    tiles = [parse_tile(t) for t in args.tiles.split(",") if t]
     dev = device.get(args.device)
+    cpu = not is_gpu(dev)
     files = args.files or default_files()
     if not files:
         sys.exit("bench/volume.py: no input files (../shared/data/vdb not found)")
     sun = Sun((-0.6, -1.0, -0.5), 6.0)
     rows = []
+    load_start = os.getloadavg()
     for path in [*files, None]:
         stem = path.stem if path else "sparse_pair (synthetic)"
         b = vdb.load_volume(path) if path else sparse_pair()
@@ -76,18 +139,25 @@ def main(argv=None):
         row = {"file": path.name if path else stem, "density_scale": SCALES.get(stem, 1.0), "dims": b.dims.tolist(),
                "bricks_stored": int(b.n_slots), "bricks_total": int(np.prod(b.dims)),
                "voxel_size": b.voxel_size}
+        scale = row["density_scale"]
+        configs = {"skip": VolumeSettings(density_scale=scale),
+                   "plain": VolumeSettings(density_scale=scale, skip_empty=False)}
+        for tw, th in tiles:
+            configs[f"tiled_{tw}x{th}"] = VolumeSettings(density_scale=scale, dispatch="tiled",
+                                                         tile=(tw, th))
+        runs = {k: {"kernel_ms": [], "wall_ms": [], "cpu_ms": []} for k in configs}
         images = {}
-        for skip in (True, False):
-            s = VolumeSettings(density_scale=row["density_scale"], skip_empty=skip)
-            render_volume(b, cam, [sun], s, dev)                       # warm-up (and build)
-            kernel, wall = [], []
-            for _ in range(args.repeat):
-                r = render_volume(b, cam, [sun], s, dev)
-                kernel.append(r["kernel_ms"])
-                wall.append(r["wall_ms"])
-            key = "skip" if skip else "plain"
-            row[key] = {"kernel_ms": stats(kernel), "wall_ms": stats(wall)}
-            images[key] = r["rgba"]
+        for key, s in configs.items():
+            images[key] = render_volume(b, cam, [sun], s, dev)["rgba"]   # warm-up (and build)
+        for _ in range(args.repeat):          # interleaved: one round of every config
+            for key, s in configs.items():
+                r = timed(b, cam, [sun], s, dev, cpu)
+                for m in runs[key]:
+                    if m in r:
+                        runs[key][m].append(r[m])
+                images[key] = r["rgba"]
+        for key in configs:
+            row[key] = {m: stats(v) for m, v in runs[key].items() if v}
         diff = np.abs(images["skip"] - images["plain"])
         row["max_abs_diff"] = float(diff.max())
         row["peak_value"] = float(images["plain"].max())
@@ -96,31 +166,77 @@ def main(argv=None):
               f"plain {row['plain']['kernel_ms']['median']:9.1f} ms  x{row['speedup']:.2f}  "
               f"max|diff| {row['max_abs_diff']:.2e}  bricks {row['bricks_stored']}/{row['bricks_total']}",
               flush=True)
+        # fragment ("skip") vs tiled, same image
+        row["dispatch"] = {}
+        for tw, th in tiles:
+            key = f"tiled_{tw}x{th}"
+            d = {"tile": [tw, th], "max_abs_diff": float(np.abs(images[key] - images["skip"]).max()),
+                 "ratio": row["skip"]["kernel_ms"]["median"] / row[key]["kernel_ms"]["median"],
+                 "lists": tile_list_stats(dev, b, cam, (tw, th))}
+            if cpu:
+                d["ratio_cpu"] = row["skip"]["cpu_ms"]["median"] / row[key]["cpu_ms"]["median"]
+            row["dispatch"][key] = d
+            extra = f"  (cpu x{d['ratio_cpu']:.2f})" if cpu else ""
+            print(f"{'':28s} tiled {tw}x{th}: {row[key]['kernel_ms']['median']:9.1f} ms  "
+                  f"fragment/tiled x{d['ratio']:.2f}{extra}  max|diff| {d['max_abs_diff']:.2e}  "
+                  f"list mean {d['lists']['bricks_per_list_mean']:.1f} max "
+                  f"{d['lists']['bricks_per_list_max']}  overflowed {d['lists']['tiles_overflowed']}"
+                  f"/{d['lists']['tiles']}", flush=True)
         rows.append(row)
     tag = args.tag or device_tag(dev)
     out = write_json(RESULTS / f"volume_{tag}.json",
                      {"benchmark": "volume", "size": [width, height], "spp": 1, "step_voxels": 0.5,
                       "shadow_step_voxels": 1.0, "lights": "1 sun, shadows on", "repeat": args.repeat,
+                      "tiles": [list(t) for t in tiles], "tile_capacity": features.VOLUME_TILE_CAP,
+                      "timing": "configs interleaved per repeat; kernel_ms from OpenCL events (wall), "
+                                "cpu_ms = process CPU time per render (CPU devices only)",
+                      "load_avg_1min": {"start": load_start[0], "end": os.getloadavg()[0],
+                                        "cpus": os.cpu_count()},
                       **device_info(dev), "results": rows})
-    plot(rows, dev, out.with_suffix(".png"), width, height)
+    note = "" if not cpu else (f", load avg {load_start[0]:.1f}-{os.getloadavg()[0]:.1f} "
+                                f"on {os.cpu_count()} CPUs")
+    plot(rows, dev, out.with_suffix(".png"), width, height, tiles, note)
     print(f"wrote {out}")
 
 
-def plot(rows, dev, path, width, height):
+def plot(rows, dev, path, width, height, tiles=(), note=""):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    keys = [("skip", "fragment, empty-space skipping"), ("plain", "fragment, plain marching")]
+    keys += [(f"tiled_{tw}x{th}", f"tiled {tw}x{th}, skipping + tile culling") for tw, th in tiles]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": [2, 1]})
     x = np.arange(len(rows))
-    for off, key, label in ((-0.2, "skip", "empty-space skipping"), (0.2, "plain", "plain marching")):
+    w = 0.8 / len(keys)
+    for i, (key, label) in enumerate(keys):
         med = [r[key]["kernel_ms"]["median"] for r in rows]
         lo = [m - r[key]["kernel_ms"]["min"] for m, r in zip(med, rows)]
         hi = [r[key]["kernel_ms"]["max"] - m for m, r in zip(med, rows)]
-        ax.bar(x + off, med, 0.4, yerr=[lo, hi], label=label)
-    ax.set_xticks(x, [r["file"].rsplit(".", 1)[0] for r in rows])
-    ax.set_ylabel("kernel ms per frame")
-    ax.set_title(f"{width}x{height}, 1 spp, 1 sun with shadows\n{dev.name}", fontsize=9)
-    ax.legend()
+        ax.bar(x + (i - (len(keys) - 1) / 2) * w, med, w, yerr=[lo, hi], label=label)
+    names = [r["file"].rsplit(".", 1)[0].replace(" (synthetic)", "").replace("_", "_\n", 1)
+             for r in rows]
+    ax.set_xticks(x, names, fontsize=8)
+    ax.set_ylabel("kernel ms per frame (median, min-max)")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    ax.set_title(f"{width}x{height}, 1 spp, 1 sun with shadows\n{dev.name}{note}", fontsize=9)
+    # fragment / tiled: > 1 means tiled is faster
+    w2 = 0.8 / max(1, len(tiles))
+    for i, (tw, th) in enumerate(tiles):
+        key = f"tiled_{tw}x{th}"
+        off = (i - (len(tiles) - 1) / 2) * w2
+        ax2.bar(x + off, [r["dispatch"][key]["ratio"] for r in rows], w2, label=f"{tw}x{th} kernel time")
+        if "ratio_cpu" in rows[0]["dispatch"][key]:
+            ax2.plot(x + off, [r["dispatch"][key]["ratio_cpu"] for r in rows], "k_", ms=12,
+                     label="process CPU time" if i == 0 else None)
+    ax2.axhline(1.0, color="grey", lw=0.8)
+    top = max(r["dispatch"][f"tiled_{tw}x{th}"][k] for r in rows for tw, th in tiles
+              for k in ("ratio", "ratio_cpu") if k in r["dispatch"][f"tiled_{tw}x{th}"])
+    ax2.set_ylim(0.0, max(1.4, 1.3 * top))
+    ax2.set_xticks(x, names, fontsize=8)
+    ax2.set_ylabel("fragment / tiled time (> 1: tiled faster)")
+    ax2.set_title("tiled vs fragment dispatch (same image)", fontsize=9)
+    ax2.legend(fontsize=7, loc="upper center", ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 

@@ -220,6 +220,9 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
                 o = p - off * nf;
                 inside = !inside;
                 tint = col;                              /* entering: this glass glows */
+            } else if (!inside) {
+                /* ior < 1, total reflection from outside: F = 1, already counted above */
+                return rgb;
             } else {                                     /* total internal reflection */
                 d = refl;
                 o = p_out;

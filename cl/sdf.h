@@ -15,7 +15,9 @@
 #error "sdf.h: VR_TREE, VR_TILED or VR_COLORS is missing (see volrender/features.py)"
 #endif
 
-#define VR_TREE_STACK 48      /* glass.MAX_TREE_DEPTH + 1: one push per level */
+#ifndef VR_TREE_STACK
+#define VR_TREE_STACK 48      /* tree depth + 1 (one push per level); the host sets it */
+#endif
 #define VR_BLEND_MIN 1e-20f   /* k at or below: plain union */
 
 typedef struct {
@@ -175,7 +177,9 @@ inline void sdf_blend_sums(const SdfScene* sc, float3 x, float m, float* s1_out,
    falls, so nothing dropped can re-enter. The list is compacted when full; if it still
    overflows, the sums come from pass 2 instead. Returns the list length, or -1 on
    overflow. */
-#define VR_CAND 24
+#ifndef VR_CAND
+#define VR_CAND 16            /* private candidate list (the host may set it) */
+#endif
 
 inline int sdf_candidates(const SdfScene* sc, float3 x, float* m_out, int* arg,
                           float* cd, int* ci, int use_tile)

@@ -12,6 +12,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
+from .dispatch import parse_tile
 from .errors import UserError
 
 VOLUME_SUFFIXES = (".vdb", ".npz")
@@ -49,6 +50,13 @@ class Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionH
     pass
 
 
+class Parser(argparse.ArgumentParser):
+    """Usage errors as one line, like every other error (subparsers inherit it)."""
+
+    def error(self, message):
+        self.exit(2, f"volrender: error: {message}; see `{self.prog} --help`\n")
+
+
 def add_common(p):
     p.add_argument("--device", default=None,
                    help="OpenCL device: substring of 'platform / device' or 'P:D' "
@@ -58,7 +66,7 @@ def add_common(p):
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="volrender", formatter_class=Formatter,
         description="Render OpenVDB volumes with OpenCL (PoCL by default).",
         epilog="Examples:\n  volrender render smoke.vdb -o smoke.png --sun 0,-1,-1,3\n"
@@ -108,7 +116,15 @@ def build_parser():
     q = r.add_argument_group("quality")
     q.add_argument("--step", type=float, default=0.5, help="primary step, voxels")
     q.add_argument("--shadow-step", type=float, default=1.0, help="shadow-ray step, voxels")
+    q.add_argument("--estimator", choices=["march", "track"], default="march",
+                   help="volumes: march (ray marching: --step/--shadow-step, biased, low noise) or "
+                        "track (delta/ratio tracking on brick majorants: unbiased, noisier)")
     q.add_argument("--no-skip", action="store_true", help="march empty bricks too (reference for skipping)")
+    q.add_argument("--dispatch", choices=["fragment", "tiled"], default=None,
+                   help="fragment: one independent work-item per pixel; tiled: work-groups own "
+                        "screen tiles and cull the scene into local memory first (default: fragment)")
+    q.add_argument("--tile", type=parse_tile, default=None, metavar="WxH",
+                   help="tile size for --dispatch tiled, pixels (default: 8x8)")
     gl = r.add_argument_group("molten glass (point clouds; defaults in volrender.glass.GlassSettings)")
     gl.add_argument("--radius", type=float, default=None,
                     help="sphere radius for every point (default: the file's radii, else half "
@@ -130,6 +146,10 @@ def build_parser():
     gl.add_argument("--env", default=None, metavar="ENV.exr",
                     help="equirectangular environment (default: procedural sky)")
     gl.add_argument("--opaque", action="store_true", help="no refraction: shaded opaque spheres")
+    gl.add_argument("--shadow-angle", type=float, default=None, metavar="DEG",
+                    help="angular radius of the lights: 0 = hard shadows, more = soft (default: 0)")
+    gl.add_argument("--no-point-colors", action="store_true",
+                    help="ignore the cloud's per-point colours (use --color everywhere)")
     o = r.add_argument_group("output")
     o.add_argument("--aov", action="append", default=[], choices=["depth", "transmittance"],
                    help="volumes: extra EXR layer (repeatable): depth -> Z, transmittance -> T")
@@ -172,6 +192,15 @@ def build_parser():
     t.add_argument("--window-size", type=size, default=(1024, 768), metavar="WxH")
     t.add_argument("--debug", action="store_true", help="show tracebacks")
     t.add_argument("-v", "--verbose", action="store_true")
+
+    b = sub.add_parser("bench", formatter_class=Formatter, help="run a benchmark (source checkout)",
+                       description="Run a benchmark from bench/; results (JSON + plot, with the "
+                                   "device string) go to bench/results/. Options after NAME go to "
+                                   "the benchmark: `volrender bench spheres --help`.\n\n" +
+                                   "\n".join(f"  {k:8s} {v}" for k, v in BENCHMARKS.items()))
+    b.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark")
+    b.add_argument("args", nargs=argparse.REMAINDER, help="options for the benchmark")
+    add_common(b)
 
     i = sub.add_parser("info", formatter_class=Formatter,
                        help="list OpenCL devices and versions, or describe an input file")
@@ -230,6 +259,31 @@ def cli_lights(args):
     return lights or None
 
 
+def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
+    """Refuse an image whose buffers cannot exist, before anything is loaded or allocated:
+    the RGBA float32 buffer (plus one float per extra layer) must fit in one device
+    allocation and in the device's memory, and a few copies of it in host memory."""
+    import math
+    pixels = width * height
+    need = pixels * 4 * (4 + n_layers)
+    gib = 1 << 30
+    d = dev.device
+    limit = min(int(d.max_mem_alloc_size) * (4 + n_layers) // 4, int(d.global_mem_size) // 2)
+    where = f"on {dev.name}"
+    try:
+        host = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 3
+    except (ValueError, OSError, AttributeError):
+        host = None
+    if host is not None and host < limit:
+        limit, where = host, "in this machine's memory"
+    if need > limit:
+        side = int(math.sqrt(limit / (4 * (4 + n_layers)) * width / height))
+        hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
+        raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
+                        f"fits {where} ({limit / gib:.1f} GiB)",
+                        fix=f"render a smaller --size ({hint} at most)")
+
+
 def make_camera(args, lo, hi, scene_cam=None, scene_size=None):
     from . import camera as camera_mod
     scene_cam = scene_cam or {}
@@ -255,6 +309,9 @@ def cmd_render(args):
     if args.fov is not None and not 0.0 < args.fov < 180.0:
         raise UserError(f"--fov must be in (0, 180) degrees, got {args.fov}")
     lights = cli_lights(args)
+    if args.size is not None:
+        from . import device as device_mod
+        check_image_memory(*args.size, device_mod.get(args.device), len(aovs))
     if kind == "volume":
         result, what = render_volume_input(args, lights, aovs)
     else:
@@ -285,7 +342,8 @@ def render_volume_input(args, lights, aovs):
         step=args.step, shadow_step=args.shadow_step, spp=spp, seed=pick(args.seed, 0),
         shadows=not args.no_shadows, skip_empty=not args.no_skip,
         emission_scale=args.emission_scale, emission_temperature=args.emission_temperature,
-        depth="depth" in aovs)
+        depth="depth" in aovs, estimator=args.estimator,
+        dispatch=pick(args.dispatch, "fragment"), tile=pick(args.tile, (8, 8)))
     if lights is None:
         lights = [] if args.no_lights else list(DEFAULT_LIGHTS)
     dev = device_mod.get(args.device)
@@ -327,7 +385,10 @@ def render_points_input(args, kind, lights):
         seed=pick(args.seed, rnd.get("seed")),
         env=pick(args.env, scene.get("environment", {}).get("map")),
         shadows=False if args.no_shadows else rnd.get("shadows"),
-        refraction=False if args.opaque else None)
+        refraction=False if args.opaque else None,
+        shadow_angle=pick(args.shadow_angle, rnd.get("shadow_angle")),
+        point_colors=False if args.no_point_colors else None,
+        dispatch=pick(args.dispatch, rnd.get("dispatch")), tile=args.tile)
     settings = glass.GlassSettings(**{k: v for k, v in values.items() if v is not None})
     if settings.env is not None:
         settings = dataclasses.replace(settings, env=str(settings.env))
@@ -343,6 +404,7 @@ def render_points_input(args, kind, lights):
     if args.no_lights:
         lights = []
     dev = device_mod.get(args.device)
+    check_image_memory(*pick(args.size, rnd.get("size"), (640, 480)), dev)
     radii = glass.sphere_radii(cloud, settings)
     cam = make_camera(args, *glass.sphere_bounds(cloud, radii), scene.get("camera"), rnd.get("size"))
     result = glass.render_points(cloud, cam, lights, settings, dev, progress=args.progress)
@@ -426,7 +488,34 @@ def cmd_info(args):
     return 0
 
 
-COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "info": cmd_info}
+BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lighting, uber-kernel",
+              "volume": "volume files: skipping, fragment vs tiled dispatch",
+              "error": "error against run time for every speed knob",
+              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)"}
+
+
+def bench_dir() -> Path:
+    """bench/ of the source checkout (benchmarks are not installed with the package)."""
+    root = Path(__file__).resolve().parents[1]
+    if not (root / "bench" / "common.py").is_file():
+        raise UserError("volrender bench needs the source checkout (bench/ beside volrender/)",
+                        fix="run it from a git clone of volrender")
+    return root
+
+
+def cmd_bench(args):
+    root = bench_dir()
+    sys.path.insert(0, str(root))
+    import importlib
+    module = importlib.import_module(f"bench.{args.name}")
+    extra = list(args.args)
+    if args.device and "--device" not in extra:
+        extra = ["--device", args.device, *extra]
+    return module.main(extra) or 0
+
+
+COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "info": cmd_info,
+            "bench": cmd_bench}
 
 
 def _warn_one_line(message, category, filename, lineno, file=None, line=None):
@@ -461,13 +550,47 @@ def main(argv=None) -> int:
         return _run(args)
 
 
+_CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
+                     "INVALID_BUFFER_SIZE")
+
+
+def _opencl_message(exc) -> str | None:
+    """A one-line message for an OpenCL error (None when exc is not one)."""
+    cl = sys.modules.get("pyopencl")
+    if cl is None or not isinstance(exc, cl.Error):
+        return None
+    text = " ".join(str(exc).split())
+    try:
+        code = exc.code
+    except Exception:                       # an Error built without a status record
+        code = None
+    oom = {getattr(cl.status_code, n) for n in _CL_OUT_OF_MEMORY if hasattr(cl.status_code, n)}
+    if isinstance(exc, cl.MemoryError) or code in oom:
+        return (f"the OpenCL device ran out of memory ({text}); render a smaller --size, fewer "
+                "points or a smaller volume, or pick a device with more memory (--device)")
+    return (f"OpenCL failed ({text}); try another --device, or rerun with --debug and report "
+            "it as a volrender bug")
+
+
+def _user_message(exc) -> str:
+    """One line: a build error's compiler log is only shown with --debug."""
+    from .device import BuildError
+    text = str(exc)
+    if "\n" not in text:
+        return text
+    if isinstance(exc, BuildError):
+        return (text.splitlines()[0].rstrip(":") + "; this is a volrender bug: rerun with --debug "
+                "to see the compiler log, and report it")
+    return " ".join(text.split())
+
+
 def _run(args) -> int:
     try:
         return COMMANDS[args.command](args)
     except UserError as exc:
         if args.debug:
             raise
-        print(f"volrender: error: {exc}", file=sys.stderr)
+        print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("volrender: interrupted; no output written", file=sys.stderr)
@@ -476,6 +599,12 @@ def _run(args) -> int:
         if args.debug:
             raise
         print("volrender: error: out of host memory; render a smaller image or volume", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        message = _opencl_message(exc)
+        if message is None or args.debug:
+            raise
+        print(f"volrender: error: {message}", file=sys.stderr)
         return 2
 
 

@@ -6,9 +6,12 @@ VOLRENDER_DEVICE picks another device by a case-insensitive substring of
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
+import sys
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -70,6 +73,29 @@ class BuildError(UserError):
     """An OpenCL program failed to build; carries the compiler log."""
 
 
+@contextlib.contextmanager
+def _compiler_output():
+    """Collect what the OpenCL compiler writes straight to file descriptor 2 (PoCL's
+    clang prints e.g. "2 errors generated." there, past Python), so that a failed build
+    reports one line; the text goes into the BuildError's log or, on success, the -v log."""
+    out = {"text": ""}
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield out
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            out["text"] = tmp.read().decode(errors="replace").strip()
+
+
 @dataclass
 class Device:
     """A context and an in-order, profiling queue on one OpenCL device."""
@@ -120,12 +146,19 @@ class Device:
         if key in self._programs:
             return self._programs[key]
         start = time.perf_counter()
-        try:
-            prg = cl.Program(self.context, source).build(options=["-I", str(src_dir), *defines])
-        except cl.RuntimeError as exc:
+        failure = None
+        with _compiler_output() as noise:
+            try:
+                prg = cl.Program(self.context, source).build(options=["-I", str(src_dir), *defines])
+            except cl.RuntimeError as exc:
+                failure = exc
+        if failure is not None:
+            extra = f"\n{noise['text']}" if noise["text"] else ""
             raise BuildError(
                 f"OpenCL build of {what} failed on {self.name} with {' '.join(defines) or 'no flags'}:"
-                f"\n{exc}", fix="this is a volrender bug; please report it with this log") from None
+                f"\n{failure}{extra}", fix="this is a volrender bug; please report it with this log")
+        if noise["text"]:
+            log.info("compiler output for %s: %s", what, noise["text"])
         log.info("built %s %s in %.0f ms", what, " ".join(defines),
                  1e3 * (time.perf_counter() - start))
         self._programs[key] = prg

@@ -22,6 +22,7 @@ from .dispatch import Dispatch, run_rows, upload
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
 TILE_CAP = 512               # tiled dispatch: spheres per tile list (a power of two)
+CANDIDATES = 16              # one-pass field evaluation: private list length (cl/sdf.h)
 # uber-kernel runtime feature bits (cl/render_glass.cl VR_BIT_*)
 UBER_BITS = {"shadows": 1, "refraction": 2, "absorption": 4, "glow": 8, "env_map": 16,
              "colors": 32}
@@ -184,7 +185,10 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
                             fix="raise --leaf-size")
         order, first_leaf = tree.order, tree.first_leaf
         nodes = layout.record("TreeNode", tree.n_nodes)
-        tlo, thi = tree.lo - centre, tree.hi - centre
+        # float32 sphere centres round by up to half an ulp of their magnitude: widen the
+        # boxes by one ulp so every float32 sphere stays inside its node's box
+        ulp = float(np.spacing(np.float32(np.abs(centers - centre).max() + radii.max())))
+        tlo, thi = tree.lo - centre - ulp, tree.hi - centre + ulp
         tlo, thi = _outward(tlo, True), _outward(thi, False)
         for a, ax in enumerate("xyz"):
             nodes[f"lo_{ax}"], nodes[f"hi_{ax}"] = tlo[:, a], thi[:, a]
@@ -217,7 +221,8 @@ def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFea
     tree = settings.use_tree and len(scene.spheres) > 0
     tiled = settings.dispatch == "tiled"
     tiling = dict(tiled=tiled, tile_w=settings.tile[0] if tiled else 0,
-                  tile_h=settings.tile[1] if tiled else 0, tile_cap=TILE_CAP if tiled else 0)
+                  tile_h=settings.tile[1] if tiled else 0, tile_cap=TILE_CAP if tiled else 0,
+                  tree_stack=max(2, int(scene.first_leaf).bit_length()), cand=CANDIDATES)
     if settings.uber:
         return GlassFeatures(tree=tree, shadows=True, refraction=True, absorption=True,
                              glow=True, env_map=True, colors=True, uber=True, **tiling)

@@ -497,7 +497,9 @@ def _check_n(n, seed):
                         fix="pass n >= 1")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise UserError(f"seed must be an integer, got {seed!r}", fix="pass an int seed")
-    return int(n), np.random.default_rng(int(seed))
+    # numpy refuses negative seeds; --seed -1 is accepted for volumes, so fold it into
+    # 64 bits here too (non-negative seeds are unchanged)
+    return int(n), np.random.default_rng(int(seed) % (1 << 64) if seed < 0 else int(seed))
 
 
 def _in_ball(rng, n):

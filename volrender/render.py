@@ -12,10 +12,13 @@ import numpy as np
 from . import layout, lights as lights_mod
 from .errors import UserError
 from .features import VolumeFeatures
-from .dispatch import run_rows, upload
+from .dispatch import Dispatch, run_rows, upload
 
 G_MAX = 0.999          # |g| is clamped here: HG at |g| = 1 is a delta
 PIXELS_PER_LAUNCH = 1 << 16
+# march: jittered ray marching (biased by the step, low noise); track: delta/ratio
+# tracking on per-brick majorants (unbiased; step and shadow_step are unused).
+ESTIMATORS = ("march", "track")
 
 
 @dataclass(frozen=True)
@@ -33,13 +36,16 @@ class VolumeSettings:
     emission_scale: float = 1.0     # radiance per unit length per emission-grid value
     emission_temperature: float = 1500.0  # K, colour of the emission
     depth: bool = False             # also return the opacity-weighted mean depth
+    estimator: str = "march"        # "march" (cl/render_volume.cl) or "track" (cl/track_volume.cl)
+    dispatch: str = "fragment"      # volrender.dispatch: "fragment" or "tiled"
+    tile: tuple = (8, 8)            # tiled: work-group tile, pixels (w, h)
 
     def __post_init__(self):
         def check(ok, msg):
             if not ok:
                 raise UserError(msg)
-        check(math.isfinite(self.density_scale) and self.density_scale >= 0,
-              f"--density-scale must be finite and >= 0, got {self.density_scale}")
+        check(math.isfinite(self.density_scale) and 0 <= self.density_scale <= 1e30,
+              f"--density-scale must be in [0, 1e30], got {self.density_scale}")
         check(0.0 <= self.albedo <= 1.0, f"--albedo must be in [0, 1], got {self.albedo}")
         check(len(self.phase) == 3 and all(map(math.isfinite, self.phase)),
               f"--phase takes g1,g2,w, got {self.phase}")
@@ -54,6 +60,9 @@ class VolumeSettings:
               f"--emission-scale must be finite and >= 0, got {self.emission_scale}")
         check(100.0 <= self.emission_temperature <= 1e5,
               f"--emission-temperature must be in [100, 1e5] K, got {self.emission_temperature}")
+        check(self.estimator in ESTIMATORS,
+              f"--estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
+        Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid
 
     def clamped_phase(self):
         g1, g2, w = self.phase
@@ -73,16 +82,39 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     return spectral / spectral.max()
 
 
+def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
+    """Per-slot tracking rate (per world unit) for cl/track_volume.cl: density_scale x the
+    brick's maximum (which bounds its trilinear density), raised to one point per voxel in
+    bricks that emit, so emission where the density is zero is still sampled."""
+    mu = settings.density_scale * np.asarray(bricks.majorant, np.float64)
+    if bricks.emission is not None and bricks.emission_max is not None:
+        emits = np.asarray(bricks.emission_max) > 0
+        mu = np.where(emits, np.maximum(mu, 1.0 / bricks.voxel_size), mu)
+    return np.minimum(mu, 1e30).astype(np.float32)
+
+
+def occupied_bricks(bricks) -> np.ndarray:
+    """(n, 4) int32: brick coordinates (bx, by, bz, 0) of the stored (non-empty) bricks,
+    the list the tiled kernel culls per tile."""
+    idx = np.flatnonzero(np.asarray(bricks.table) >= 0)
+    occ = np.zeros((len(idx), 4), np.int32)
+    occ[:, :3] = np.stack(np.unravel_index(idx, tuple(int(d) for d in bricks.dims)), axis=1)
+    return occ
+
+
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
     """Render a Bricks volume. Returns a dict with 'rgba' (H, W, 4 float32), optionally
     'depth' (H, W), plus 'kernel_ms', 'wall_ms', 'flags'."""
     import pyopencl as cl
 
     n_suns, n_points = lights_mod.counts(lights)
+    dispatch = Dispatch(settings.dispatch, tuple(settings.tile))
     features = VolumeFeatures(n_suns=n_suns, n_points=n_points, shadows=settings.shadows,
                               phase_mixed=settings.phase[2] < 1.0, skip_empty=settings.skip_empty,
-                              emission=bricks.emission is not None, depth=settings.depth)
-    kernel = device.kernel("render_volume", features.flags())
+                              emission=bricks.emission is not None, depth=settings.depth,
+                              **VolumeFeatures.dispatch_fields(dispatch))
+    entry = "track_volume" if settings.estimator == "track" else "render_volume"
+    kernel = device.kernel(entry, features.flags())
 
     l2w = np.asarray(bricks.local_to_world, np.float64)
     w2l = np.linalg.inv(l2w)
@@ -108,12 +140,20 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     bufs = [upload(ctx, a) for a in (cam, params, light_rec, np.asarray(bricks.table, np.int32),
                                       np.asarray(bricks.data, np.float32),
                                       np.asarray(emission, np.float32))]
+    if settings.estimator == "track":
+        bufs.append(upload(ctx, track_majorants(bricks, settings)))
     out = np.empty((H, W, 4), np.float32)
     depth = np.empty((H, W), np.float32) if settings.depth else np.empty(1, np.float32)
     d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
     d_depth = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, depth.nbytes)
+    tail = [d_out, d_depth]
+    if entry == "render_volume":      # + the occupied bricks, which only tiled culling reads
+        culls = features.tiled and features.skip_empty
+        occ = occupied_bricks(bricks) if culls else np.zeros((0, 4), np.int32)
+        tail += [upload(ctx, occ), np.int32(len(occ))]
     t_start = time.perf_counter()
-    kernel_ms = run_rows(device, kernel, [*bufs, d_out, d_depth], W, H, PIXELS_PER_LAUNCH, progress)
+    kernel_ms = run_rows(device, kernel, [*bufs, *tail], W, H, PIXELS_PER_LAUNCH, progress,
+                         dispatch=dispatch)
     cl.enqueue_copy(device.queue, out, d_out)
     if settings.depth:
         cl.enqueue_copy(device.queue, depth, d_depth)

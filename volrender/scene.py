@@ -40,6 +40,7 @@ from pathlib import Path
 from .errors import UserError
 
 NUM = (int, float)
+MAX_COUNT = 50_000_000          # [points].count, as the CLI's GENERATOR:COUNT
 VEC3 = "vec3"
 SIZE = "size"
 PATH = "path"
@@ -150,6 +151,8 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
         raise UserError("[points] needs exactly one of file = ... or generator = ...")
     if "generator" in pts and "count" not in pts:
         raise UserError("[points].generator needs count = N")
+    if "count" in pts and not 1 <= pts["count"] <= MAX_COUNT:
+        raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
     return scene
 
 
@@ -175,7 +178,7 @@ def load_cloud(scene: dict):
     if "file" in pts:
         cloud = points.load_points(pts["file"])
     else:
-        if not 1 <= pts["count"] <= 50_000_000:     # the CLI's GENERATOR:COUNT limit
+        if not 1 <= pts["count"] <= MAX_COUNT:
             raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
         cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
     return cloud, pts.get("radius")

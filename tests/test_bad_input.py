@@ -1,0 +1,396 @@
+"""Bad input, nothing lost: the real CLI on broken files, absurd sizes and a broken
+OpenCL set-up. Each case must give one line on stderr naming the problem and the fix,
+exit status 2, no traceback, no output file, and leave an existing output file
+byte-identical.
+
+The same table writes docs/bad_input.md from real runs:
+
+    .venv/bin/python tests/test_bad_input.py      # rewrites docs/bad_input.md
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "scenes" / "demo_cloud.vdb"
+SMALL = ["--size", "16x12", "--no-progress"]
+PRECIOUS = b"an earlier render, not to be touched\n"
+
+
+# ------------------------------------------------------------------ inputs
+
+def _png_bytes():
+    """A real 4x3 PNG (volrender's own writer)."""
+    from volrender.image import write_image
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        write_image(Path(d) / "p.png", np.ones((3, 4, 4), np.float32))
+        return (Path(d) / "p.png").read_bytes()
+
+
+def _vector_grid(path):
+    from volrender.vdb import import_openvdb
+    vdb = import_openvdb()
+    g = vdb.Vec3SGrid()
+    g.copyFromArray(np.ones((4, 4, 4, 3), np.float32))
+    g.name = "velocity"
+    vdb.write(str(path), grids=[g])
+
+
+def _ply_header(n, fmt="ascii"):
+    return (f"ply\nformat {fmt} 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
+            "property float z\nend_header\n")
+
+
+def _binary_ply(path):
+    rows = np.arange(30, dtype="<f4").reshape(10, 3)
+    data = _ply_header(10, "binary_little_endian").encode() + rows.tobytes()
+    path.write_bytes(data[:-17])                       # cut inside the 9th vertex
+
+
+def _broken_cl_dir(tmp):
+    """A copy of cl/ whose render_volume.cl does not compile."""
+    from volrender.paths import cl_dir
+    d = tmp / "broken_cl"
+    if d.is_dir():                         # cl_dir() is asked for more than once per build
+        return d
+    shutil.copytree(cl_dir(), d)
+    src = (d / "render_volume.cl").read_text()
+    (d / "render_volume.cl").write_text(src + "\nthis is not OpenCL C;\n")
+    return d
+
+
+def _cl_error(kind, routine, status):
+    import pyopencl as cl
+    code = getattr(cl.status_code, status)
+    return getattr(cl, kind)(cl._cl._ErrorRecord(routine, code, ""))
+
+
+def _raiser(exc):
+    def f(*args, **kwargs):
+        raise exc
+    return f
+
+
+def _forbidden(what):
+    def f(*args, **kwargs):
+        raise AssertionError(f"{what} was called: the size check must come first")
+    return f
+
+
+# ------------------------------------------------------------------ the cases
+
+@dataclass
+class Case:
+    id: str
+    label: str                       # the 'input' column of docs/bad_input.md
+    argv: list                       # run in the case's directory; {out} is the output
+    words: tuple                     # must appear in the message (case-insensitive)
+    files: dict = field(default_factory=dict)   # name -> bytes, str or callable(path)
+    patches: object = None           # callable(tmp) -> list of context managers
+    out: str = "o.png"
+
+
+def _no_platform(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "get_platforms",
+                              _raiser(_cl_error("LogicError", "clGetPlatformIDs",
+                                                "PLATFORM_NOT_FOUND_KHR")))]
+
+
+def _no_device(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "get_platforms", lambda: [])]
+
+
+def _fresh_devices():
+    from volrender import device
+    return mock.patch.dict(device._DEVICES, clear=True)   # build again, in a new context
+
+
+def _build_failure(tmp):
+    from volrender import device
+    from volrender.paths import cl_dir
+    broken = _broken_cl_dir(tmp)
+    assert cl_dir() != broken
+    return [_fresh_devices(), mock.patch.object(device, "cl_dir", lambda: broken)]
+
+
+def _buffer_oom(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "Buffer", _raiser(
+        _cl_error("MemoryError", "clCreateBuffer", "MEM_OBJECT_ALLOCATION_FAILURE")))]
+
+
+def _launch_oom(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "enqueue_nd_range_kernel", _raiser(
+        _cl_error("RuntimeError", "clEnqueueNDRangeKernel", "OUT_OF_RESOURCES")))]
+
+
+def _launch_fails(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "enqueue_nd_range_kernel", _raiser(
+        _cl_error("LogicError", "clEnqueueNDRangeKernel", "INVALID_COMMAND_QUEUE")))]
+
+
+def _buffer_too_big(tmp):
+    import pyopencl
+    return [mock.patch.object(pyopencl, "Buffer", _raiser(
+        _cl_error("LogicError", "clCreateBuffer", "INVALID_BUFFER_SIZE")))]
+
+
+def _host_oom(tmp):
+    from volrender import vdb
+    return [mock.patch.object(vdb, "load_volume", _raiser(MemoryError()))]
+
+
+def _nothing_allocated(tmp):
+    import pyopencl
+    from volrender import vdb
+    return [mock.patch.object(pyopencl, "Buffer", _forbidden("pyopencl.Buffer")),
+            mock.patch.object(vdb, "load_volume", _forbidden("vdb.load_volume"))]
+
+
+TOML_OK = '[points]\ngenerator = "blob"\ncount = 50\n'
+
+CASES = [
+    Case("missing", "missing file", ["render", "nope.vdb", "-o", "{out}"], ("nope.vdb", "no such file")),
+    Case("random_vdb", "corrupt VDB (4 KiB of random bytes)", ["render", "random.vdb", "-o", "{out}"],
+         ("random.vdb", "not an OpenVDB file"),
+         files={"random.vdb": np.random.default_rng(1).bytes(4096)}),
+    Case("cut_vdb", "truncated VDB (first half of demo_cloud.vdb)", ["render", "cut.vdb", "-o", "{out}"],
+         ("cut.vdb", "truncated"),
+         files={"cut.vdb": lambda p: p.write_bytes(DEMO.read_bytes()[:DEMO.stat().st_size // 2])}),
+    Case("cut_vdb_head", "truncated VDB (first 100 bytes)", ["render", "head.vdb", "-o", "{out}"],
+         ("head.vdb", "truncated"),
+         files={"head.vdb": lambda p: p.write_bytes(DEMO.read_bytes()[:100])}),
+    Case("png_as_vdb", "foreign file (a PNG renamed .vdb)", ["render", "picture.vdb", "-o", "{out}"],
+         ("picture.vdb", "not an OpenVDB file"), files={"picture.vdb": lambda p: p.write_bytes(_png_bytes())}),
+    Case("grid_name", "wrong grid name (`--grid smoke`)",
+         ["render", "demo.vdb", "-o", "{out}", "--grid", "smoke"], ("smoke", "density"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}),
+    Case("vector_grid", "wrong grid type (a vec3s grid)",
+         ["render", "velocity.vdb", "-o", "{out}", "--grid", "velocity"], ("velocity", "vec3s"),
+         files={"velocity.vdb": _vector_grid}),
+    Case("vector_grid_default", "no density grid (only a vec3s grid, no `--grid`)",
+         ["render", "velocity.vdb", "-o", "{out}"], ("velocity.vdb", "velocity"),
+         files={"velocity.vdb": _vector_grid}),
+    Case("ply_count", "PLY whose header says 10 vertices, holding 3",
+         ["render", "lies.ply", "-o", "{out}"], ("lies.ply", "10 vertices"),
+         files={"lies.ply": _ply_header(10) + "0 0 0\n1 0 0\n0 1 0\n"}),
+    Case("ply_binary", "binary PLY cut inside its vertex data",
+         ["render", "cut.ply", "-o", "{out}"], ("cut.ply", "truncated binary PLY"),
+         files={"cut.ply": _binary_ply}),
+    Case("csv_text", "CSV with a non-numeric value", ["render", "points.csv", "-o", "{out}"],
+         ("points.csv", "line 3"), files={"points.csv": "x,y,z\n0,0,0\n1,two,0\n"}),
+    Case("xyz_binary", "XYZ that is binary garbage", ["render", "points.xyz", "-o", "{out}"],
+         ("points.xyz",), files={"points.xyz": bytes(range(256)) * 4}),
+    Case("toml_syntax", "TOML syntax error", ["render", "scene.toml", "-o", "{out}"],
+         ("scene.toml", "TOML"), files={"scene.toml": "[points\ngenerator = 'blob'\n"}),
+    Case("toml_key", "TOML unknown key (`[material] iro = 1.5`)", ["render", "scene.toml", "-o", "{out}"],
+         ("scene.toml", "[material].iro", "ior"), files={"scene.toml": TOML_OK + "[material]\niro = 1.5\n"}),
+    Case("toml_type", "TOML wrong type (`count = \"many\"`)", ["render", "scene.toml", "-o", "{out}"],
+         ("scene.toml", "[points].count", "integer"),
+         files={"scene.toml": '[points]\ngenerator = "blob"\ncount = "many"\n'}),
+    Case("toml_count", "TOML absurd point count (`count = 100000000000`)",
+         ["render", "scene.toml", "-o", "{out}"], ("[points].count", "5e7"),
+         files={"scene.toml": '[points]\ngenerator = "blob"\ncount = 100000000000\n'}),
+    Case("toml_path", "TOML path that names a directory (`file = \".\"`)",
+         ["render", "scene.toml", "-o", "{out}"], ("[points].file", "directory"),
+         files={"scene.toml": '[points]\nfile = "."\n'}),
+    Case("toml_size", "TOML size of booleans (`size = [true, true]`)",
+         ["render", "scene.toml", "-o", "{out}"], ("[render].size", "integers"),
+         files={"scene.toml": TOML_OK + "[render]\nsize = [true, true]\n"}),
+    Case("size_zero", "`--size 0x0`", ["render", "blob:50", "-o", "{out}", "--size", "0x0"],
+         ("--size", "0x0")),
+    Case("size_huge", "`--size 1000000x1000000`",
+         ["render", "blob:50", "-o", "{out}", "--size", "1000000x1000000"], ("--size", "32768")),
+    Case("size_memory", "`--size 32768x32768` (within the per-side limit, too big for the device)",
+         ["render", "demo.vdb", "-o", "{out}", "--size", "32768x32768"], ("32768x32768", "smaller --size"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_nothing_allocated),
+    Case("no_platform", "no OpenCL platform (`clGetPlatformIDs` fails)",
+         ["render", "blob:50", "-o", "{out}"], ("OpenCL", "PoCL"), patches=_no_platform),
+    Case("no_device", "no OpenCL device (no platforms listed)",
+         ["render", "demo.vdb", "-o", "{out}"], ("no OpenCL device", "PoCL"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_no_device),
+    Case("build", "kernel build failure (a broken cl/render_volume.cl)",
+         ["render", "demo.vdb", "-o", "{out}"], ("build", "render_volume.cl", "--debug"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_build_failure),
+    Case("oom_buffer", "device out of memory (`clCreateBuffer`: MEM_OBJECT_ALLOCATION_FAILURE)",
+         ["render", "demo.vdb", "-o", "{out}"], ("out of memory", "--size"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_buffer_oom),
+    Case("oom_launch", "device out of resources at launch (glass, OUT_OF_RESOURCES)",
+         ["render", "blob:50", "-o", "{out}"], ("out of memory", "fewer points"), patches=_launch_oom),
+    Case("buffer_size", "buffer larger than the device allows (INVALID_BUFFER_SIZE)",
+         ["render", "blob:50", "-o", "{out}"], ("out of memory", "--size"), patches=_buffer_too_big),
+    Case("cl_other", "any other OpenCL failure (INVALID_COMMAND_QUEUE at launch)",
+         ["render", "demo.vdb", "-o", "{out}"], ("OpenCL failed", "INVALID_COMMAND_QUEUE", "--device"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_launch_fails),
+    Case("host_oom", "host out of memory while loading", ["render", "demo.vdb", "-o", "{out}"],
+         ("out of host memory", "smaller"),
+         files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_host_oom),
+]
+
+
+def run_case(case: Case, workdir: Path, existing: bytes | None = None):
+    """Run the CLI in-process in workdir (relative paths, so messages are portable).
+    Returns (exit code, stderr, output bytes or None)."""
+    from volrender import cli
+    workdir.mkdir(parents=True, exist_ok=True)
+    for name, content in case.files.items():
+        p = workdir / name
+        if callable(content):
+            content(p)
+        elif isinstance(content, bytes):
+            p.write_bytes(content)
+        else:
+            p.write_text(content)
+    out = workdir / case.out
+    if existing is not None:
+        out.write_bytes(existing)
+    argv = [a.replace("{out}", case.out) for a in case.argv]
+    if "--size" not in argv:
+        argv += SMALL[:2]
+    argv += SMALL[2:]
+    err = io.StringIO()
+    cwd = os.getcwd()
+    with contextlib.ExitStack() as stack:
+        for p in (case.patches(workdir) if case.patches else []):
+            stack.enter_context(p)
+        stack.enter_context(contextlib.redirect_stderr(err))
+        stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
+        os.chdir(workdir)
+        try:
+            code = cli.main(argv)
+        except SystemExit as exc:             # argparse
+            code = exc.code
+        finally:
+            os.chdir(cwd)
+    return code, err.getvalue(), out.read_bytes() if out.exists() else None
+
+
+def check(case, code, err, out_bytes, existing, workdir):
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("volrender: error: "), err
+    assert code == 2, (code, err)
+    for w in case.words:
+        assert w.lower() in err.lower(), (w, err)
+    assert out_bytes == existing, "the output file was created or changed"
+    assert not [p for p in os.listdir(workdir) if ".tmp" in p], "a temporary file was left"
+
+
+@pytest.mark.parametrize("existing", [None, PRECIOUS], ids=["no_output", "existing_output"])
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_input_fails_cleanly(tmp_path, case, existing):
+    code, err, out_bytes = run_case(case, tmp_path, existing)
+    check(case, code, err, out_bytes, existing, tmp_path)
+
+
+def test_size_check_runs_before_loading_or_allocating(tmp_path):
+    """--size 32768x32768 passes argparse; the memory check refuses it before the volume
+    is read or any buffer exists (the case patches both to fail loudly)."""
+    case = next(c for c in CASES if c.id == "size_memory")
+    code, err, _ = run_case(case, tmp_path)
+    assert code == 2 and "was called" not in err
+
+
+def test_a_failed_build_writes_nothing_past_python(tmp_path, capfd):
+    """PoCL's compiler prints "N errors generated." straight to file descriptor 2; the
+    user must still see one line only (device.build collects it into the log)."""
+    case = next(c for c in CASES if c.id == "build")
+    code, err, _ = run_case(case, tmp_path)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    fd = capfd.readouterr()
+    assert fd.err == "" and fd.out == "", fd
+
+
+def test_debug_shows_the_traceback_and_the_build_log(tmp_path):
+    case = next(c for c in CASES if c.id == "build")
+    from volrender.device import BuildError
+    debug = Case(case.id, case.label, case.argv + ["--debug"], (), case.files, case.patches)
+    with pytest.raises(BuildError) as exc:
+        run_case(debug, tmp_path)
+    assert "\n" in str(exc.value) and "error" in str(exc.value).lower()   # the log is kept
+
+
+def test_negative_seed_with_a_generator_renders(tmp_path, capsys):
+    """--seed -1 works for volumes; generators used to crash in numpy (ValueError)."""
+    from volrender import cli
+    out = tmp_path / "o.npy"
+    code = cli.main(["render", "blob:30", "-o", str(out), *SMALL, "--seed", "-1"])
+    assert code == 0, capsys.readouterr().err
+    assert np.isfinite(np.load(out)).all()
+
+
+def volrender_exe():
+    exe = Path(sys.executable).parent / "volrender"
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "volrender"]
+
+
+@pytest.mark.parametrize("case_id", ["missing", "toml_syntax", "size_zero"])
+def test_installed_command_gives_the_same_line(tmp_path, case_id):
+    """The real process agrees with the in-process run, and leaves the output alone."""
+    case = next(c for c in CASES if c.id == case_id)
+    code, err, _ = run_case(case, tmp_path / "a")
+    work = tmp_path / "b"
+    work.mkdir()
+    for name, content in case.files.items():       # these cases use text files only
+        (work / name).write_text(content)
+    (work / case.out).write_bytes(PRECIOUS)
+    argv = [a.replace("{out}", case.out) for a in case.argv]
+    if "--size" not in argv:
+        argv += SMALL[:2]
+    proc = subprocess.run([*volrender_exe(), *argv, *SMALL[2:]], cwd=work, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == code == 2
+    assert proc.stderr == err and "Traceback" not in proc.stderr
+    assert (work / case.out).read_bytes() == PRECIOUS
+
+
+# ------------------------------------------------------------------ docs/bad_input.md
+
+def write_doc(path=ROOT / "docs" / "bad_input.md"):
+    import tempfile
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for case in CASES:
+            code, err, _ = run_case(case, Path(d) / case.id)
+            line = err.strip().replace("|", "\\|")
+            args = " ".join(a.replace("{out}", case.out) for a in case.argv[1:])
+            rows.append(f"| {case.label} <br> `volrender render {args}` | `` {line} `` | {code} |")
+    from volrender import device
+    text = (
+        "# Bad input: what the user sees\n\n"
+        "Generated from real runs by `tests/test_bad_input.py` (run it as a script to refresh:\n"
+        "`.venv/bin/python tests/test_bad_input.py`); each row is also a test. Paths are\n"
+        "relative to the directory the command ran in; images are 16x12 unless the size is\n"
+        "the point. In every case stderr is that one line (no traceback), no output file is\n"
+        "written and an existing one is left byte-identical. `--debug` shows the traceback\n"
+        "(and a build failure's compiler log). Conditions that cannot be produced on demand\n"
+        "(no OpenCL platform, a kernel that does not compile, memory exhaustion) are\n"
+        "simulated: pyopencl's `get_platforms`, `Buffer` or `enqueue_nd_range_kernel` raise the\n"
+        "error a real runtime raises, or the kernel source is replaced by a broken copy.\n\n"
+        f"Device: {device.get().name}.\n\n"
+        "| input | what the user sees (stderr) | exit code |\n|---|---|---|\n"
+        + "\n".join(rows) + "\n")
+    path.write_text(text)
+    return text
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+    print(write_doc())
