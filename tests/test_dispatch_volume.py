@@ -211,7 +211,16 @@ def test_settings_validate_the_dispatch():
         VolumeSettings(dispatch="tiled", tile=(0, 8))
     with pytest.raises(UserError, match="out of range"):
         VolumeSettings(dispatch="tiled", tile=(64, 32))
-    assert VolumeSettings().dispatch == "fragment"
+    assert VolumeSettings().dispatch == "auto"
+
+
+def test_auto_dispatch_follows_the_device_type(cl_device):
+    """auto: fragment on a CPU device (PoCL), tiled on GPUs (the measured winners)."""
+    from volrender.dispatch import Dispatch, is_gpu
+    want = "tiled" if is_gpu(cl_device) else "fragment"
+    assert Dispatch("auto").resolve(cl_device).kind == want
+    assert Dispatch("auto").resolve(cl_device, tiled_helps=False).kind == "fragment"
+    assert Dispatch("fragment").resolve(cl_device).kind == "fragment"
 
 
 def test_fragment_compiles_no_local_memory(cl_device, dense):

@@ -120,9 +120,10 @@ def build_parser():
                    help="volumes: march (ray marching: --step/--shadow-step, biased, low noise) or "
                         "track (delta/ratio tracking on brick majorants: unbiased, noisier)")
     q.add_argument("--no-skip", action="store_true", help="march empty bricks too (reference for skipping)")
-    q.add_argument("--dispatch", choices=["fragment", "tiled"], default=None,
+    q.add_argument("--dispatch", choices=["auto", "fragment", "tiled"], default=None,
                    help="fragment: one independent work-item per pixel; tiled: work-groups own "
-                        "screen tiles and cull the scene into local memory first (default: fragment)")
+                        "screen tiles and cull the scene into local memory first; auto: tiled on "
+                        "GPUs (except opaque glass), fragment on CPUs (default: auto)")
     q.add_argument("--tile", type=parse_tile, default=None, metavar="WxH",
                    help="tile size for --dispatch tiled, pixels (default: 8x8)")
     gl = r.add_argument_group("molten glass (point clouds; defaults in volrender.glass.GlassSettings)")
@@ -343,7 +344,7 @@ def render_volume_input(args, lights, aovs):
         shadows=not args.no_shadows, skip_empty=not args.no_skip,
         emission_scale=args.emission_scale, emission_temperature=args.emission_temperature,
         depth="depth" in aovs, estimator=args.estimator,
-        dispatch=pick(args.dispatch, "fragment"), tile=pick(args.tile, (8, 8)))
+        dispatch=pick(args.dispatch, "auto"), tile=pick(args.tile, (8, 8)))
     if lights is None:
         lights = [] if args.no_lights else list(DEFAULT_LIGHTS)
     dev = device_mod.get(args.device)

@@ -5,6 +5,9 @@ fragment: one independent work-item per pixel, the runtime picks the local size,
 tiled:    one work-group per screen tile of tile_w x tile_h pixels; the kernel culls the
           scene against its tile cooperatively into local memory first. The global size is
           rounded up to whole tiles (work-items past the image edge still help the group).
+auto:     the default, chosen per device type from bench/results: tiled on GPUs (H200:
+          x1.2-1.8 for volumes, x1.3 for refracting glass), fragment on CPUs (PoCL: tiled
+          gains nothing) and for opaque glass (tiled x0.5-0.7 on the H200).
 
 Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the
 bands are large, since small launches leave most of the device idle.
@@ -19,6 +22,7 @@ from .errors import UserError
 from .progress import Progress
 
 DISPATCHES = ("fragment", "tiled")
+CHOICES = ("auto",) + DISPATCHES
 GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
 
 
@@ -29,8 +33,8 @@ class Dispatch:
     tile: tuple = (8, 8)
 
     def __post_init__(self):
-        if self.kind not in DISPATCHES:
-            raise UserError(f"unknown dispatch {self.kind!r}", fix=f"use one of {', '.join(DISPATCHES)}")
+        if self.kind not in CHOICES:
+            raise UserError(f"unknown dispatch {self.kind!r}", fix=f"use one of {', '.join(CHOICES)}")
         tw, th = self.tile
         if not (isinstance(tw, (int, np.integer)) and isinstance(th, (int, np.integer))
                 and 1 <= tw <= 64 and 1 <= th <= 64 and tw * th <= 1024):
@@ -40,6 +44,13 @@ class Dispatch:
     @property
     def tiled(self) -> bool:
         return self.kind == "tiled"
+
+    def resolve(self, device, tiled_helps: bool = True) -> "Dispatch":
+        """`auto` made concrete for this device (see the module docstring)."""
+        if self.kind != "auto":
+            return self
+        kind = "tiled" if tiled_helps and is_gpu(device) else "fragment"
+        return Dispatch(kind, self.tile)
 
     def check(self, device, kernel):
         """Refuse a tile the device cannot run as one work-group."""
@@ -91,7 +102,7 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     ms (OpenCL profiling events). `pixels` is the band size on CPUs; GPUs get
     GPU_BAND_PIXELS."""
     import pyopencl as cl
-    dispatch = dispatch or Dispatch()
+    dispatch = (dispatch or Dispatch()).resolve(device)
     dispatch.check(device, kernel)
     tw, th = dispatch.tile if dispatch.tiled else (1, 1)
     if is_gpu(device):

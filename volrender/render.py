@@ -37,7 +37,7 @@ class VolumeSettings:
     emission_temperature: float = 1500.0  # K, colour of the emission
     depth: bool = False             # also return the opacity-weighted mean depth
     estimator: str = "march"        # "march" (cl/render_volume.cl) or "track" (cl/track_volume.cl)
-    dispatch: str = "fragment"      # volrender.dispatch: "fragment" or "tiled"
+    dispatch: str = "auto"          # volrender.dispatch: "auto", "fragment" or "tiled"
     tile: tuple = (8, 8)            # tiled: work-group tile, pixels (w, h)
 
     def __post_init__(self):
@@ -108,7 +108,7 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     import pyopencl as cl
 
     n_suns, n_points = lights_mod.counts(lights)
-    dispatch = Dispatch(settings.dispatch, tuple(settings.tile))
+    dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
     features = VolumeFeatures(n_suns=n_suns, n_points=n_points, shadows=settings.shadows,
                               phase_mixed=settings.phase[2] < 1.0, skip_empty=settings.skip_empty,
                               emission=bricks.emission is not None, depth=settings.depth,
