@@ -178,7 +178,7 @@ inline void sdf_blend_sums(const SdfScene* sc, float3 x, float m, float* s1_out,
    overflows, the sums come from pass 2 instead. Returns the list length, or -1 on
    overflow. */
 #ifndef VR_CAND
-#define VR_CAND 16            /* private candidate list (the host may set it) */
+#define VR_CAND 24            /* private candidate list (the host sets it: glass.CANDIDATES) */
 #endif
 
 inline int sdf_candidates(const SdfScene* sc, float3 x, float* m_out, int* arg,
