@@ -57,7 +57,7 @@ inline int glass_trace(const SdfScene* sc, __constant GlassParams* gp, float3 o,
     *t = 0.0f;
     if (!(t0 <= t1))
         return 0;
-    return sdf_trace(sc, o, d, t0, t1, side, gp->epsilon, base, gp->max_steps, t, s);
+    return sdf_trace(sc, o, d, t0, t1, side, gp->epsilon, base, gp->max_steps, gp->relax, t, s);
 }
 
 #if VR_LIT

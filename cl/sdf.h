@@ -328,21 +328,34 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
 }
 
 /* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
-   Hit when side * F < eps * (base + t); step (side * F) / lip. Returns 1 on a hit with
-   *t and *s at the hit; else 0 with *t where marching stopped (<= t1). */
+   Hit when side * F < eps * (base + t); safe step r = (side * F) / lip. With relax w > 1
+   the step is w r (over-relaxed sphere tracing); when the safe balls of two consecutive
+   points do not overlap (r + r_prev < step) the step went too far: go back to the plain
+   step and stay at w = 1. No surface is skipped either way. Returns 1 on a hit with *t
+   and *s at the hit; else 0 with *t where marching stopped (<= t1). */
 inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
-                     float eps, float base, int max_steps, float* t_out, SdfSample* s_out)
+                     float eps, float base, int max_steps, float relax, float* t_out,
+                     SdfSample* s_out)
 {
-    float t = t0;
+    float t = t0, w = relax, step = 0.0f, r_prev = 0.0f;
     for (int i = 0; i < max_steps && t <= t1; ++i) {
         SdfSample s = sdf_eval(sc, o + t * d);
         float f = side * s.f;
+        float r = f / s.lip;
+        if (w > 1.0f && r + r_prev < step) {
+            t -= step - step / w;              /* back to the plain step: safe */
+            step /= w;
+            w = 1.0f;
+            continue;
+        }
         if (f < eps * (base + t)) {
             *t_out = t;
             *s_out = s;
             return 1;
         }
-        t += f / s.lip;
+        step = w * r;
+        r_prev = r;
+        t += step;
     }
     *t_out = fmin(t, t1);
     return 0;

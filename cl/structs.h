@@ -74,8 +74,8 @@ typedef struct {  /* 144 bytes */
     int uber;
     int n_suns;
     int n_points;
+    float relax;
     float _pad0;
-    float _pad1;
 } GlassParams;
 
 #endif

@@ -42,7 +42,7 @@ __kernel void trace(__global const float4* spheres, __global const TreeNode* nod
     SdfScene sc = { spheres, nodes, n, first_leaf, k };
     float t;
     SdfSample s;
-    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, 1.0f, 1e-5f, 1.0f, 512, &t, &s);
+    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, 1.0f, 1e-5f, 1.0f, 512, 1.0f, &t, &s);
     float3 g = normalize(s.grad);
     out[i] = hit ? (float4)(g, t) : (float4)(0.0f, 0.0f, 0.0f, -1.0f);
 }

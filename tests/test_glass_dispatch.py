@@ -163,3 +163,20 @@ def test_soft_shadow_angle_is_validated():
         glass.GlassSettings(dispatch="tiled", tile=(64, 64))
     with pytest.raises(UserError, match="dispatch"):
         glass.GlassSettings(dispatch="warp")
+
+
+# ------------------------------------------------------------------ over-relaxation
+
+def test_over_relaxation_misses_nothing(cl_device):
+    """Over-relaxed steps fall back whenever the safe balls stop overlapping, so the same
+    rays hit (identical coverage) and hit points move only within the threshold."""
+    cloud = points.blob(200, seed=8)
+    base = glass.GlassSettings(bounces=1, max_steps=4096, epsilon=1e-5)
+    a = _render(cl_device, cloud, base, size=(32, 24))
+    for w in (1.5, 1.9):
+        b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "relax": w}),
+                    size=(32, 24))
+        np.testing.assert_array_equal(a[..., 3], b[..., 3])
+        _agree(a, b, frac=0.97)
+    with pytest.raises(UserError, match="relax"):
+        glass.GlassSettings(relax=2.0)

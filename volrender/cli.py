@@ -144,6 +144,8 @@ def build_parser():
     gl.add_argument("--glow", type=float, default=None, help="hot-glass emission per unit length (default: 0.6)")
     gl.add_argument("--epsilon", type=float, default=None, help="relative hit threshold (default: 1e-4)")
     gl.add_argument("--max-steps", type=int, default=None, help="sphere-tracing steps per ray (default: 256)")
+    gl.add_argument("--relax", type=float, default=None,
+                    help="over-relaxed sphere tracing, factor in [1, 1.9]; 1 = plain (default: 1)")
     gl.add_argument("--env", default=None, metavar="ENV.exr",
                     help="equirectangular environment (default: procedural sky)")
     gl.add_argument("--opaque", action="store_true", help="no refraction: shaded opaque spheres")
@@ -383,6 +385,7 @@ def render_points_input(args, kind, lights):
         reflectivity=pick(args.reflectivity, mat.get("reflectivity")),
         glow=pick(args.glow, mat.get("glow")), epsilon=pick(args.epsilon, rnd.get("epsilon")),
         max_steps=pick(args.max_steps, rnd.get("max_steps")), spp=pick(args.spp, rnd.get("spp")),
+        relax=pick(args.relax, rnd.get("relax")),
         seed=pick(args.seed, rnd.get("seed")),
         env=pick(args.env, scene.get("environment", {}).get("map")),
         shadows=False if args.no_shadows else rnd.get("shadows"),

@@ -46,6 +46,8 @@ class GlassSettings:
     shadow_angle: angular radius of the lights in degrees; 0 gives hard shadows, more
         gives soft ones (a penumbra estimate from the sphere-traced distances).
     point_colors: tint each point's glass with the cloud's own colours, if it has any.
+    relax: over-relaxed sphere tracing factor in [1, 1.9] (1: plain); misses nothing, moves
+        hits within epsilon.
     dispatch, tile: volrender.dispatch.Dispatch (auto, fragment, or tiled with WxH tiles).
     uber: compile every feature in and choose at run time (the specialisation baseline).
     """
@@ -69,6 +71,7 @@ class GlassSettings:
     refraction: bool = True
     shadow_angle: float = 0.0
     point_colors: bool = True
+    relax: float = 1.0
     dispatch: str = "auto"
     tile: tuple = (8, 8)
     uber: bool = False
@@ -107,6 +110,8 @@ class GlassSettings:
               f"--max-steps must be in [1, 65536], got {self.max_steps}")
         check(isinstance(self.spp, (int, np.integer)) and 1 <= self.spp <= 1 << 16,
               f"--spp must be in [1, 65536], got {self.spp}")
+        check(finite(self.relax) and 1 <= self.relax <= 1.9,
+              f"--relax must be in [1, 1.9], got {self.relax}")
         check(finite(self.shadow_angle) and 0 <= self.shadow_angle <= 45,
               f"--shadow-angle must be in [0, 45] degrees, got {self.shadow_angle}")
         Dispatch(self.dispatch, tuple(self.tile))
@@ -295,7 +300,7 @@ def render_points(cloud, camera, lights, settings: GlassSettings, device, progre
         env_height=env_h, tile_margin=scene.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=uber_bits(scene, lights, settings) if settings.uber else 0,
-        n_suns=n_suns, n_points=n_points)
+        n_suns=n_suns, n_points=n_points, relax=settings.relax)
     light_rec = lights_mod.pack(lights, w2f)
 
     ctx = device.context

@@ -97,8 +97,8 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("uber", "int"),                 # uber-kernel: runtime feature bits (glass.UBER_BITS)
         ("n_suns", "int"),               # uber-kernel: light counts at run time
         ("n_points", "int"),
+        ("relax", "float"),              # over-relaxed sphere tracing factor, 1 = off
         ("_pad0", "float"),
-        ("_pad1", "float"),
     ],
 }
 

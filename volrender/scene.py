@@ -54,7 +54,7 @@ SCHEMA = {
     "environment": {"map": PATH},
     "render": {"size": SIZE, "spp": int, "seed": int, "bounces": int, "blend": NUM,
                "leaf_size": int, "epsilon": NUM, "max_steps": int, "shadows": bool,
-               "tree": bool, "shadow_angle": NUM, "dispatch": str},
+               "tree": bool, "shadow_angle": NUM, "dispatch": str, "relax": NUM},
 }
 
 
