@@ -3,6 +3,7 @@
 #   bash run.sh demo    install what is missing, then render the bundled demo to demo.png
 #   bash run.sh test    install what is missing, then run the test suite
 #   bash run.sh setup   install only
+#   bash run.sh peers   optional: install vdb_render and Mitsuba 3.5, then compare (bench/peers.py)
 # Idempotent: a second run installs nothing new.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -51,6 +52,29 @@ venv() {
     || { echo "run.sh: OpenVDB's Python binding does not import in $VENV" >&2; exit 1; }
 }
 
+# Optional peers for bench/peers.py (docs/peers.md): OpenVDB's vdb_render (Debian's
+# libopenvdb-tools) and Mitsuba 3.5.x in the venv. Mitsuba's LLVM variant dlopens
+# libLLVM.so or libLLVM-16.so (Dr.Jit 0.4.6 does not look for Debian's libLLVM-14/15.so),
+# so install libllvm16 and name it in DRJIT_LIBLLVM_PATH; scalar_rgb needs no LLVM.
+MITSUBA_SPEC="mitsuba>=3.5,<3.6"
+LIBLLVM16=/usr/lib/x86_64-linux-gnu/libLLVM-16.so.1
+peers() {
+  local missing=()
+  command -v vdb_render >/dev/null || missing+=(libopenvdb-tools)
+  [ -e "$LIBLLVM16" ] || missing+=(libllvm16)
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "run.sh: installing Debian packages: ${missing[*]}" >&2
+    as_root apt-get update -q
+    DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -q "${missing[@]}"
+  fi
+  if ! "$VENV/bin/python" -c 'import importlib.metadata as m, sys; v = m.version("mitsuba"); sys.exit(not v.startswith("3.5."))' 2>/dev/null; then
+    echo "run.sh: installing $MITSUBA_SPEC into $VENV" >&2
+    "$VENV/bin/pip" install -q "$MITSUBA_SPEC"
+  fi
+  export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$LIBLLVM16}"
+  "$VENV/bin/python" bench/peers.py "$@"
+}
+
 cmd=${1:-demo}
 case "$cmd" in
   setup) apt_deps; venv ;;
@@ -60,5 +84,7 @@ case "$cmd" in
          echo "run.sh: wrote demo.png" >&2 ;;
   test)  apt_deps; venv; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
-  *) echo "usage: bash run.sh [demo|test|setup]" >&2; exit 2 ;;
+  peers) apt_deps; venv; shift || true
+         peers "$@" ;;
+  *) echo "usage: bash run.sh [demo|test|setup|peers]" >&2; exit 2 ;;
 esac
