@@ -104,7 +104,7 @@ def main(argv=None):
                                             refraction=not args.opaque)
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
-                    if not use_tree and (time.perf_counter() - t0) / (args.repeat + 1) > args.brute_limit:
+                    if not use_tree and (time.perf_counter() - t0) / args.repeat > args.brute_limit:
                         brute_ok[(disp, lit)] = False
                     if lit and ref is None:
                         ref = img

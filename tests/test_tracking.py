@@ -119,6 +119,31 @@ def test_slab_emission_and_background(cl_device):
             assert_unbiased(r[..., ch], col[ch] * emitted + T * bg[ch], f"sigma {sigma} ch {ch}")
 
 
+@pytest.mark.parametrize("sigma", [1e5, 1e9])
+def test_stiff_slab_reaches_the_half_space_limit(cl_device, slab, sigma):
+    """Optical depth 6e4 and 6e8 across the slab: mean free paths far below what a float
+    ray parameter resolves (1e9) switch the walk to whole intervals with a linear density
+    (cl/track_volume.cl, VR_BULK_*), exact on the slab's linear ramp. The closed form
+    tends to albedo p E / (1 + c), independent of sigma."""
+    sun = Sun((0.0, 0.0, -1.0), 3.0)
+    cam = top_camera(8)
+    s = VolumeSettings(density_scale=sigma, albedo=0.9, phase=(0.5, 0.0, 1.0), spp=256, seed=5,
+                       estimator="track")
+    r = render_volume(slab, cam, [sun], s, cl_device)["rgba"]
+    dirs = pixel_dirs(cam)
+    c = np.abs(dirs[..., 2])
+    want = 0.9 * reference.hg(-dirs @ np.array(sun.direction), 0.5) * 3.0 / (1 + c)
+    assert np.all(r[..., 3] == 1.0)
+    assert_unbiased(r[..., 1], want, f"sigma {sigma}")
+
+
+def test_overflowing_density_stays_finite(cl_device, slab):
+    """sigma beyond float range: opaque, finite, no hang."""
+    s = VolumeSettings(density_scale=1e30, spp=4, estimator="track", background=(0.2, 0.2, 0.2))
+    r = render_volume(slab, top_camera(6), [Sun((0.2, -0.3, -1.0), 2.0)], s, cl_device)["rgba"]
+    assert np.isfinite(r).all() and np.all(r[..., 3] == 1.0)
+
+
 def smooth_noise(n, seed):
     """Positive, smooth random field on n^3 voxels, zero on the border."""
     rng = np.random.default_rng(seed)
@@ -162,6 +187,21 @@ def test_tracking_agrees_with_fine_marching_on_a_heterogeneous_grid(cl_device):
         assert abs(d.sum()) <= Z * np.sqrt((se[..., ch] ** 2).sum()) + march_err[..., ch].sum()
 
 
+def test_tracking_image_does_not_depend_on_the_launch(cl_device):
+    """Random numbers are keyed by (seed, pixel, sample, dimension): fragment and tiled
+    launches (tiles overhanging the image edge) give the same image, bit for bit."""
+    b = Bricks.from_dense(smooth_noise(20, 2), scaled(VOX, (-1.0, -1.0, -1.0)))
+    cam = Camera((1.2, 0.8, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 13, 7)
+    base = dict(density_scale=3.0, spp=3, seed=9, estimator="track", depth=True)
+    lights = [Sun((0.3, -1.0, 0.2), 2.0)]
+    frag = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="fragment"), cl_device)
+    tiled = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="tiled", tile=(4, 4)),
+                          cl_device)
+    assert frag["rgba"][..., 3].max() > 0.3 and np.isfinite(frag["depth"]).any()
+    np.testing.assert_array_equal(frag["rgba"], tiled["rgba"])
+    np.testing.assert_array_equal(frag["depth"], tiled["depth"])
+
+
 def test_estimator_is_validated(tmp_path, capsys):
     assert ESTIMATORS == ("march", "track")
     with pytest.raises(UserError, match="estimator"):
@@ -181,3 +221,21 @@ def test_cli_renders_with_tracking(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     rgba = np.load(out)
     assert rgba.shape == (18, 24, 4) and np.isfinite(rgba).all() and rgba[..., 3].max() > 0.1
+
+
+def test_error_bench_quick_run(tmp_path, monkeypatch):
+    """bench/error.py --quick end to end (volumes only), writing into tmp_path."""
+    import json
+    from bench import error
+    monkeypatch.setattr(error, "RESULTS", tmp_path)
+    assert error.main(["--quick", "--no-glass", "--size", "24x18", "--ref-spp", "16",
+                       "--out", "t"]) == 0
+    rec = json.loads((tmp_path / "error_t.json").read_text())
+    assert (tmp_path / "error_t.png").stat().st_size > 0
+    demo = rec["volume"][0]
+    assert demo["scene"] == "demo_cloud" and demo["reference"]["spp"] == 64
+    rows = demo["rows"]
+    assert {"step", "shadow_step", "spp", "track", "track@march-time"} <= {r["group"] for r in rows}
+    assert any(r["pareto"] for r in rows)
+    for r in rows:
+        assert r["time_ms"] > 0 and np.isfinite(r["rmse"]) and r["max_abs"] >= r["rmse"] * 0.99

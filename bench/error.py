@@ -1,0 +1,450 @@
+"""Error against run time for every speed knob, against a converged reference.
+
+    .venv/bin/python bench/error.py [--device SPEC] [--size 160x120] [--repeat 5]
+        [--quick] [--out TAG] [--time kernel|cpu] [--no-glass] [--no-volume]
+
+Volumes (scenes/demo_cloud.vdb with the `run.sh demo` look, and smoke.vdb from
+../shared/data/vdb when present): marching step (2, 1, 0.5, 0.25 voxels), shadow step
+(4, 2, 1, 0.5), samples per pixel (1, 4, 16), a small grid of combinations, and the
+tracking estimator (1..64 spp, and at the run time of each marching spp setting).
+
+Reference: the tracking estimator (cl/track_volume.cl) with many samples per pixel, in
+independent batches. It is unbiased, so its only error is noise, which the batches
+measure: the JSON gives its per-pixel standard error, and `rmse_corrected` removes the
+reference's own variance from each setting's mean squared error (the two are
+independent: different seeds). Fine marching (0.05 voxel) would be biased by its step
+and costs ~100x the default march per sample, where a tracking sample costs 1/10 to 1/40
+of one on these scenes (PoCL).
+All settings are measured against the box-filtered pixel (what many spp converge
+to): a 1-spp image samples the pixel centre, so its error includes that footprint
+difference, which only more samples remove.
+
+Glass (volrender.glass): epsilon (1e-2..1e-5), max_steps (32..512) and bounces (1..8)
+swept one at a time from the defaults (1e-4, 256, 6), plus presets, and (first scene)
+each knob alone with the other two at the reference values, against epsilon 1e-6,
+max_steps 4096, bounces 12 with brute force (use_tree=False); deterministic (one sample
+at the pixel centre), so the reference has no noise. Scenes: blob:300 (seed 1) and
+scenes/molten_glass.toml.
+
+Per setting: kernel ms (median of --repeat runs after a warm-up; the runs of all
+settings of a scene are interleaved, in a shuffled order per round), RMSE over the RGB
+values, max |error|, bias (mean signed error), RMSE of alpha. With `--time cpu` the
+time axis is the CPU time the launches consumed divided by the device's compute units
+(also a median), which other processes on a shared CPU host do not inflate; the
+profiling kernel ms are recorded either way. Writes
+bench/results/error_<tag>.json and error_<tag>.png (log-log error vs time, Pareto front
+marked: no other setting is both faster and more accurate).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+import volrender.glass  # noqa: E402
+import volrender.render  # noqa: E402
+from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
+from volrender.lights import PointLight, Sun  # noqa: E402
+from volrender.render import VolumeSettings, render_volume  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data" / "vdb"
+GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
+GLASS_REF = dict(epsilon=1e-6, max_steps=4096, bounces=12, use_tree=False)
+
+
+# --------------------------------------------------------------------------- metrics
+
+def errors(img, ref, ref_var=None) -> dict:
+    """Error of an RGBA image against a reference (RGB: radiance, A: alpha)."""
+    d = img[..., :3].astype(np.float64) - ref[..., :3]
+    mse = float((d ** 2).mean())
+    out = {"rmse": mse ** 0.5, "max_abs": float(np.abs(d).max()), "bias": float(d.mean()),
+           "alpha_rmse": float(np.sqrt(((img[..., 3].astype(np.float64) - ref[..., 3]) ** 2).mean())),
+           "rel_rmse": mse ** 0.5 / max(float(np.sqrt((ref[..., :3] ** 2).mean())), 1e-30)}
+    if ref_var is not None:
+        # E[mse] = true mse + mean reference variance (independent noise)
+        out["rmse_corrected"] = max(mse - float(ref_var[..., :3].mean()), 0.0) ** 0.5
+    return out
+
+
+def pareto(rows, key="rmse"):
+    """Mark rows no other row beats in both kernel time and error."""
+    pts = [(r["time_ms"], r[key]) for r in rows]
+    for r, (t, e) in zip(rows, pts):
+        r["pareto"] = not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for t2, e2 in pts)
+
+
+# CPU time of this process (all threads: PoCL's workers run in it) during the kernel
+# launches. On a shared CPU host, other processes stretch the kernels' wall time (the
+# OpenCL profiling times) but not the CPU time they consume, so cpu_ms / cores is a
+# contention-free stand-in for the kernel time (--time cpu).
+_CPU = {}
+
+
+def _cpu_timed(run_rows):
+    def wrapped(*args, **kwargs):
+        c0 = time.process_time()
+        ms = run_rows(*args, **kwargs)
+        _CPU["ms"] = _CPU.get("ms", 0.0) + 1e3 * (time.process_time() - c0)
+        return ms
+    wrapped.__wrapped__ = run_rows
+    return wrapped
+
+
+def install_cpu_timer():
+    for mod in (volrender.render, volrender.glass):
+        if hasattr(mod, "run_rows") and not hasattr(mod.run_rows, "__wrapped__"):
+            mod.run_rows = _cpu_timed(mod.run_rows)
+
+
+def sweep(jobs, repeat, basis):
+    """Image and timing of every (key, render) job. One pass renders each job once (the
+    warm-up and program build; the image, deterministic per seed); then `repeat` rounds
+    time every job, in a shuffled order per round, so that load from other processes
+    spreads over all settings instead of landing on a few. `time_ms`: median kernel ms
+    (basis 'kernel') or median CPU ms / compute units (basis 'cpu')."""
+    out = {}
+    for key, render in jobs:
+        out[key] = {"rgba": render()["rgba"], "kernel": [], "wall": [], "cpu": []}
+    order = list(jobs)
+    rng = random.Random(1)
+    for _ in range(repeat):
+        rng.shuffle(order)
+        for key, render in order:
+            _CPU.clear()
+            r = render()
+            o = out[key]
+            o["kernel"].append(r["kernel_ms"])
+            o["wall"].append(r["wall_ms"])
+            if "ms" in _CPU:
+                o["cpu"].append(_CPU["ms"])
+    result = {}
+    for key, o in out.items():
+        t = {"kernel_ms": stats(o["kernel"]), "wall_ms": stats(o["wall"])}
+        if o["cpu"]:
+            t["cpu_ms"] = stats(o["cpu"])
+        t["time_ms"] = (t["cpu_ms"]["median"] / basis[1] if basis[0] == "cpu" and o["cpu"]
+                        else t["kernel_ms"]["median"])
+        result[key] = (o["rgba"], t)
+    return result
+
+
+# --------------------------------------------------------------------------- volumes
+
+def volume_scenes(width, height):
+    """[(name, bricks, camera, lights, base settings, reference spp per batch)]; smoke
+    only when present. Reference spp: enough for a standard error well below the
+    smallest errors measured (smoke is ~2x costlier per sample, and less noisy)."""
+    out = []
+    b = vdb.load_volume(ROOT / "scenes" / "demo_cloud.vdb")       # the `run.sh demo` look
+    out.append(("demo_cloud", b, camera.frame_bounds(*b.world_bounds(), width, height, fov=28.0),
+                [Sun((-0.6, -1.0, -0.5), 10.0)],
+                VolumeSettings(density_scale=6.0, background=(0.32, 0.42, 0.58)), 2048))
+    smoke = next((p for p in (SHARED / "smoke.vdb", ROOT / "bench" / "data" / "smoke.npz")
+                  if p.exists()), None)
+    if smoke is None:
+        print(f"bench/error.py: {SHARED / 'smoke.vdb'} not found; skipping the real file", flush=True)
+    else:
+        b = vdb.load_volume(smoke)                                 # bench/volume.py's settings
+        out.append(("smoke", b, camera.frame_bounds(*b.world_bounds(), width, height),
+                    [Sun((-0.6, -1.0, -0.5), 6.0)], VolumeSettings(density_scale=1.0), 1024))
+    return out
+
+
+def volume_settings(quick):
+    """[(group, label, overrides)] of the sweep (tracking at matched time comes later)."""
+    rows = []
+    steps, shadows, spps = ((2, 0.5), (4, 1), (1, 4)) if quick else \
+        ((2, 1, 0.5, 0.25), (4, 2, 1, 0.5), (1, 4, 16))
+    for h in steps:
+        rows.append(("step", f"step {h}", dict(step=h)))
+    for h in shadows:
+        rows.append(("shadow_step", f"shadow {h}", dict(shadow_step=h)))
+    for n in spps:
+        rows.append(("spp", f"{n} spp", dict(spp=n)))
+    if not quick:
+        for h, sh, n in ((2, 4, 1), (2, 4, 4), (1, 2, 1), (1, 2, 4), (2, 2, 4), (1, 1, 4),
+                         (1, 2, 16), (2, 4, 16)):
+            rows.append(("combined", f"step {h}, shadow {sh}, {n} spp",
+                         dict(step=h, shadow_step=sh, spp=n)))
+    for n in ((1, 4) if quick else (1, 4, 16, 64)):
+        rows.append(("track", f"track {n} spp", dict(estimator="track", spp=n)))
+    return rows
+
+
+def describe_volume(s: VolumeSettings) -> dict:
+    d = {"estimator": s.estimator, "spp": s.spp, "seed": s.seed}
+    if s.estimator == "march":
+        d.update(step=s.step, shadow_step=s.shadow_step)
+    return d
+
+
+def volume_reference(dev, b, cam, lights, base, batches, spp):
+    """Tracking with batches x spp samples: (mean image, per-pixel variance of the mean,
+    summary)."""
+    imgs, ms = [], 0.0
+    for k in range(batches):
+        r = render_volume(b, cam, lights, replace(base, estimator="track", spp=spp, seed=10_000 + k),
+                          dev)
+        imgs.append(r["rgba"].astype(np.float64))
+        ms += r["kernel_ms"]
+    imgs = np.stack(imgs)
+    ref = imgs.mean(0)
+    var = imgs.var(0, ddof=1) / batches
+    se = np.sqrt(var[..., :3])
+    summary = {"estimator": "track", "spp": batches * spp, "batches": batches,
+               "kernel_ms_total": ms, "se_rms": float(np.sqrt(var[..., :3].mean())),
+               "se_max": float(se.max()), "alpha_se_rms": float(np.sqrt(var[..., 3].mean())),
+               "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
+               "mean_rgb": ref[..., :3].mean(axis=(0, 1)).tolist(),
+               "coverage": float((ref[..., 3] > 0.01).mean())}
+    return ref, var, summary
+
+
+def run_volume(dev, width, height, args, record):
+    for name, b, cam, lights, base, ref_spp in volume_scenes(width, height):
+        t0 = time.perf_counter()
+        ref, var, summary = volume_reference(dev, b, cam, lights, base, args.ref_batches,
+                                             args.ref_spp or ref_spp)
+        print(f"[{name}] reference: tracking {summary['spp']} spp in {summary['batches']} batches, "
+              f"{summary['kernel_ms_total'] / 1e3:.1f} s kernel; se rms {summary['se_rms']:.2e} "
+              f"(value rms {summary['value_rms']:.3g})", flush=True)
+        scene = {"scene": name, "source": b.source, "dims": b.dims.tolist(),
+                 "bricks_stored": int(b.n_slots), "voxel_size": b.voxel_size,
+                 "density_scale": base.density_scale, "background": list(base.background),
+                 "lights": [repr(l) for l in lights], "reference": summary, "rows": []}
+        record["volume"].append(scene)
+
+        def measure(settings):
+            """Rows for [(group, label, VolumeSettings)], timed together."""
+            done = sweep([(i, (lambda st=st: render_volume(b, cam, lights, st, dev)))
+                          for i, (_, _, st) in enumerate(settings)], args.repeat, args.basis)
+            rows = []
+            for i, (group, label, st) in enumerate(settings):
+                img, t = done[i]
+                row = {"group": group, "label": label, "settings": describe_volume(st), **t,
+                       **errors(img, ref, var)}
+                rows.append(row)
+                print(f"[{name}] {label:32s} {t['time_ms']:9.1f} ms  rmse {row['rmse']:.2e} "
+                      f"(corr {row['rmse_corrected']:.2e})  max {row['max_abs']:.2e}  "
+                      f"bias {row['bias']:+.1e}", flush=True)
+            scene["rows"].extend(rows)
+            return rows
+
+        rows = measure([(g, lab, replace(base, **kw)) for g, lab, kw in volume_settings(args.quick)])
+        # tracking at the run time of each marching spp setting
+        t1 = next(r for r in rows if r["label"] == "track 1 spp")["time_ms"]
+        spp_rows = [r for r in rows if r["group"] == "spp"]
+        matched = [int(max(1, round(r["time_ms"] / max(t1, 1e-9)))) for r in spp_rows]
+        for r, row in zip(spp_rows, measure(
+                [("track@march-time", f"track {n} spp (= march {r['settings']['spp']} spp)",
+                  replace(base, estimator="track", spp=n)) for r, n in zip(spp_rows, matched)])):
+            row["matched_to"] = r["label"]
+        rows = scene["rows"]
+        pareto(rows)
+        scene["bench_s"] = time.perf_counter() - t0
+        scene["load_average"] = os.getloadavg()
+
+
+# --------------------------------------------------------------------------- glass
+
+def glass_scenes(width, height, quick):
+    """[(name, cloud, camera, lights, base settings)]."""
+    out = []
+    cloud = points.generate("blob", 300, seed=1)
+    out.append(("blob300", cloud, glass.default_camera(cloud, width, height), [GLASS_SUN],
+                glass.GlassSettings()))
+    if not quick:
+        path = ROOT / "scenes" / "molten_glass.toml"
+        sc = scene_mod.load(path)
+        cloud, radius = scene_mod.load_cloud(sc)
+        mat = sc.get("material", {})
+        lights = [Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                  if l["type"] == "sun" else
+                  PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                  for l in sc.get("lights", [])]
+        keys = ("color", "ior", "absorption", "reflectivity", "glow")
+        base = glass.GlassSettings(radius=radius, **{k: mat[k] for k in keys if k in mat})
+        out.append(("molten_glass", cloud, glass.default_camera(cloud, width, height, radius=radius),
+                    lights, base))
+    return out
+
+
+def glass_settings(quick, isolated):
+    """[(group, label, overrides)]: each knob from the defaults (1e-4, 256, 6); with
+    `isolated`, each knob alone with the others at the reference values."""
+    eps = (1e-2, 1e-4) if quick else (1e-2, 1e-3, 1e-4, 1e-5)
+    steps = (32, 256) if quick else (32, 64, 128, 256, 512)
+    bounces = (1, 6) if quick else (1, 2, 4, 6, 8)
+    rows = [("epsilon", f"epsilon {e:g}", dict(epsilon=e)) for e in eps]
+    rows += [("max_steps", f"max_steps {n}", dict(max_steps=n)) for n in steps]
+    rows += [("bounces", f"bounces {n}", dict(bounces=n)) for n in bounces]
+    if not quick:
+        rows += [("preset", "preview: eps 1e-3, 64 steps, 2 bounces",
+                  dict(epsilon=1e-3, max_steps=64, bounces=2)),
+                 ("preset", "draft: eps 1e-3, 128 steps, 4 bounces",
+                  dict(epsilon=1e-3, max_steps=128, bounces=4)),
+                 ("preset", "final: eps 1e-5, 512 steps, 8 bounces",
+                  dict(epsilon=1e-5, max_steps=512, bounces=8)),
+                 ("preset", "fine: eps 1e-5, 1024 steps, 8 bounces",
+                  dict(epsilon=1e-5, max_steps=1024, bounces=8)),
+                 ("tree vs brute", "defaults, brute force", dict(use_tree=False))]
+    if isolated:
+        ref = {k: v for k, v in GLASS_REF.items() if k != "use_tree"}
+        rows += [("alone: epsilon", f"epsilon {e:g} alone", {**ref, "epsilon": e}) for e in eps]
+        rows += [("alone: max_steps", f"max_steps {n} alone", {**ref, "max_steps": n})
+                 for n in (*steps, 1024)]
+        rows += [("alone: bounces", f"bounces {n} alone", {**ref, "bounces": n}) for n in bounces]
+        rows += [("tree vs brute", "reference knobs, tree", dict(ref))]
+    return rows
+
+
+def describe_glass(s: glass.GlassSettings) -> dict:
+    return {"epsilon": s.epsilon, "max_steps": s.max_steps, "bounces": s.bounces,
+            "use_tree": s.use_tree, "spp": s.spp}
+
+
+def run_glass(dev, width, height, args, record):
+    for i, (name, cloud, cam, lights, base) in enumerate(glass_scenes(width, height, args.quick)):
+        t0 = time.perf_counter()
+        r = glass.render_points(cloud, cam, lights, replace(base, **GLASS_REF), dev)
+        ref = r["rgba"].astype(np.float64)
+        summary = {**describe_glass(replace(base, **GLASS_REF)), "kernel_ms": r["kernel_ms"],
+                   "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
+                   "coverage": float((ref[..., 3] > 0.5).mean())}
+        print(f"[{name}] reference: eps 1e-6, 4096 steps, 12 bounces, brute force, "
+              f"{r['kernel_ms'] / 1e3:.1f} s kernel (value rms {summary['value_rms']:.3g})", flush=True)
+        scene = {"scene": name, "points": len(cloud), "reference": summary, "rows": []}
+        record["glass"].append(scene)
+        settings = [(g, lab, replace(base, **kw))
+                    for g, lab, kw in glass_settings(args.quick, isolated=i == 0)]
+        done = sweep([(j, (lambda st=st: glass.render_points(cloud, cam, lights, st, dev)))
+                      for j, (_, _, st) in enumerate(settings)], args.repeat, args.basis)
+        for j, (group, label, st) in enumerate(settings):
+            img, t = done[j]
+            row = {"group": group, "label": label, "settings": describe_glass(st), **t,
+                   **errors(img, ref)}
+            scene["rows"].append(row)
+            print(f"[{name}] {label:40s} {t['time_ms']:9.1f} ms  rmse {row['rmse']:.2e}  "
+                  f"max {row['max_abs']:.2e}  bias {row['bias']:+.1e}", flush=True)
+        pareto(scene["rows"])
+        scene["bench_s"] = time.perf_counter() - t0
+        scene["load_average"] = os.getloadavg()
+
+
+# --------------------------------------------------------------------------- output
+
+def plot(record, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+    panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
+    if not panels:
+        return
+    cols = min(2, len(panels))
+    nrows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(6.2 * cols, 4.6 * nrows), squeeze=False)
+    markers = "osD^v<>pPX*h"
+    for ax, (kind, sc) in zip(axes.flat, panels):
+        groups = list(dict.fromkeys(r["group"] for r in sc["rows"]))
+        for i, g in enumerate(groups):
+            rows = [r for r in sc["rows"] if r["group"] == g]
+            ax.loglog([r["time_ms"] for r in rows], [max(r["rmse"], 1e-12) for r in rows],
+                      markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute") else "--" if g.startswith("alone") else "-",
+                      label=g, alpha=0.8)
+        front = sorted((r for r in sc["rows"] if r["pareto"]), key=lambda r: r["time_ms"])
+        ax.step([r["time_ms"] for r in front], [max(r["rmse"], 1e-12) for r in front],
+                where="post", color="k", lw=1.2, alpha=0.6, label="Pareto front")
+        ax.scatter([r["time_ms"] for r in front], [max(r["rmse"], 1e-12) for r in front],
+                   s=110, facecolors="none", edgecolors="k", lw=1.2)
+        if kind == "volume":
+            ax.axhline(sc["reference"]["se_rms"], color="grey", ls=":", lw=1,
+                       label="reference noise (se rms)")
+            title = f"volume: {sc['scene']} (ref: tracking {sc['reference']['spp']} spp)"
+        else:
+            title = f"glass: {sc['scene']} ({sc['points']} points; ref eps 1e-6, 4096 steps, 12 bounces)"
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel(record["time_label"])
+        fmt = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_formatter(fmt)
+            axis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(2.0, 5.0)))
+            axis.set_minor_formatter(fmt)
+        ax.set_ylabel("RMSE (RGB) vs reference")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    w, h = record["size"]
+    fig.suptitle(f"error against run time, {w}x{h} — {record['device']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--size", default="160x120", help="image size WxH")
+    ap.add_argument("--repeat", type=int, default=None,
+                    help="timed rounds over all settings (default 5; quick 1)")
+    ap.add_argument("--quick", action="store_true", help="a fast smoke run: tiny image, few settings")
+    ap.add_argument("--ref-spp", type=int, default=None,
+                    help="reference spp per batch (default: demo_cloud 2048, smoke 1024; quick 64)")
+    ap.add_argument("--ref-batches", type=int, default=None, help="reference batches (default 16; quick 4)")
+    ap.add_argument("--time", choices=["kernel", "cpu"], default="kernel",
+                    help="time axis: kernel = OpenCL profiling ms (median); cpu = CPU ms of the "
+                         "launches / compute units (median), for a CPU device on a shared host")
+    ap.add_argument("--no-volume", action="store_true", help="skip the volume scenes")
+    ap.add_argument("--no-glass", action="store_true", help="skip the glass scenes")
+    ap.add_argument("--out", default=None, help="results tag: error_<tag>.json/.png (default: device)")
+    args = ap.parse_args(argv)
+    if args.quick and args.size == ap.get_default("size"):
+        args.size = "48x36"
+    args.repeat = args.repeat or (1 if args.quick else 5)
+    args.ref_spp = args.ref_spp or (64 if args.quick else None)
+    args.ref_batches = args.ref_batches or (4 if args.quick else 16)
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        ap.error(f"--size takes WxH, got {args.size!r}")
+    dev = device.get(args.device)
+    cores = int(dev.device.max_compute_units)
+    args.basis = (args.time, cores)
+    if args.time == "cpu":
+        install_cpu_timer()
+    tag = args.out or (device_tag(dev) + ("-quick" if args.quick else ""))
+    path = RESULTS / f"error_{tag}.json"
+    record = {"benchmark": "error", "size": [width, height], "repeat": args.repeat,
+              "quick": args.quick, **device_info(dev),
+              "reference_volume": f"tracking, {args.ref_batches} batches (spp per scene below)",
+              "reference_glass": GLASS_REF, "time_basis": args.time,
+              "time_label": ("kernel ms per frame (median of runs)" if args.time == "kernel" else
+                             f"kernel-equivalent ms: CPU ms of the launches / {cores} cores (median)"),
+              "load_average_start": os.getloadavg(), "volume": [], "glass": []}
+    t0 = time.perf_counter()
+    if not args.no_volume:
+        run_volume(dev, width, height, args, record)
+        write_json(path, record)
+    if not args.no_glass:
+        run_glass(dev, width, height, args, record)
+    record["bench_s"] = time.perf_counter() - t0
+    record["load_average_end"] = os.getloadavg()
+    write_json(path, record)
+    plot(record, path.with_suffix(".png"))
+    print(f"wrote {path} and {path.with_suffix('.png').name} in {record['bench_s']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
