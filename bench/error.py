@@ -19,7 +19,7 @@ All settings are measured against the box-filtered pixel (what many spp converge
 to): a 1-spp image samples the pixel centre, so its error includes that footprint
 difference, which only more samples remove.
 
-Glass (volrender.glass): epsilon (1e-2..1e-5), max_steps (32..512) and bounces (1..8)
+Glass (volrender.glass): epsilon (1e-2..1e-5), max_steps (32..512), bounces (1..8), relax
 swept one at a time from the defaults (1e-4, 256, 6), plus presets, and (first scene)
 each knob alone with the other two at the reference values, against epsilon 1e-6,
 max_steps 4096, bounces 12 with brute force (use_tree=False); deterministic (one sample
@@ -288,6 +288,7 @@ def glass_settings(quick, isolated):
     rows = [("epsilon", f"epsilon {e:g}", dict(epsilon=e)) for e in eps]
     rows += [("max_steps", f"max_steps {n}", dict(max_steps=n)) for n in steps]
     rows += [("bounces", f"bounces {n}", dict(bounces=n)) for n in bounces]
+    rows += [("relax", f"relax {w:g}", dict(relax=w)) for w in ((1.6,) if quick else (1.3, 1.6, 1.9))]
     if not quick:
         rows += [("preset", "preview: eps 1e-3, 64 steps, 2 bounces",
                   dict(epsilon=1e-3, max_steps=64, bounces=2)),
@@ -297,6 +298,8 @@ def glass_settings(quick, isolated):
                   dict(epsilon=1e-5, max_steps=512, bounces=8)),
                  ("preset", "fine: eps 1e-5, 1024 steps, 8 bounces",
                   dict(epsilon=1e-5, max_steps=1024, bounces=8)),
+                 ("preset", "final + relax 1.6: eps 1e-5, 512 steps, 8 bounces",
+                  dict(epsilon=1e-5, max_steps=512, bounces=8, relax=1.6)),
                  ("tree vs brute", "defaults, brute force", dict(use_tree=False))]
     if isolated:
         ref = {k: v for k, v in GLASS_REF.items() if k != "use_tree"}
@@ -304,13 +307,14 @@ def glass_settings(quick, isolated):
         rows += [("alone: max_steps", f"max_steps {n} alone", {**ref, "max_steps": n})
                  for n in (*steps, 1024)]
         rows += [("alone: bounces", f"bounces {n} alone", {**ref, "bounces": n}) for n in bounces]
+        rows += [("alone: relax", f"relax {w:g} alone", {**ref, "relax": w}) for w in (1.3, 1.6, 1.9)]
         rows += [("tree vs brute", "reference knobs, tree", dict(ref))]
     return rows
 
 
 def describe_glass(s: glass.GlassSettings) -> dict:
     return {"epsilon": s.epsilon, "max_steps": s.max_steps, "bounces": s.bounces,
-            "use_tree": s.use_tree, "spp": s.spp}
+            "relax": s.relax, "use_tree": s.use_tree, "spp": s.spp}
 
 
 def run_glass(dev, width, height, args, record):
