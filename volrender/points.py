@@ -574,7 +574,8 @@ def glass_gather(n: int, seed: int = 0) -> PointCloud:
         pts = np.concatenate([pts, new])
     pts = pts[:n_drop]
     tt = np.linspace(0.0, 1.0, 2001)
-    volume = float(np.trapz(math.pi * _drop_profile(tt) ** 2, tt * length))
+    trapezoid = getattr(np, "trapezoid", None) or np.trapz       # numpy 2 renamed it
+    volume = float(trapezoid(math.pi * _drop_profile(tt) ** 2, tt * length))
     radii = _jittered(rng, n_drop, 0.7 * (volume / max(n_drop, 1)) ** (1.0 / 3.0))
     if n_pipe:
         s = np.linspace(0.0, 1.0, n_pipe)[:, None]
