@@ -145,7 +145,7 @@ def build_parser():
     gl.add_argument("--epsilon", type=float, default=None, help="relative hit threshold (default: 1e-4)")
     gl.add_argument("--max-steps", type=int, default=None, help="sphere-tracing steps per ray (default: 256)")
     gl.add_argument("--relax", type=float, default=None,
-                    help="over-relaxed sphere tracing, factor in [1, 1.9]; 1 = plain (default: 1)")
+                    help="over-relaxed sphere tracing, factor in [1, 1.9]; 1 = plain (default: 1.6)")
     gl.add_argument("--env", default=None, metavar="ENV.exr",
                     help="equirectangular environment (default: procedural sky)")
     gl.add_argument("--opaque", action="store_true", help="no refraction: shaded opaque spheres")

@@ -47,7 +47,8 @@ class GlassSettings:
         gives soft ones (a penumbra estimate from the sphere-traced distances).
     point_colors: tint each point's glass with the cloud's own colours, if it has any.
     relax: over-relaxed sphere tracing factor in [1, 1.9] (1: plain); misses nothing, moves
-        hits within epsilon.
+        hits within epsilon. 1.6 (bench error, H200): x1.3 faster at the default knobs
+        with the same error against the converged reference.
     dispatch, tile: volrender.dispatch.Dispatch (auto, fragment, or tiled with WxH tiles).
     uber: compile every feature in and choose at run time (the specialisation baseline).
     """
@@ -71,7 +72,7 @@ class GlassSettings:
     refraction: bool = True
     shadow_angle: float = 0.0
     point_colors: bool = True
-    relax: float = 1.0
+    relax: float = 1.6
     dispatch: str = "auto"
     tile: tuple = (8, 8)
     uber: bool = False
