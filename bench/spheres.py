@@ -124,7 +124,8 @@ def main(argv=None):
         cam = glass.default_camera(cloud, width, height)
         for lit in (True, False):
             for uber in (False, True):
-                s = glass.GlassSettings(bounces=args.bounces, uber=uber, refraction=not args.opaque)
+                s = glass.GlassSettings(bounces=args.bounces, uber=uber, refraction=not args.opaque,
+                                        dispatch="fragment")
                 img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
                 uber_rows.append({"n": args.uber_count, "dispatch": "fragment", "tree": True,
                                   "lit": lit, "uber": uber, **t})
