@@ -6,8 +6,8 @@ tiled:    one work-group per screen tile of tile_w x tile_h pixels; the kernel c
           scene against its tile cooperatively into local memory first. The global size is
           rounded up to whole tiles (work-items past the image edge still help the group).
 auto:     the default, chosen per device type from bench/results: tiled on GPUs (H200:
-          x1.2-1.8 for volumes, x1.3 for refracting glass), fragment on CPUs (PoCL: tiled
-          gains nothing) and for opaque glass (tiled x0.5-0.7 on the H200).
+          x1.2-1.8 for volumes, x1.3-1.5 for unlit glass, even for lit glass), fragment on
+          CPUs (PoCL: tiled gains nothing) and for opaque glass (tiled x0.4-0.8 on the H200).
 
 Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the
 bands are large, since small launches leave most of the device idle.

@@ -224,7 +224,8 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
 
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
     """settings' dispatch, `auto` resolved: tiled pays off on GPUs only when paths refract
-    (bench/results/spheres_gpu-*: x1.3 for glass, x0.5-0.7 for opaque spheres)."""
+    (bench/results/spheres_gpu-*: x1.3-1.5 unlit and even lit for glass, x0.4-0.8 for
+    opaque spheres)."""
     return Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device, settings.refraction)
 
 
