@@ -40,18 +40,11 @@ def centred(values, vox=VOX, shift=(0.0, 0.0, 0.0)):
     return Bricks.from_dense(values, scaled(vox, np.asarray(shift) - c))
 
 
-def pixel_dirs(cam):
-    p00, du, dv = cam.pixel_vectors()
-    x = np.arange(cam.width) + 0.5
-    y = np.arange(cam.height) + 0.5
-    d = p00 + x[None, :, None] * du + y[:, None, None] * dv
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
 
 def impact(cam, centre=(0.0, 0.0, 0.0)):
     """Distance from `centre` to each pixel's primary ray (H, W)."""
     o = np.array(cam.origin) - np.asarray(centre)
-    return np.linalg.norm(np.cross(pixel_dirs(cam), -o), axis=-1)
+    return np.linalg.norm(np.cross(cam.pixel_dirs(), -o), axis=-1)
 
 
 def finite(rgba):
@@ -105,7 +98,7 @@ def test_opaque_medium_reaches_the_unshadowed_limit(cl_device, ball_bricks):
     free = render_volume(ball_bricks, cam, [sun], VolumeSettings(**base, shadows=False),
                          cl_device)["rgba"]
     core = impact(cam) < REFF - 1.5 * VOX
-    mu = -pixel_dirs(cam) @ np.array(sun.direction)
+    mu = -cam.pixel_dirs() @ np.array(sun.direction)
     want = 0.7 * reference.phase(mu, *phase) * 2.0
     np.testing.assert_allclose(free[core][:, 0], want[core], rtol=1e-5)
     lit = render_volume(ball_bricks, cam, [sun], VolumeSettings(**base), cl_device)["rgba"]
@@ -162,7 +155,7 @@ def test_g_at_the_clamp_follows_hg_and_equals_g_one(cl_device, ball_bricks, g):
         warnings.simplefilter("error")
         r, cam, sun = lit_ball(cl_device, ball_bricks, (g, 0.0, 1.0))
     finite(r)
-    mu = -pixel_dirs(cam) @ np.array(sun.direction)
+    mu = -cam.pixel_dirs() @ np.array(sun.direction)
     want = 0.8 * reference.hg(mu, g) * 2.0 * r[..., 3]
     np.testing.assert_allclose(r[..., 0], want, rtol=2e-4, atol=1e-7)
     with pytest.warns(UserWarning, match="clamped"):
@@ -326,7 +319,7 @@ def test_rays_exactly_parallel_to_an_axis(cl_device, cube_bricks, axis, lateral)
     origin = lat + start
     up = np.roll(np.abs(d), 1)
     cam = Camera(tuple(origin), tuple(origin + d), tuple(up), 20.0, 1, 1)
-    np.testing.assert_array_equal(pixel_dirs(cam)[0, 0], d)
+    np.testing.assert_array_equal(cam.pixel_dirs()[0, 0], d)
     sigma, step = 0.3, 0.5
     r = render_volume(cube_bricks, cam, [Sun(tuple(-up), 1.0)],
                       VolumeSettings(density_scale=sigma, step=step), cl_device)["rgba"]
@@ -339,7 +332,7 @@ def test_rays_exactly_parallel_to_an_axis(cl_device, cube_bricks, axis, lateral)
 def optical_depth(bricks, cam, sigma, length, n=4000):
     """sigma * integral of the layout's own trilinear density along each pixel's ray over
     [0, length], by a fine midpoint rule (numpy, float64), (H, W)."""
-    d = pixel_dirs(cam).reshape(-1, 3)
+    d = cam.pixel_dirs().reshape(-1, 3)
     t = (np.arange(n) + 0.5) * (length / n)
     x = np.asarray(cam.origin) + t[None, :, None] * d[:, None, :]
     rho = bricks.sample_world(x.reshape(-1, 3)).reshape(len(d), n)

@@ -18,14 +18,6 @@ def scaled(vox, offset=(0.0, 0.0, 0.0), rot=None):
     return m
 
 
-def pixel_dirs(cam):
-    """Unit world direction through each pixel centre, (H, W, 3)."""
-    p00, du, dv = cam.pixel_vectors()
-    x = np.arange(cam.width) + 0.5
-    y = np.arange(cam.height) + 0.5
-    d = p00 + x[None, :, None] * du + y[:, None, None] * dv
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
 
 # A slab: voxels with k in [K0, K1] hold 1, across the whole x/y extent. The trilinear
 # density is 1 on [K0, K1] and ramps to 0 over one voxel on each side, so its integral
@@ -50,7 +42,7 @@ def test_slab_transmittance_is_exp_of_optical_depth(cl_device, slab):
     sigma, step = 2.0, 0.25
     cam = top_camera()
     r = render_volume(slab, cam, [], VolumeSettings(density_scale=sigma, step=step), cl_device)
-    cz = np.abs(pixel_dirs(cam)[..., 2])
+    cz = np.abs(cam.pixel_dirs()[..., 2])
     tau = sigma * THICK / cz
     # Midpoint-rule error at the four kinks of the piecewise-linear density: at most
     # sigma * (slope jump |dz|/VOX) * dt^2 / 8 each, dt = step * VOX along the ray.
@@ -67,7 +59,7 @@ def test_slab_single_scatter_without_shadows_is_albedo_phase_alpha(cl_device, sl
     s = VolumeSettings(density_scale=2.0, albedo=0.8, phase=(0.7, -0.4, 0.6), shadows=False)
     cam = top_camera()
     r = render_volume(slab, cam, [sun], s, cl_device)
-    mu = -pixel_dirs(cam) @ np.array(sun.direction)
+    mu = -cam.pixel_dirs() @ np.array(sun.direction)
     want = 0.8 * reference.phase(mu, 0.7, -0.4, 0.6) * 2.5 * r["rgba"][..., 3]
     np.testing.assert_allclose(r["rgba"][..., 0], want, rtol=2e-5)
 
@@ -82,7 +74,7 @@ def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
                        shadow_step=step, spp=4)
     cam = top_camera()
     r = render_volume(slab, cam, [sun], s, cl_device)
-    dirs = pixel_dirs(cam)
+    dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])
     mu = -dirs @ np.array(sun.direction)
     tau = sigma * THICK
@@ -121,7 +113,7 @@ def test_sphere_transmittance_matches_chord(cl_device):
     b = Bricks.from_dense(ball(n, R), scaled(VOX, (-c, -c, -c)))
     cam = Camera((0.3, -0.2, 8.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 48, 40)
     r = render_volume(b, cam, [], VolumeSettings(density_scale=sigma, step=0.25), cl_device)
-    dirs = pixel_dirs(cam).reshape(-1, 3)
+    dirs = cam.pixel_dirs().reshape(-1, 3)
     o = np.array(cam.origin)
     reff = (R + 0.5) * VOX
     chord = reference.sphere_chord(o, dirs, np.zeros(3), reff)
@@ -241,7 +233,7 @@ def test_emission_is_integrated_along_the_chord(cl_device):
         r = render_volume(b, cam, [], VolumeSettings(density_scale=sigma, emission_scale=2.0, step=0.25),
                           cl_device)["rgba"]
         tau = -np.log(1 - r[..., 3]) if sigma else None
-        chord = reference.sphere_chord(np.array(cam.origin), pixel_dirs(cam).reshape(-1, 3),
+        chord = reference.sphere_chord(np.array(cam.origin), cam.pixel_dirs().reshape(-1, 3),
                                        np.zeros(3), (R + 0.5) * VOX).reshape(8, 8)
         for ch in range(3):
             if sigma:

@@ -32,13 +32,6 @@ def scaled(vox, offset):
     return m
 
 
-def pixel_dirs(cam):
-    p00, du, dv = cam.pixel_vectors()
-    x = np.arange(cam.width) + 0.5
-    y = np.arange(cam.height) + 0.5
-    d = p00 + x[None, :, None] * du + y[:, None, None] * dv
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
 
 def make_slab(emission):
     """Voxels with k in [K0, K1] hold 1 across the whole x/y extent: the trilinear
@@ -75,7 +68,7 @@ def test_slab_alpha_is_one_minus_exp_optical_depth(cl_device, slab):
     cam = top_camera()
     r = render_volume(slab, cam, [], VolumeSettings(density_scale=sigma, spp=spp, seed=3,
                                                     estimator="track"), cl_device)
-    cz = np.abs(pixel_dirs(cam)[..., 2])
+    cz = np.abs(cam.pixel_dirs()[..., 2])
     want = 1.0 - np.exp(-sigma * THICK / cz)
     sd = assert_unbiased(r["rgba"][..., 3], want, "alpha")
     # a per-sample alpha lies in [0, 1], so its variance is at most 1/4
@@ -92,7 +85,7 @@ def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
                        seed=5, estimator="track")
     cam = top_camera()
     r = render_volume(slab, cam, [sun], s, cl_device)
-    dirs = pixel_dirs(cam)
+    dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])
     mu = -dirs @ np.array(sun.direction)
     want = albedo * reference.hg(mu, 0.5) * E * (1 - np.exp(-sigma * THICK * (1 + 1 / c))) / (1 + c)
@@ -105,7 +98,7 @@ def test_slab_emission_and_background(cl_device):
     emission-only rate (one point per voxel) that track_majorants adds."""
     slab = make_slab(True)
     cam = top_camera(12)
-    cz = np.abs(pixel_dirs(cam)[..., 2])
+    cz = np.abs(cam.pixel_dirs()[..., 2])
     bg = (0.2, 0.3, 0.4)
     for sigma in (2.0, 0.0):
         s = VolumeSettings(density_scale=sigma, spp=256, seed=11, background=bg,
@@ -130,7 +123,7 @@ def test_stiff_slab_reaches_the_half_space_limit(cl_device, slab, sigma):
     s = VolumeSettings(density_scale=sigma, albedo=0.9, phase=(0.5, 0.0, 1.0), spp=256, seed=5,
                        estimator="track")
     r = render_volume(slab, cam, [sun], s, cl_device)["rgba"]
-    dirs = pixel_dirs(cam)
+    dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])
     want = 0.9 * reference.hg(-dirs @ np.array(sun.direction), 0.5) * 3.0 / (1 + c)
     assert np.all(r[..., 3] == 1.0)

@@ -57,6 +57,14 @@ class Camera:
         pixel00 = f - half_w * r + half_h * u
         return pixel00, (2.0 * half_w / self.width) * r, (-2.0 * half_h / self.height) * u
 
+    def pixel_dirs(self):
+        """Unit world direction through each pixel centre, float64 (H, W, 3)."""
+        p00, du, dv = self.pixel_vectors()
+        x = np.arange(self.width) + 0.5
+        y = np.arange(self.height) + 0.5
+        d = p00 + x[None, :, None] * du + y[:, None, None] * dv
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
     def pack(self, world_to_frame=None, spp=1, seed=0):
         """Camera struct; the origin is mapped into the render frame (4x4 affine)."""
         m = np.eye(4) if world_to_frame is None else np.asarray(world_to_frame, np.float64)
