@@ -70,52 +70,6 @@ inline float sdf_node_bound(__global const TreeNode* nd, float3 x)
     return q > 0.0f ? sqrt(q) * 0.999999f : -INFINITY;   /* shrunk: rounding-safe */
 }
 
-/* Pass 1: m = min_i d_i and its index (-1 when there are no spheres). */
-inline float sdf_min(const SdfScene* sc, float3 x, int* arg)
-{
-    float m = INFINITY;
-    int a = -1;
-#if VR_TREE
-    int stack[VR_TREE_STACK];
-    float sb[VR_TREE_STACK];
-    int sp = 0;
-    int node = sdf_node_bound(sc->nodes + 1, x) < m ? 1 : 0;
-    while (node) {
-        if (node >= sc->first_leaf) {
-            __global const TreeNode* nd = sc->nodes + node;
-            int end = nd->start + nd->count;
-            for (int i = nd->start; i < end; ++i) {
-                float d = sdf_sphere(sc->spheres[i], x);
-                if (d < m) { m = d; a = i; }
-            }
-            node = 0;
-        } else {
-            /* nearer child first, the other on the stack with its bound */
-            int c0 = 2 * node, c1 = c0 + 1;
-            float b0 = sdf_node_bound(sc->nodes + c0, x), b1 = sdf_node_bound(sc->nodes + c1, x);
-            if (b1 < b0) { int ci = c0; c0 = c1; c1 = ci; float bt = b0; b0 = b1; b1 = bt; }
-            node = 0;
-            if (b0 < m) {
-                node = c0;
-                if (b1 < m) { stack[sp] = c1; sb[sp] = b1; ++sp; }
-            }
-        }
-        while (!node && sp > 0) {
-            --sp;
-            if (sb[sp] < m)
-                node = stack[sp];
-        }
-    }
-#else
-    for (int i = 0; i < sc->n_spheres; ++i) {
-        float d = sdf_sphere(sc->spheres[i], x);
-        if (d < m) { m = d; a = i; }
-    }
-#endif
-    *arg = a;
-    return m;
-}
-
 /* One sphere's blend terms: h, h^2 and h * normal, for d < thr = m + k. */
 #define SDF_ACCUMULATE(s4, idx)                                          \
     {                                                                 \
@@ -133,7 +87,8 @@ inline float sdf_min(const SdfScene* sc, float3 x, int* arg)
 #define SDF_COLOR_ADD(w, idx)
 #endif
 
-/* Pass 2: sums over all spheres with d_i < m + k (the argmin included, h = 1). */
+/* Second pass, only when the candidate list overflows: sums over all spheres with
+   d_i < m + k (the argmin included, h = 1). */
 inline void sdf_blend_sums(const SdfScene* sc, float3 x, float m, float* s1_out,
                            float* s2_out, float3* g_out, float3* col_out)
 {
@@ -175,7 +130,7 @@ inline void sdf_blend_sums(const SdfScene* sc, float3 x, float m, float* s1_out,
 /* One pass for the common case: the traversal prunes against the running m + k and
    keeps every sphere with d_i < m + k (at the time it is seen) in a private list; m only
    falls, so nothing dropped can re-enter. The list is compacted when full; if it still
-   overflows, the sums come from pass 2 instead. Returns the list length, or -1 on
+   overflows, the sums come from the second pass instead. Returns the list length, or -1 on
    overflow. */
 #ifndef VR_CAND
 #define VR_CAND 24            /* private candidate list (the host sets it: glass.CANDIDATES) */
@@ -259,9 +214,11 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
 #endif
     int a;
     float m;
-    /* k -> 0: the plain union, pass 1 alone */
+    float cd[VR_CAND];
+    int ci[VR_CAND];
+    /* k -> 0: the plain union; the traversal then prunes against m alone */
     if (!(sc->k > VR_BLEND_MIN)) {
-        m = sdf_min(sc, x, &a);
+        sdf_candidates(sc, x, &m, &a, cd, ci, 0);
         r.f = m;
         if (a >= 0) {
             r.grad = sdf_sphere_normal(sc->spheres[a], x);
@@ -271,8 +228,6 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
         }
         return r;
     }
-    float cd[VR_CAND];
-    int ci[VR_CAND];
 #if VR_TILED
     int n = -1;
     float3 xe = x - sc->tile_eye;
