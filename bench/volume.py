@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
-from volrender import camera, device, features, layout, vdb  # noqa: E402
+from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.render import VolumeSettings, occupied_bricks, render_volume  # noqa: E402
+from volrender.render import VolumeSettings, occupied_bricks, render_volume, volume_params  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "vdb"
@@ -84,10 +84,7 @@ def tile_list_stats(dev, b, cam, tile) -> dict:
     import pyopencl as cl
     f = features.VolumeFeatures(**features.VolumeFeatures.dispatch_fields(Dispatch("tiled", tuple(tile))))
     k = cl.Kernel(dev.build(_CULL_SRC, f.flags(), "bench tile_counts"), "tile_counts")
-    w2l = np.linalg.inv(np.asarray(b.local_to_world, np.float64))
-    params = layout.record("VolumeParams", world_to_local0=[*w2l[0, :3], 0],
-                           world_to_local1=[*w2l[1, :3], 0], world_to_local2=[*w2l[2, :3], 0],
-                           box_hi=[*(b.dims * 8.0), 0], dims=[*b.dims, 0])
+    params, w2l = volume_params(b)
     occ = occupied_bricks(b)
     nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
     counts = np.zeros(nx * ny, np.int32)

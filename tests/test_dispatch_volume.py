@@ -18,13 +18,13 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import camera as camera_mod, features, layout, render as render_mod, vdb
+from volrender import camera as camera_mod, features, render as render_mod, vdb
 from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
-from volrender.render import VolumeSettings, occupied_bricks, render_volume
+from volrender.render import VolumeSettings, occupied_bricks, render_volume, volume_params
 from volrender.vdb import Bricks
 
 VOX = 0.1
@@ -261,10 +261,7 @@ def tile_lists(dev, b, cam, tile, cap=1024):
     """Per tile: how many bricks vr_tile_cull keeps, and which (brick coordinates)."""
     f = VolumeFeatures(tiled=True, tile_w=tile[0], tile_h=tile[1], tile_cap=cap)
     k = cl.Kernel(dev.build(CULL_SRC, f.flags(), "tile_lists"), "tile_lists")
-    w2l = np.linalg.inv(np.asarray(b.local_to_world, np.float64))
-    params = layout.record("VolumeParams", world_to_local0=[*w2l[0, :3], 0],
-                           world_to_local1=[*w2l[1, :3], 0], world_to_local2=[*w2l[2, :3], 0],
-                           box_hi=[*(b.dims * 8.0), 0], dims=[*b.dims, 0])
+    params, w2l = volume_params(b)
     occ = occupied_bricks(b)
     nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
     counts = np.zeros(nx * ny, np.int32)

@@ -16,7 +16,6 @@ reads still contain every float32 sphere.
 import datetime
 import math
 import string
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -102,6 +102,27 @@ def occupied_bricks(bricks) -> np.ndarray:
     return occ
 
 
+def volume_params(bricks, settings: VolumeSettings | None = None):
+    """(VolumeParams record, world -> local 4x4) for a Bricks volume and settings."""
+    settings = settings or VolumeSettings()
+    l2w = np.asarray(bricks.local_to_world, np.float64)
+    w2l = np.linalg.inv(l2w)
+    vs = float(bricks.voxel_size)
+    g1, g2, w = settings.clamped_phase()
+    params = layout.record(
+        "VolumeParams",
+        world_to_local0=[*w2l[0, :3], 0], world_to_local1=[*w2l[1, :3], 0],
+        world_to_local2=[*w2l[2, :3], 0],
+        local_to_world0=[*l2w[0, :3], 0], local_to_world1=[*l2w[1, :3], 0],
+        local_to_world2=[*l2w[2, :3], 0],
+        box_hi=[*(np.asarray(bricks.dims) * 8.0), 0], background=[*settings.background, 0],
+        emission_color=[*(settings.emission_scale * blackbody_rgb(settings.emission_temperature)), 0],
+        phase=[g1, g2, w, 0], dims=[*bricks.dims, 0], density_scale=settings.density_scale,
+        albedo=settings.albedo, step=settings.step * vs, shadow_step=settings.shadow_step * vs,
+        point_r2_min=(0.5 * vs) ** 2)
+    return params, w2l
+
+
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
     """Render a Bricks volume. Returns a dict with 'rgba' (H, W, 4 float32), optionally
     'depth' (H, W), plus 'kernel_ms', 'wall_ms', 'flags'."""
@@ -116,22 +137,8 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     entry = "track_volume" if settings.estimator == "track" else "render_volume"
     kernel = device.kernel(entry, features.flags())
 
-    l2w = np.asarray(bricks.local_to_world, np.float64)
-    w2l = np.linalg.inv(l2w)
-    vs = float(bricks.voxel_size)
+    params, w2l = volume_params(bricks, settings)
     cam = camera.pack(w2l, settings.spp, settings.seed)
-    g1, g2, w = settings.clamped_phase()
-    params = layout.record(
-        "VolumeParams",
-        world_to_local0=[*w2l[0, :3], 0], world_to_local1=[*w2l[1, :3], 0],
-        world_to_local2=[*w2l[2, :3], 0],
-        local_to_world0=[*l2w[0, :3], 0], local_to_world1=[*l2w[1, :3], 0],
-        local_to_world2=[*l2w[2, :3], 0],
-        box_hi=[*(np.asarray(bricks.dims) * 8.0), 0], background=[*settings.background, 0],
-        emission_color=[*(settings.emission_scale * blackbody_rgb(settings.emission_temperature)), 0],
-        phase=[g1, g2, w, 0], dims=[*bricks.dims, 0], density_scale=settings.density_scale,
-        albedo=settings.albedo, step=settings.step * vs, shadow_step=settings.shadow_step * vs,
-        point_r2_min=(0.5 * vs) ** 2)
     light_rec = lights_mod.pack(lights, w2l)
 
     ctx = device.context
