@@ -408,7 +408,8 @@ def render_points_input(args, kind, lights):
     if args.no_lights:
         lights = []
     dev = device_mod.get(args.device)
-    check_image_memory(*pick(args.size, rnd.get("size"), (640, 480)), dev)
+    if args.size is None:              # --size was checked in cmd_render already
+        check_image_memory(*pick(rnd.get("size"), (640, 480)), dev)
     radii = glass.sphere_radii(cloud, settings)
     cam = make_camera(args, *glass.sphere_bounds(cloud, radii), scene.get("camera"), rnd.get("size"))
     result = glass.render_points(cloud, cam, lights, settings, dev, progress=args.progress)
