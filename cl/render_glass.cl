@@ -5,11 +5,13 @@
    Flags: VR_TREE, VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_REFRACTION, VR_ABSORPTION,
           VR_GLOW, VR_ENV_MAP, VR_COLORS, VR_TILED (+ VR_TILE_W, VR_TILE_H, VR_TILE_CAP),
           VR_UBER (every feature compiled in, chosen at run time by GlassParams.uber and
-          the light counts in GlassParams: the kernel-specialisation baseline). */
+          the light counts in GlassParams: the kernel-specialisation baseline),
+          VR_STATS (diagnostics: rgb holds the field evaluations, node tests and sphere
+          tests per pixel, summed over its samples). */
 #if !defined(VR_TREE) || !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || \
     !defined(VR_SHADOWS) || !defined(VR_REFRACTION) || !defined(VR_ABSORPTION) || \
     !defined(VR_GLOW) || !defined(VR_ENV_MAP) || !defined(VR_COLORS) || \
-    !defined(VR_TILED) || !defined(VR_UBER)
+    !defined(VR_TILED) || !defined(VR_UBER) || !defined(VR_STATS)
 #error "render_glass.cl: a VR_* feature flag is missing (see volrender/features.py)"
 #endif
 
@@ -378,9 +380,9 @@ __kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
 __kernel
 #endif
 void render_glass(__constant Camera* cam, __constant GlassParams* gp,
-                  __constant Light* lights, __global const float4* spheres,
-                  __global const TreeNode* nodes, __global const float4* env,
-                  __global const float4* colors, __global float4* out, int y0)
+                  __constant Light* lights, __global const float4* restrict spheres,
+                  __global const TreeNode* restrict nodes, __global const float4* env,
+                  __global const float4* restrict colors, __global float4* out, int y0)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
 #if VR_TILED
@@ -413,6 +415,10 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
     for (int i = 0; i < 4; ++i)
         sc.tile_pl[i] = pl[i];
 #endif
+#if VR_STATS
+    int3 stats = (int3)(0);
+    sc.stats = &stats;
+#endif
     float3 acc = (float3)(0.0f);
     float cover = 0.0f;
     for (int s = 0; s < cam->spp; ++s) {
@@ -423,5 +429,8 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
         cover += (float)covered;
     }
     float inv = 1.0f / (float)cam->spp;
+#if VR_STATS
+    acc = convert_float3(stats) * (float)cam->spp;   /* so that * inv gives the totals */
+#endif
     out[pixel] = (float4)(acc * inv, cover * inv);
 }

@@ -34,6 +34,16 @@ __kernel void field(__global const float4* spheres, __global const TreeNode* nod
     out[i] = (float4)(s.grad, s.f);
 }
 
+__kernel void lip(__global const float4* spheres, __global const TreeNode* nodes, int n,
+                  int first_leaf, float k, __global const float4* pts, __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = { spheres, nodes, n, first_leaf, k };
+    SdfSample s = sdf_eval(&sc, pts[i].xyz);
+    out[i] = (float4)(length(s.grad), s.lip, s.f, 0.0f);
+}
+
+/* o.w: side (+1 outside, -1 inside glass); d.w: relax */
 __kernel void trace(__global const float4* spheres, __global const TreeNode* nodes, int n,
                     int first_leaf, float k, __global const float4* o, __global const float4* d,
                     __global float4* out)
@@ -42,7 +52,9 @@ __kernel void trace(__global const float4* spheres, __global const TreeNode* nod
     SdfScene sc = { spheres, nodes, n, first_leaf, k };
     float t;
     SdfSample s;
-    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, 1.0f, 1e-5f, 1.0f, 512, 1.0f, &t, &s);
+    float side = o[i].w != 0.0f ? o[i].w : 1.0f, relax = d[i].w != 0.0f ? d[i].w : 1.0f;
+    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, side, 1e-5f, 1.0f, 1024, relax,
+                        &t, &s);
     float3 g = normalize(s.grad);
     out[i] = hit ? (float4)(g, t) : (float4)(0.0f, 0.0f, 0.0f, -1.0f);
 }
@@ -64,7 +76,7 @@ class _Probe:
     """The probe kernels of one build (kernel objects kept: no repeated retrieval)."""
 
     def __init__(self, prg):
-        for name in ("field", "trace", "optics"):
+        for name in ("field", "lip", "trace", "optics"):
             setattr(self, name, cl.Kernel(prg, name))
 
 
@@ -159,6 +171,73 @@ def test_gradient_matches_finite_difference(cl_device, rng):
                     - reference.smooth_union(x - h * e, cloud.centers, cloud.radii, 0.2)) / (2 * h)
                    for e in np.eye(3)], axis=1)
     assert np.median(np.linalg.norm(g - fd, axis=1)) < 1e-3
+
+
+@pytest.mark.parametrize("k", [0.05, 0.2, 0.6])
+def test_gradient_bound_holds(cl_device, rng, k):
+    """lip = max(1, 2 s1o/S - 1) bounds |grad F| at the point: the kernel's analytic
+    gradient and the oracle's central differences both stay below it."""
+    cloud = points.blob(200, seed=6)
+    s = glass.GlassSettings(blend=k, leaf_size=4)
+    scene = glass.pack_scene(cloud, s)
+    x = _samples(rng, cloud, 300)
+    out = _run(cl_device, _probe(cl_device, True).lip, scene, k, _f4(x - scene.centre), n_out=len(x))
+    gnorm, lip = out[:, 0], out[:, 1]
+    assert (lip >= 1.0).all()
+    assert (gnorm <= lip * (1 + 1e-4) + 1e-5).all()
+    h = 1e-6
+    fd = np.stack([(reference.smooth_union(x + h * e, cloud.centers, cloud.radii, k)
+                    - reference.smooth_union(x - h * e, cloud.centers, cloud.radii, k)) / (2 * h)
+                   for e in np.eye(3)], axis=1)
+    assert (np.linalg.norm(fd, axis=1) <= lip + 1e-3).all()
+
+
+def _first_crossing(o, d, cloud, k, side, t_max=6.0, h=2e-3):
+    """Oracle: the first t where side * F changes sign along o + t d (dense scan, then
+    bisection), or nan."""
+    t = np.arange(0.0, t_max, h)
+    f = side * reference.smooth_union(o + t[:, None] * d, cloud.centers, cloud.radii, k)
+    below = np.nonzero(f <= 0)[0]
+    if len(below) == 0:
+        return np.nan
+    j = below[0]
+    if j == 0:
+        return 0.0
+    a, b = t[j - 1], t[j]
+    for _ in range(40):
+        c = 0.5 * (a + b)
+        fc = side * reference.smooth_union(o + c * d, cloud.centers, cloud.radii, k)[0]
+        a, b = (a, c) if fc <= 0 else (c, b)
+    return 0.5 * (a + b)
+
+
+@pytest.mark.parametrize("relax", [1.0, 1.6])
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_trace_finds_the_first_crossing(cl_device, rng, relax, side):
+    """Sphere tracing with the gradient bound and over-relaxation never steps over a
+    surface: from outside (rays aimed into the blob) and from inside (rays from sphere
+    centres), the hit is the oracle's first crossing."""
+    cloud = points.blob(120, seed=7)
+    k = 0.25
+    scene = glass.pack_scene(cloud, glass.GlassSettings(blend=k, leaf_size=4))
+    n = 64
+    if side > 0:
+        aim = cloud.centers[rng.integers(0, len(cloud.centers), n)] + rng.normal(0, 0.1, (n, 3))
+        o = rng.normal(0, 1, (n, 3))
+        o = 3.0 * o / np.linalg.norm(o, axis=1, keepdims=True)
+        d = aim - o
+    else:
+        o = cloud.centers[rng.integers(0, len(cloud.centers), n)]
+        d = rng.normal(0, 1, (n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o4, d4 = _f4(o - scene.centre), _f4(d)
+    o4[:, 3], d4[:, 3] = side, relax
+    out = _run(cl_device, _probe(cl_device, True).trace, scene, k, o4, d4, n_out=n)
+    ref = np.array([_first_crossing(o[i], d[i], cloud, k, side) for i in range(n)])
+    assert np.isfinite(ref).mean() > 0.9
+    hit = out[:, 3] >= 0
+    np.testing.assert_array_equal(hit, np.isfinite(ref))
+    np.testing.assert_allclose(out[hit, 3], ref[hit], atol=2e-3)
 
 
 # ------------------------------------------------------------------ tree vs brute force

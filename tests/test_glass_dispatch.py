@@ -39,6 +39,35 @@ def test_tiled_matches_fragment(cl_device, use_tree, tile):
     np.testing.assert_array_equal(a[..., 3], b[..., 3])
 
 
+def test_fragment_blocks_do_not_change_the_image(cl_device):
+    """Fragment work-groups of any block shape, or the driver's choice, are the same
+    per-pixel computation: identical images."""
+    cloud = points.blob(300, seed=3)
+    base = glass.GlassSettings(bounces=2, blend=0.12, dispatch="fragment")
+    a = _render(cl_device, cloud, base)
+    for kw in ({"tile": (16, 8)}, {"tile": (5, 3)}, {"dispatch": "fragment-driver"}):
+        b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, **kw}))
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("use_tree", [True, False])
+def test_stats_count_the_field_work(cl_device, use_tree):
+    """Diagnostics: brute force tests every sphere twice per evaluation (nearest, then
+    the sums); the tree tests fewer spheres plus some nodes; coverage is unchanged."""
+    cloud = points.blob(200, seed=3)
+    base = glass.GlassSettings(bounces=2, blend=0.12, use_tree=use_tree, dispatch="fragment")
+    img = _render(cl_device, cloud, base)
+    st = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "stats": True}))
+    np.testing.assert_array_equal(st[..., 3], img[..., 3])
+    evals, nodes, tests = st[..., 0], st[..., 1], st[..., 2]
+    assert (evals >= 1).all() and evals.max() > 10
+    if use_tree:
+        assert nodes.sum() > 0 and tests.sum() < 2 * len(cloud.centers) * evals.sum() / 4
+    else:
+        assert nodes.sum() == 0
+        np.testing.assert_array_equal(tests, 2 * len(cloud.centers) * evals)
+
+
 def test_tiled_list_overflow_falls_back(cl_device):
     # one 16x12 tile sees all 3000 spheres: more than the list holds (glass.TILE_CAP)
     cloud = points.blob(3000, seed=4)

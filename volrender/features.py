@@ -59,7 +59,7 @@ class GlassFeatures:
     tile_cap: int = 0
     uber: bool = False         # every feature compiled in, chosen at run time
     tree_stack: int = 48       # traversal stack entries: tree depth + 1 (private memory)
-    cand: int = 24             # private candidate list of the one-pass field evaluation
+    stats: bool = False        # diagnostics: rgb = evaluations, node and sphere tests per pixel
 
     def flags(self) -> dict[str, int]:
         return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}

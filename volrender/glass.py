@@ -23,9 +23,7 @@ from .dispatch import Dispatch, run_rows, upload
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
 TILE_CAP = 512               # tiled dispatch: spheres per tile list (a power of two)
-CANDIDATES = 24              # one-pass field evaluation: private list length (cl/sdf.h);
-                             # H200 1080p glass: 24 best at 3000 spheres (580 ms vs 656 at 16),
-                             # 8 best at 1e6 (2218 vs 2795 ms at 24); the sweeps ran at 24
+MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 # uber-kernel runtime feature bits (cl/render_glass.cl VR_BIT_*)
 UBER_BITS = {"shadows": 1, "refraction": 2, "absorption": 4, "glow": 8, "env_map": 16,
              "colors": 32}
@@ -51,6 +49,8 @@ class GlassSettings:
         with the same error against the converged reference.
     dispatch, tile: volrender.dispatch.Dispatch (auto, fragment, or tiled with WxH tiles).
     uber: compile every feature in and choose at run time (the specialisation baseline).
+    stats: diagnostics; the image's rgb holds the field evaluations, tree-node tests and
+        sphere tests per pixel (summed over its samples), alpha the coverage.
     """
     radius: float | None = None
     blend: float | None = None
@@ -76,6 +76,7 @@ class GlassSettings:
     dispatch: str = "auto"
     tile: tuple = (8, 8)
     uber: bool = False
+    stats: bool = False
 
     def __post_init__(self):
         def check(ok, msg):
@@ -216,6 +217,10 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     # distance), so the clip box grows by that plus the support k.
     bulge = k * (1.0 + 0.5 * np.log(n))
     scale = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
+    if not scale + bulge <= MAX_EXTENT:
+        raise UserError(f"the point cloud spans {scale + bulge:.3g} units (radius plus blend), "
+                        f"beyond float32's reach ({MAX_EXTENT:.0e})",
+                        fix="rescale the points (or lower --blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
@@ -238,7 +243,8 @@ def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFea
     tiled = settings.dispatch == "tiled"
     tiling = dict(tiled=tiled, tile_w=settings.tile[0] if tiled else 0,
                   tile_h=settings.tile[1] if tiled else 0, tile_cap=TILE_CAP if tiled else 0,
-                  tree_stack=max(2, int(scene.first_leaf).bit_length()), cand=CANDIDATES)
+                  tree_stack=max(2, int(scene.first_leaf).bit_length()),
+                  stats=bool(settings.stats))
     if settings.uber:
         return GlassFeatures(tree=tree, shadows=True, refraction=True, absorption=True,
                              glow=True, env_map=True, colors=True, uber=True, **tiling)
