@@ -40,7 +40,8 @@ def ints(text):
 
 
 def measure(cloud, cam, settings, dev, repeat, lights):
-    """Warm-up at a tiny size (builds the program), then `repeat` timed renders."""
+    """Warm-up at a tiny size (builds the program), then `repeat` timed renders, then one
+    untimed render counting the field's work (work_stats)."""
     glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings, dev)
     kernel, wall, tree = [], [], []
     for _ in range(repeat):
@@ -48,7 +49,28 @@ def measure(cloud, cam, settings, dev, repeat, lights):
         kernel.append(r["kernel_ms"])
         wall.append(r["wall_ms"])
         tree.append(r["tree_ms"])
-    return r["rgba"], {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "tree_ms": stats(tree)}
+    counts = glass.render_points(cloud, cam, lights, dataclasses.replace(settings, stats=True),
+                                 dev)["rgba"]
+    return r["rgba"], {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "tree_ms": stats(tree),
+                       "work": work_stats(counts)}
+
+
+def work_stats(counts, block=(8, 4)):
+    """Field work per pixel from a GlassSettings.stats render: evaluations (mean, p99),
+    node and sphere tests per evaluation, and the SIMD efficiency of warps shaped as
+    8x4-pixel blocks (mean over lanes / the slowest lane: a warp runs until its last
+    lane finishes)."""
+    e = counts[..., 0].astype(np.float64)
+    total = max(float(e.sum()), 1.0)
+    bw, bh = block
+    h, w = (e.shape[0] // bh) * bh, (e.shape[1] // bw) * bw
+    blocks = e[:h, :w].reshape(h // bh, bh, w // bw, bw).transpose(0, 2, 1, 3).reshape(-1, bw * bh)
+    peak = blocks.max(axis=1)
+    return {"evals_mean": float(e.mean()), "evals_p99": float(np.percentile(e, 99)),
+            "evals_max": float(e.max()),
+            "nodes_per_eval": float(counts[..., 1].sum() / total),
+            "spheres_per_eval": float(counts[..., 2].sum() / total),
+            "simd_efficiency": float(blocks.mean(axis=1).sum() / max(peak.sum(), 1.0))}
 
 
 def variant_name(v):
@@ -68,7 +90,8 @@ def main(argv=None):
     ap.add_argument("--tile", type=parse_tile, default=(8, 8))
     ap.add_argument("--brute-limit", type=float, default=60.0,
                     help="seconds: stop brute force once one render takes longer")
-    ap.add_argument("--dispatch", default="fragment,tiled")
+    ap.add_argument("--dispatch", default="fragment,tiled",
+                    help="comma-separated: fragment, tiled, fragment-driver (the driver's local size)")
     ap.add_argument("--uber-count", type=int, default=3000,
                     help="sphere count of the uber-kernel comparison (0: skip)")
     ap.add_argument("--opaque", action="store_true",
@@ -116,8 +139,12 @@ def main(argv=None):
                         row["frac_pixels_over_1e-3"] = float((diff > 1e-3).mean())
                     rows.append(row)
                     save()
+                    wk = t["work"]
                     print(f"n={n:8d} {variant_name(row):32s} kernel {t['kernel_ms']['median']:10.2f} ms "
-                          f"wall {t['wall_ms']['median']:10.2f} ms build {t['tree_ms']['median']:8.1f} ms"
+                          f"wall {t['wall_ms']['median']:10.2f} ms build {t['tree_ms']['median']:8.1f} ms "
+                          f"evals {wk['evals_mean']:.1f} (p99 {wk['evals_p99']:.0f}, simd "
+                          f"{wk['simd_efficiency']:.2f}) tests/eval {wk['nodes_per_eval']:.0f}+"
+                          f"{wk['spheres_per_eval']:.0f}"
                           + (f"  max|diff| {row['max_abs_diff']:.1e}" if lit else ""), flush=True)
     if args.uber_count:
         cloud = points.generate(args.generator, args.uber_count, seed=1)
@@ -189,7 +216,7 @@ def plot(rows, dev, path, width, height):
     for d, t, lit in keys:
         sel = [r for r in rows if (r["dispatch"], r["tree"], r["lit"]) == (d, t, lit)]
         ax.loglog([r["n"] for r in sel], [r["kernel_ms"]["median"] for r in sel],
-                  ("o" if t else "x") + ("-" if d == "fragment" else "--"),
+                  ("o" if t else "x") + {"fragment": "-", "tiled": "--"}.get(d, ":"),
                   label=variant_name({"dispatch": d, "tree": t, "lit": lit}))
     ax.set_xlabel("spheres")
     ax.set_ylabel("kernel ms per frame (median)")

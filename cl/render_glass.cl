@@ -67,20 +67,31 @@ inline int glass_trace(const SdfScene* sc, __constant GlassParams* gp, float3 o,
 /* Visibility of a light along o + t d, t < tmax: 0 when the ray hits glass. Hard with
    shadow_cone 0; else soft: min over the march of F / (cone t), the fraction of a cone
    of half-angle atan(cone) around the ray that the glass leaves open (Quilez's penumbra
-   estimate; an approximation, exact only for the hard limit). */
+   estimate; an approximation, exact only for the hard limit). Over-relaxed like
+   sdf_trace, with the same fallback, so thin glass is not stepped over. */
 inline float glass_shadow(const SdfScene* sc, __constant GlassParams* gp, float3 o, float3 d,
                           float base, float tmax)
 {
     float2 tt = vr_ray_box(o, 1.0f / d, gp->box_lo.xyz, gp->box_hi.xyz);
     float t = fmax(tt.x, 0.0f), t1 = fmin(tt.y, tmax);
     float cone = gp->shadow_cone, vis = 1.0f;
+    float w = gp->relax, step = 0.0f, r_prev = 0.0f;
     for (int i = 0; i < gp->max_steps && t <= t1; ++i) {
         SdfSample s = sdf_eval(sc, o + t * d);
+        float r = s.f / s.lip;
+        if (w > 1.0f && r + r_prev < step) {
+            t -= step - step / w;              /* back to the plain step */
+            step /= w;
+            w = 1.0f;
+            continue;
+        }
         if (s.f < gp->epsilon * (base + t))
             return 0.0f;
         if (cone > 0.0f)
             vis = fmin(vis, s.f / (cone * fmax(t, 1e-30f)));
-        t += s.f / s.lip;
+        step = w * r;
+        r_prev = r;
+        t += step;
     }
     /* smooth the ratio into a penumbra weight */
     vis = clamp(vis, 0.0f, 1.0f);

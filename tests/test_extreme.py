@@ -508,7 +508,7 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     (t,) = built
     tree_mod.check_invariants(t, c, 0.3)
     lc = t.count[t.first_leaf:]
-    assert lc.max() - lc.min() <= 1 and lc.max() <= 8
+    assert lc.max() - lc.min() <= 1 and lc.max() <= glass.GlassSettings.leaf_size
 
 
 def test_ior_outside_the_bounds_is_refused():

@@ -132,7 +132,7 @@ def build_parser():
                          "the median neighbour spacing)")
     gl.add_argument("--blend", type=float, default=None,
                     help="smooth-union width k, world units; 0 = plain union (default: twice the median radius)")
-    gl.add_argument("--leaf-size", type=int, default=None, help="points per tree leaf (default: 8)")
+    gl.add_argument("--leaf-size", type=int, default=None, help="points per tree leaf (default: 16)")
     gl.add_argument("--no-tree", action="store_true", help="brute force over all spheres (reference)")
     gl.add_argument("--bounces", type=int, default=None, help="surface events per path (default: 6)")
     gl.add_argument("--ior", type=float, default=None, help="index of refraction (default: 1.5)")
@@ -180,7 +180,7 @@ def build_parser():
                                    "bricks of a volume (coloured by their maximum density).")
     t.add_argument("input", help="POINTS (.ply/.xyz/.csv/.txt/.npy), GENERATOR:COUNT, SCENE.toml, "
                                  "or a volume (.vdb/.npz)")
-    t.add_argument("--leaf-size", type=int, default=8, help="points per leaf")
+    t.add_argument("--leaf-size", type=int, default=16, help="points per leaf (default: 16, as render)")
     t.add_argument("--radius", type=float, default=None,
                    help="sphere radius (default: the file's, else half the median spacing)")
     t.add_argument("--blend", type=float, default=0.0, help="inflate node boxes by this margin")
