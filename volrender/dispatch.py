@@ -1,16 +1,17 @@
 """Kernel launches shared by the renderers: uploads, and the two dispatch variants.
 
 fragment: one independent work-item per pixel, no local memory; volrender launches
-          work-groups of tile_w x tile_h pixels (the same blocks as tiled, so the two differ
-          only in the culling). Leaving the local size to the driver (kind
-          `fragment-driver`, kept for the benchmark, not offered by the CLI) gave 1-D groups on the H200 that ran glass x1.7 slower than
-          8x8 blocks: a warp of 8x4 pixels follows more coherent paths than one of 32x1.
+          work-groups of tile_w x tile_h pixels (the same blocks as tiled, so the two
+          differ only in the culling). The driver's own local size (kind
+          `fragment-driver`, kept for the benchmarks, not offered by the CLI) gives 1-D
+          groups on the H200 that ran x1.3-1.6 slower for volumes and x1.7 for glass: a
+          warp of 8x4 pixels follows more coherent paths than one of 32x1.
 tiled:    one work-group per screen tile of tile_w x tile_h pixels; the kernel culls the
           scene against its tile cooperatively into local memory first. The global size is
           rounded up to whole tiles (work-items past the image edge still help the group).
-auto:     the default, chosen per device type from bench/results: tiled on GPUs (H200:
-          x1.2-1.8 for volumes, x1.3-1.5 for unlit glass, even for lit glass), fragment on
-          CPUs (PoCL: tiled gains nothing) and for opaque glass (tiled x0.4-0.8 on the H200).
+auto:     the default: fragment. Against 8x8 fragment blocks tiled gains nothing
+          measurable (H200 1080p: volumes x0.98-1.01, glass x0.87-1.04; PoCL x0.8-1.0);
+          the gains measured before (x1.2-1.8) came from the block shape, not the lists.
 
 Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the
 bands are large, since small launches leave most of the device idle.
@@ -53,12 +54,13 @@ class Dispatch:
     def driver_local(self) -> bool:
         return self.kind == "fragment-driver"
 
-    def resolve(self, device, tiled_helps: bool = True) -> "Dispatch":
-        """`auto` made concrete for this device (see the module docstring)."""
+    def resolve(self, device) -> "Dispatch":
+        """`auto` made concrete (fragment on every device; see the module docstring).
+        `device` stays in the signature so a future per-device choice needs no caller
+        change."""
         if self.kind != "auto":
             return self
-        kind = "tiled" if tiled_helps and is_gpu(device) else "fragment"
-        return Dispatch(kind, self.tile)
+        return Dispatch("fragment", self.tile)
 
     def check(self, device, kernel):
         """Refuse a tile the device cannot run as one work-group."""

@@ -228,11 +228,10 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
 
 
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
-    """settings' dispatch, `auto` resolved: fragment everywhere. Since fragment launches
-    8x8 blocks too, tiled lists no longer pay for themselves on glass (H200 1080p: equal
-    at 1000-3000 spheres, x0.87-0.89 at 1e5-1e6; PoCL x0.8-0.9): shadow and refracted
-    rays leave the tile's frustum, and the list holds ~1.6x the spheres a tree visit tests."""
-    return Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device, tiled_helps=False)
+    """settings' dispatch with `auto` resolved (fragment; volrender.dispatch). On glass
+    the tile lists cannot pay: shadow and refracted rays leave the tile's frustum, and a
+    list holds ~1.6x the spheres a tree visit tests (H200 1080p: tiled x0.87-1.04)."""
+    return Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
 
 
 def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFeatures:
