@@ -121,11 +121,12 @@ def build_parser():
                         "track (delta/ratio tracking on brick majorants: unbiased, noisier)")
     q.add_argument("--no-skip", action="store_true", help="march empty bricks too (reference for skipping)")
     q.add_argument("--dispatch", choices=["auto", "fragment", "tiled"], default=None,
-                   help="fragment: one independent work-item per pixel; tiled: work-groups own "
-                        "screen tiles and cull the scene into local memory first; auto: tiled on "
-                        "GPUs (except opaque glass), fragment on CPUs (default: auto)")
+                   help="fragment: one independent work-item per pixel, launched in --tile "
+                        "blocks; tiled: work-groups own screen tiles and cull the scene into "
+                        "local memory first; auto: fragment, measured faster on PoCL and the "
+                        "H200 (default: auto)")
     q.add_argument("--tile", type=parse_tile, default=None, metavar="WxH",
-                   help="tile size for --dispatch tiled, pixels (default: 8x8)")
+                   help="work-group size in pixels: fragment's blocks, tiled's tiles (default: 8x8)")
     gl = r.add_argument_group("molten glass (point clouds; defaults in volrender.glass.GlassSettings)")
     gl.add_argument("--radius", type=float, default=None,
                     help="sphere radius for every point (default: the file's radii, else half "

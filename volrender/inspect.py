@@ -479,7 +479,7 @@ def _show_cloud(cloud, opts):
     return t
 
 
-def show_cloud(cloud, *, leaf_size=8, radius=None, blend=0.0, depth=None, leaves=False,
+def show_cloud(cloud, *, leaf_size=16, radius=None, blend=0.0, depth=None, leaves=False,
                max_depth=None, screenshot=None, export=None, show=False, window_size=(1024, 768)):
     """Build the tree of a PointCloud (as the renderer does) and show it; see inspect_input."""
     _check_outputs(screenshot, export, show)
@@ -496,7 +496,7 @@ INPUTS = {".vdb": _inspect_volume, ".npz": _inspect_volume, ".toml": _inspect_sc
 INPUT_SUFFIXES = tuple(INPUTS)
 
 
-def inspect_input(path, *, leaf_size=8, radius=None, blend=0.0, grid=None, depth=None,
+def inspect_input(path, *, leaf_size=16, radius=None, blend=0.0, grid=None, depth=None,
                   leaves=False, max_depth=None, screenshot=None, export=None, show=False,
                   window_size=(1024, 768)):
     """View a file: a volume's bricks, or a point cloud's tree.
