@@ -402,3 +402,8 @@ def test_settings_are_validated():
             glass.GlassSettings(**bad)
     with pytest.raises(UserError, match="radius"):
         glass.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())
+    # |x - c|^2 would overflow float32 (the field uses sqrt(dot), not length())
+    with pytest.raises(UserError, match="float32"):
+        glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e19, 0, 0]])),
+                         glass.GlassSettings(radius=1.0))
+    glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e17, 0, 0]])), glass.GlassSettings(radius=1.0))
