@@ -10,7 +10,7 @@ tiled:    one work-group per screen tile of tile_w x tile_h pixels; the kernel c
           scene against its tile cooperatively into local memory first. The global size is
           rounded up to whole tiles (work-items past the image edge still help the group).
 auto:     the default: fragment. Against 8x8 fragment blocks tiled gains nothing
-          measurable (H200 1080p: volumes x0.98-1.01, glass x0.87-1.04; PoCL x0.8-1.0);
+          measurable (H200 1080p: volumes x0.90-1.01, glass x0.85-1.04; PoCL x0.8-1.0);
           the gains measured before (x1.2-1.8) came from the block shape, not the lists.
 
 Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the

@@ -230,7 +230,7 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
     """settings' dispatch with `auto` resolved (fragment; volrender.dispatch). On glass
     the tile lists cannot pay: shadow and refracted rays leave the tile's frustum, and a
-    list holds ~1.6x the spheres a tree visit tests (H200 1080p: tiled x0.87-1.04)."""
+    list holds ~1.6x the spheres a tree visit tests (H200 1080p: tiled x0.85-1.04)."""
     return Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
 
 
