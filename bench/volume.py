@@ -66,7 +66,10 @@ def sparse_pair():
 
 # The tiled kernel's culling alone, to report list lengths and overflows per tile.
 _CULL_SRC = r'''
-#include "render_volume.cl"
+#include "common.h"
+#include "structs.h"
+#include "volume.h"
+#include "volume_tile.h"
 __kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
 void tile_counts(__constant Camera* cam, __constant VolumeParams* vp,
                  __global const int4* occ, int n_occ, __global int* counts, int y0)

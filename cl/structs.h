@@ -2,6 +2,17 @@
 #ifndef VR_STRUCTS_H
 #define VR_STRUCTS_H
 
+#define VR_BRICK 8
+#define VR_APRON 9
+#define VR_BRICK_VALUES 729
+#define VR_MAX_LIGHTS 64
+#define VR_BIT_SHADOWS 1
+#define VR_BIT_REFRACTION 2
+#define VR_BIT_ABSORPTION 4
+#define VR_BIT_GLOW 8
+#define VR_BIT_ENV_MAP 16
+#define VR_BIT_COLORS 32
+
 typedef struct {  /* 80 bytes */
     float4 origin;
     float4 pixel00;

@@ -1,12 +1,9 @@
 /* Sparse brick volume: trilinear density lookup, empty-brick skipping, shadow march.
    Everything here works in the layout's local index space (voxel centres at integer
    coordinates, box [0, dims*8]); ray parameters t are world distances.
-   Reads VR_SKIP_EMPTY, VR_EMISSION. */
+   Reads VR_SKIP_EMPTY, VR_EMISSION; VR_BRICK and VR_BRICK_VALUES come from structs.h. */
 #ifndef VR_VOLUME_H
 #define VR_VOLUME_H
-
-#define VR_BRICK 8
-#define VR_BRICK_VALUES 729           /* (VR_BRICK + 1)^3: +1 apron on the high side */
 
 typedef struct {
     int4 dims;                        /* bricks per axis */

@@ -238,7 +238,10 @@ def test_fragment_compiles_no_local_memory(cl_device, dense):
 # ----------------------------------------------------------------- the culling itself
 
 CULL_SRC = r'''
-#include "render_volume.cl"
+#include "common.h"
+#include "structs.h"
+#include "volume.h"
+#include "volume_tile.h"
 __kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
 void tile_lists(__constant Camera* cam, __constant VolumeParams* vp,
                 __global const int4* occ, int n_occ, __global int* counts,

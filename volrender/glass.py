@@ -21,12 +21,10 @@ from .features import GlassFeatures
 from .dispatch import Dispatch, run_rows, upload
 
 PIXELS_PER_LAUNCH = 1 << 14
-MAX_TREE_DEPTH = 47          # cl/sdf.h: VR_TREE_STACK - 1
+MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 TILE_CAP = 512               # tiled dispatch: spheres per tile list (a power of two)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
-# uber-kernel runtime feature bits (cl/render_glass.cl VR_BIT_*)
-UBER_BITS = {"shadows": 1, "refraction": 2, "absorption": 4, "glow": 8, "env_map": 16,
-             "colors": 32}
+UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
 
 
 @dataclass(frozen=True)

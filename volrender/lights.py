@@ -40,7 +40,7 @@ class PointLight:
             raise UserError(f"point light intensity must be finite and >= 0, got {self.intensity}")
 
 
-MAX_LIGHTS = 64    # cl/render_volume.cl: VR_MAX_LIGHTS
+MAX_LIGHTS = layout.MAX_LIGHTS    # VR_MAX_LIGHTS in cl/structs.h
 
 # Used when the user gives no light: from above, over the viewer's left shoulder.
 DEFAULT_LIGHTS = (Sun((-0.6, -1.0, -0.5), 6.0),)

@@ -115,7 +115,7 @@ def volume_params(bricks, settings: VolumeSettings | None = None):
         world_to_local2=[*w2l[2, :3], 0],
         local_to_world0=[*l2w[0, :3], 0], local_to_world1=[*l2w[1, :3], 0],
         local_to_world2=[*l2w[2, :3], 0],
-        box_hi=[*(np.asarray(bricks.dims) * 8.0), 0], background=[*settings.background, 0],
+        box_hi=[*(np.asarray(bricks.dims) * float(layout.BRICK)), 0], background=[*settings.background, 0],
         emission_color=[*(settings.emission_scale * blackbody_rgb(settings.emission_temperature)), 0],
         phase=[g1, g2, w, 0], dims=[*bricks.dims, 0], density_scale=settings.density_scale,
         albedo=settings.albedo, step=settings.step * vs, shadow_step=settings.shadow_step * vs,

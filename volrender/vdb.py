@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
-BRICK = 8
-APRON = BRICK + 1
 NPZ_FORMAT = "volrender-bricks"
 NPZ_VERSION = 1
 MAX_BRICKS = 1 << 27          # table entries (512 MB of int32); more is refused
