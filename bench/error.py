@@ -50,10 +50,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
 import volrender.glass  # noqa: E402
-import volrender.render  # noqa: E402
+import volrender.volume  # noqa: E402
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import PointLight, Sun  # noqa: E402
-from volrender.render import VolumeSettings, render_volume  # noqa: E402
+from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "vdb"
@@ -101,7 +101,7 @@ def _cpu_timed(run_rows):
 
 
 def install_cpu_timer():
-    for mod in (volrender.render, volrender.glass):
+    for mod in (volrender.volume, volrender.glass):
         if hasattr(mod, "run_rows") and not hasattr(mod.run_rows, "__wrapped__"):
             mod.run_rows = _cpu_timed(mod.run_rows)
 

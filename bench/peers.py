@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
 from volrender import camera as camera_mod, device, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.render import VolumeSettings, render_volume  # noqa: E402
+from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_FILE = ROOT.parent / "shared" / "data" / "vdb" / "smoke.vdb"

@@ -31,7 +31,7 @@ from bench.common import RESULTS, device_info, device_tag, stats, write_json  # 
 from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.render import VolumeSettings, occupied_bricks, render_volume, volume_params  # noqa: E402
+from volrender.volume import VolumeSettings, occupied_bricks, render_volume, volume_params  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "vdb"

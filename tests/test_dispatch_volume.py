@@ -18,13 +18,13 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import camera as camera_mod, features, render as render_mod, vdb
+from volrender import camera as camera_mod, features, volume as volume_mod, vdb
 from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
-from volrender.render import VolumeSettings, occupied_bricks, render_volume, volume_params
+from volrender.volume import VolumeSettings, occupied_bricks, render_volume, volume_params
 from volrender.vdb import Bricks
 
 VOX = 0.1
@@ -161,7 +161,7 @@ def test_camera_inside_the_grid(cl_device, dense, sparse):
 def test_tile_sizes_and_ragged_image(cl_device, sparse, tile, monkeypatch):
     """37 x 23 is a multiple of no tile here but 1x1: edge work-items only help cull.
     Launched in bands of 8 rows, so the tiles of later bands start at y0 > 0."""
-    monkeypatch.setattr(render_mod, "PIXELS_PER_LAUNCH", 37 * 8)
+    monkeypatch.setattr(volume_mod, "PIXELS_PER_LAUNCH", 37 * 8)
     cam = Camera((0.0, 1.5, 11.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 75.0, 37, 23)
     ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0), tiles=(tile,))
     assert ref[..., 3].max() > 0.3

@@ -16,7 +16,7 @@ from volrender.errors import UserError
 from volrender.image import write_image
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
-from volrender.render import G_MAX, VolumeSettings, render_volume
+from volrender.volume import G_MAX, VolumeSettings, render_volume
 from volrender.vdb import Bricks
 
 VOX = 0.1

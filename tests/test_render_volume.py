@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from volrender import reference, render as render_mod
+from volrender import reference, volume as volume_mod
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
-from volrender.render import VolumeSettings, render_volume
+from volrender.volume import VolumeSettings, render_volume
 from volrender.vdb import Bricks
 
 VOX = 0.1
@@ -228,7 +228,7 @@ def test_emission_is_integrated_along_the_chord(cl_device):
     c = (n - 1) / 2 * VOX
     b = Bricks.from_dense(ball(n, R), scaled(VOX, (-c, -c, -c)), emission=ball(n, R))
     cam = Camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 8.0, 8, 8)
-    colour = render_mod.blackbody_rgb(1500.0)
+    colour = volume_mod.blackbody_rgb(1500.0)
     for sigma in (0.0, 2.0):
         r = render_volume(b, cam, [], VolumeSettings(density_scale=sigma, emission_scale=2.0, step=0.25),
                           cl_device)["rgba"]
@@ -252,7 +252,7 @@ def test_same_seed_same_image_whatever_the_launch_split(cl_device, monkeypatch):
     cam = Camera((0.0, 2.0, 14.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 55.0, 40, 30)
     s = VolumeSettings(density_scale=4.0, spp=3, seed=11)
     one = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device)["rgba"]
-    monkeypatch.setattr(render_mod, "PIXELS_PER_LAUNCH", 40 * 7)
+    monkeypatch.setattr(volume_mod, "PIXELS_PER_LAUNCH", 40 * 7)
     split = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device)["rgba"]
     assert np.array_equal(one, split)
     other = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], VolumeSettings(density_scale=4.0, spp=3, seed=12),

@@ -14,7 +14,7 @@ from volrender import cli, reference
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
-from volrender.render import (ESTIMATORS, VolumeSettings, blackbody_rgb, render_volume,
+from volrender.volume import (ESTIMATORS, VolumeSettings, blackbody_rgb, render_volume,
                               track_majorants)
 from volrender.vdb import Bricks
 from conftest import ROOT

@@ -336,7 +336,7 @@ def cmd_render(args):
 def render_volume_input(args, lights, aovs):
     from . import device as device_mod, vdb
     from .lights import DEFAULT_LIGHTS
-    from .render import VolumeSettings, render_volume
+    from .volume import VolumeSettings, render_volume
 
     bg = args.background * 3 if len(args.background) == 1 else args.background
     phase = (args.phase[0], 0.0, 1.0) if len(args.phase) == 1 else args.phase

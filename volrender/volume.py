@@ -1,5 +1,6 @@
-"""Orchestration: upload, dispatch, read back. Each work-item owns its pixel (no float
-atomics), so an image depends only on the scene, the settings and the seed."""
+"""Volumes: settings, the VolumeParams record and the render orchestration of the marcher and
+the tracker. Each work-item owns its pixel (no float atomics), so an image depends only on
+the scene, the settings and the seed."""
 from __future__ import annotations
 
 import math

@@ -1,0 +1,161 @@
+"""Settings fields with their one default, help text, range and names.
+
+Every render knob is a field of a frozen settings dataclass (VolumeSettings in
+volume.py, GlassSettings in glass.py, both extending CommonSettings here, and View in
+camera.py). Its metadata says how it is checked, how the command line spells it and
+which scene-file key sets it, so the CLI, scene files and Python share one default
+and one range:
+
+    step: float = knob(0.5, "primary step, voxels", check=positive, toml=("render", "step"))
+
+`check_value` reports a bad value under the name the user wrote it with (`--step`,
+`scene.toml: [render].step` or `step=`); `check_fields` runs every check of a settings
+object (its __post_init__ calls it).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+from .errors import UserError
+
+
+def knob(default, help: str, *, check=None, flag: str | None = "", toml=None,
+         parse=None, metavar=None, choices=None, unit: str | None = None, show_default=True):
+    """A dataclass field carrying its option metadata.
+
+    flag: CLI spelling ('' = `--name-with-dashes`; None = not on the command line). A bool
+    field is a switch: default False gives `--name`, default True gives the `flag` given
+    (e.g. `--no-tree`), which sets it to False.
+    check: value -> None or a phrase like "must be > 0" (see the checks below).
+    toml: (section, key) of the scene file that sets it, or None.
+    parse: argparse type for the CLI value.
+    """
+    meta = {"help": help, "check": check, "flag": flag, "toml": toml, "parse": parse,
+            "metavar": metavar, "choices": choices, "unit": unit, "show_default": show_default}
+    if isinstance(default, (list, dict, set)):
+        raise TypeError("mutable defaults are not allowed; use a tuple")
+    return field(default=default, metadata={"knob": meta})
+
+
+def knobs(cls):
+    """[(field, metadata)] of a settings class, in declaration order."""
+    return [(f, f.metadata["knob"]) for f in dataclasses.fields(cls) if "knob" in f.metadata]
+
+
+def flag_of(f, meta) -> str | None:
+    """The CLI spelling of a field (None when it has none)."""
+    if meta["flag"] is None:
+        return None
+    return meta["flag"] or "--" + f.name.replace("_", "-")
+
+
+def override_key(f, meta) -> str:
+    """The Python keyword for a field: its CLI flag with underscores (`no_tree`), or its
+    name when it has no flag."""
+    flag = flag_of(f, meta)
+    return flag[2:].replace("-", "_") if flag else f.name
+
+
+def check_value(meta, value, where: str):
+    """Raise UserError "<where> must be ..., got <value>" when value fails meta's check."""
+    check = meta["check"]
+    if check is None:
+        return
+    problem = check(value)
+    if problem:
+        raise UserError(f"{where} {problem}, got {_show(value)}")
+
+
+def check_fields(obj):
+    """Run every field check of a settings object (errors name the CLI flag)."""
+    for f, meta in knobs(type(obj)):
+        flag = flag_of(f, meta)
+        check_value(meta, getattr(obj, f.name), flag if flag and not _is_switch(f) else f.name)
+
+
+def _is_switch(f) -> bool:
+    return f.type in ("bool", bool)
+
+
+def _show(value):
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, tuple):
+        return ",".join(_show(v) for v in value)
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+# ---------------------------------------------------------------------- the checks
+
+def _num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _int(v) -> bool:
+    import numpy as np
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def in_range(lo, hi, *, integer=False, allow_none=False):
+    """Finite number (an integer with integer=True) in [lo, hi]."""
+    def check(v):
+        if v is None and allow_none:
+            return None
+        ok = _int(v) if integer else _num(v)
+        if not ok or not lo <= v <= hi:
+            kind = "an integer" if integer else "a finite number"
+            return f"must be {kind} in [{lo:g}, {hi:g}]"
+        return None
+    return check
+
+
+def rgb(lo=0.0, hi=math.inf, n=3):
+    """n finite numbers in [lo, hi]."""
+    def check(v):
+        if not (isinstance(v, tuple) and len(v) == n and all(_num(c) and lo <= c <= hi for c in v)):
+            bound = f">= {lo:g}" if hi == math.inf else f"in [{lo:g}, {hi:g}]"
+            return f"takes {n} finite values {bound}"
+        return None
+    return check
+
+
+def one_of(values):
+    def check(v):
+        return None if v in values else f"must be one of {', '.join(map(str, values))}"
+    return check
+
+
+def boolean(v):
+    return None if isinstance(v, bool) else "must be true or false"
+
+
+# ---------------------------------------------------------------------- shared settings
+
+# Largest radiance-like value accepted anywhere (lights, background, emission, glow...):
+# far below float32's 3.4e38, so sums over samples and lights stay finite.
+MAX_VALUE = 1e30
+
+
+@dataclass(frozen=True)
+class CommonSettings:
+    """Knobs both renderers read."""
+    spp: int = knob(1, "samples per pixel (box filter, stratified)", check=in_range(1, 65536, integer=True),
+                    toml=("render", "spp"), parse=int)
+    seed: int = knob(0, "random seed", check=in_range(-2 ** 63, 2 ** 64 - 1, integer=True),
+                     toml=("render", "seed"), parse=int)
+    shadows: bool = knob(True, "lights are attenuated on their way (off: unshadowed lights)",
+                         check=boolean, flag="--no-shadows", toml=("render", "shadows"))
+    dispatch: str = knob("auto", "fragment: one independent work-item per pixel, launched in "
+                         "--tile blocks; tiled: work-groups own screen tiles and cull the scene "
+                         "into local memory first; auto: fragment (measured faster on PoCL and "
+                         "the H200)", check=one_of(("auto", "fragment", "tiled")),
+                         choices=("auto", "fragment", "tiled"), toml=("render", "dispatch"))
+    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles",
+                       metavar="WxH", toml=("render", "tile"))
+
+    def __post_init__(self):
+        check_fields(self)
+        from .dispatch import Dispatch
+        Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid
