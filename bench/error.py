@@ -49,10 +49,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
-import volrender.glass  # noqa: E402
-import volrender.volume  # noqa: E402
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
-from volrender.lights import PointLight, Sun  # noqa: E402
+from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,27 +81,10 @@ def pareto(rows, key="rmse"):
         r["pareto"] = not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for t2, e2 in pts)
 
 
-# CPU time of this process (all threads: PoCL's workers run in it) during the kernel
-# launches. On a shared CPU host, other processes stretch the kernels' wall time (the
-# OpenCL profiling times) but not the CPU time they consume, so cpu_ms / cores is a
-# contention-free stand-in for the kernel time (--time cpu).
-_CPU = {}
-
-
-def _cpu_timed(run_rows):
-    def wrapped(*args, **kwargs):
-        c0 = time.process_time()
-        ms = run_rows(*args, **kwargs)
-        _CPU["ms"] = _CPU.get("ms", 0.0) + 1e3 * (time.process_time() - c0)
-        return ms
-    wrapped.__wrapped__ = run_rows
-    return wrapped
-
-
-def install_cpu_timer():
-    for mod in (volrender.volume, volrender.glass):
-        if hasattr(mod, "run_rows") and not hasattr(mod.run_rows, "__wrapped__"):
-            mod.run_rows = _cpu_timed(mod.run_rows)
+# Each render reports the CPU time of this process (all threads: PoCL's workers run in it)
+# during its launches (render.Image.cpu_ms). On a shared CPU host, other processes stretch
+# the kernels' wall time (the OpenCL profiling times) but not the CPU time they consume,
+# so cpu_ms / cores is a contention-free stand-in for the kernel time (--time cpu).
 
 
 def sweep(jobs, repeat, basis):
@@ -120,13 +101,11 @@ def sweep(jobs, repeat, basis):
     for _ in range(repeat):
         rng.shuffle(order)
         for key, render in order:
-            _CPU.clear()
             r = render()
             o = out[key]
             o["kernel"].append(r["kernel_ms"])
             o["wall"].append(r["wall_ms"])
-            if "ms" in _CPU:
-                o["cpu"].append(_CPU["ms"])
+            o["cpu"].append(r["cpu_ms"])
     result = {}
     for key, o in out.items():
         t = {"kernel_ms": stats(o["kernel"]), "wall_ms": stats(o["wall"])}
@@ -275,18 +254,9 @@ def glass_scenes(width, height, quick):
     out.append(("blob300", cloud, glass.default_camera(cloud, width, height), [GLASS_SUN],
                 glass.GlassSettings()))
     if not quick:
-        path = ROOT / "scenes" / "molten_glass.toml"
-        sc = scene_mod.load(path)
-        cloud, radius = scene_mod.load_cloud(sc)
-        mat = sc.get("material", {})
-        lights = [Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                  if l["type"] == "sun" else
-                  PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                  for l in sc.get("lights", [])]
-        keys = ("color", "ior", "absorption", "reflectivity", "glow")
-        base = glass.GlassSettings(radius=radius, **{k: mat[k] for k in keys if k in mat})
-        out.append(("molten_glass", cloud, glass.default_camera(cloud, width, height, radius=radius),
-                    lights, base))
+        # the scene the CLI renders (scene.load_scene), at this benchmark's size
+        sc = scene_mod.load_scene(ROOT / "scenes" / "molten_glass.toml", size=(width, height))
+        out.append(("molten_glass", sc.content.cloud, sc.camera, list(sc.lights), sc.settings))
     return out
 
 
@@ -436,8 +406,6 @@ def main(argv=None):
     dev = device.get(args.device)
     cores = int(dev.device.max_compute_units)
     args.basis = (args.time, cores)
-    if args.time == "cpu":
-        install_cpu_timer()
     tag = args.out or (device_tag(dev) + ("-quick" if args.quick else ""))
     path = RESULTS / f"error_{tag}.json"
     record = {"benchmark": "error", "size": [width, height], "repeat": args.repeat,

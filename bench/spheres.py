@@ -39,18 +39,18 @@ def ints(text):
     return [int(float(v)) for v in text.split(",") if v]
 
 
-def measure(cloud, cam, settings, dev, repeat, lights):
+def measure(cloud, cam, settings, dev, repeat, lights, variant=None):
     """Warm-up at a tiny size (builds the program), then `repeat` timed renders, then one
     untimed render counting the field's work (work_stats)."""
-    glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings, dev)
+    glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings, dev,
+                        variant=variant)
     kernel, wall, tree = [], [], []
     for _ in range(repeat):
-        r = glass.render_points(cloud, cam, lights, settings, dev)
+        r = glass.render_points(cloud, cam, lights, settings, dev, variant=variant)
         kernel.append(r["kernel_ms"])
         wall.append(r["wall_ms"])
         tree.append(r["tree_ms"])
-    counts = glass.render_points(cloud, cam, lights, dataclasses.replace(settings, stats=True),
-                                 dev)["rgba"]
+    counts = glass.render_points(cloud, cam, lights, settings, dev, variant="stats")["rgba"]
     return r["rgba"], {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "tree_ms": stats(tree),
                        "work": work_stats(counts)}
 
@@ -151,9 +151,10 @@ def main(argv=None):
         cam = glass.default_camera(cloud, width, height)
         for lit in (True, False):
             for uber in (False, True):
-                s = glass.GlassSettings(bounces=args.bounces, uber=uber, refraction=not args.opaque,
+                s = glass.GlassSettings(bounces=args.bounces, refraction=not args.opaque,
                                         dispatch="fragment")
-                img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [])
+                img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit else [],
+                                 variant="uber" if uber else None)
                 uber_rows.append({"n": args.uber_count, "dispatch": "fragment", "tree": True,
                                   "lit": lit, "uber": uber, **t})
                 save()

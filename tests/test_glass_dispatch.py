@@ -3,7 +3,7 @@ colours and soft shadows."""
 import numpy as np
 import pytest
 
-from volrender import glass, points
+from volrender import features, glass, points
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
@@ -15,9 +15,9 @@ ATOL = 2e-3
 LIGHTS = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
 
 
-def _render(dev, cloud, settings, size=(24, 20), cam=None, lights=LIGHTS):
+def _render(dev, cloud, settings, size=(24, 20), cam=None, lights=LIGHTS, variant=None):
     cam = cam or glass.default_camera(cloud, *size)
-    return glass.render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+    return glass.render_points(cloud, cam, list(lights), settings, dev, variant=variant)["rgba"]
 
 
 def _agree(a, b, frac=1.0):
@@ -57,7 +57,7 @@ def test_stats_count_the_field_work(cl_device, use_tree):
     cloud = points.blob(200, seed=3)
     base = glass.GlassSettings(bounces=2, blend=0.12, use_tree=use_tree, dispatch="fragment")
     img = _render(cl_device, cloud, base)
-    st = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "stats": True}))
+    st = _render(cl_device, cloud, base, variant="stats")
     np.testing.assert_array_equal(st[..., 3], img[..., 3])
     evals, nodes, tests = st[..., 0], st[..., 1], st[..., 2]
     assert (evals >= 1).all() and evals.max() > 10
@@ -69,9 +69,9 @@ def test_stats_count_the_field_work(cl_device, use_tree):
 
 
 def test_tiled_list_overflow_falls_back(cl_device):
-    # one 16x12 tile sees all 3000 spheres: more than the list holds (glass.TILE_CAP)
+    # one 16x12 tile sees all 3000 spheres: more than the list holds (GLASS_TILE_CAP)
     cloud = points.blob(3000, seed=4)
-    assert len(cloud.centers) > glass.TILE_CAP
+    assert len(cloud.centers) > features.GLASS_TILE_CAP
     base = glass.GlassSettings(bounces=2)
     a = _render(cl_device, cloud, base, size=(16, 12))
     b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "dispatch": "tiled",
@@ -95,11 +95,11 @@ def test_uber_kernel_gives_the_specialised_image(cl_device, opts):
     cloud = points.blob(200, seed=6)
     s = glass.GlassSettings(bounces=2, **opts)
     a = _render(cl_device, cloud, s)
-    b = _render(cl_device, cloud, glass.GlassSettings(**{**s.__dict__, "uber": True}))
-    np.testing.assert_allclose(a, b, atol=1e-5)
+    r = glass.render_points(cloud, glass.default_camera(cloud, 24, 20), LIGHTS, s, cl_device,
+                            variant="uber")
+    np.testing.assert_allclose(a, r["rgba"], atol=1e-5)
     # and it really is one program with every feature in
-    scene = glass.pack_scene(cloud, s)
-    flags = glass.features_for(scene, LIGHTS, glass.GlassSettings(**{**s.__dict__, "uber": True})).flags()
+    flags = r["flags"]
     assert flags["VR_UBER"] == 1 and flags["VR_REFRACTION"] == 1 and flags["VR_N_SUNS"] == 0
 
 
@@ -107,7 +107,7 @@ def test_unlit_uber_matches_unlit(cl_device):
     cloud = points.blob(120, seed=2)
     s = glass.GlassSettings(bounces=2)
     a = _render(cl_device, cloud, s, lights=[])
-    b = _render(cl_device, cloud, glass.GlassSettings(**{**s.__dict__, "uber": True}), lights=[])
+    b = _render(cl_device, cloud, s, lights=[], variant="uber")
     np.testing.assert_allclose(a, b, atol=1e-5)
 
 

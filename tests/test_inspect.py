@@ -170,7 +170,7 @@ def test_user_errors(tmp_path, cloud, tree):
         inspect.show_bricks(_bricks(), screenshot=tmp_path / "b.jpg")
     with pytest.raises(UserError, match="does not exist"):
         inspect.show_tree(tree, cloud.centers, screenshot=tmp_path / "no" / "t.png")
-    with pytest.raises(UserError, match="cannot inspect"):
+    with pytest.raises(UserError, match="unsupported input type"):
         inspect.inspect_input(tmp_path / "scene.abc", screenshot=tmp_path / "x.png")
     assert list(tmp_path.iterdir()) == []
 

@@ -205,7 +205,7 @@ def scene_dir(tmp_path_factory):
 def load_text(scene_dir, text):
     path = scene_dir / "s.toml"
     path.write_text(text, encoding="utf-8")
-    return path, scene.load(path)
+    return path, scene.read(path)
 
 
 def expected(kind, v, base):
@@ -299,7 +299,7 @@ def test_garbage_files_raise_a_user_error(scene_dir, raw):
     else:
         path.write_text(raw, encoding="utf-8")
     try:
-        scene.load(path)
+        scene.read(path)
     except UserError as exc:
         assert "\n" not in str(exc) and str(path) in str(exc)
 

@@ -276,7 +276,7 @@ def test_a_feature_without_effect_matches_it_switched_off(cl_device, feature):
         on = render_volume(Bricks.from_dense(v, scaled(VOX, (-c, -c, -c)), emission=np.zeros_like(v)),
                            cam, lights, s, cl_device)
     elif feature == "depth":
-        on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "depth": True}), cl_device)
+        on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "aovs": ("depth",)}), cl_device)
         assert np.all(np.isfinite(on["depth"][on["rgba"][..., 3] > 0]))
     elif feature == "sun":
         on = render_volume(base, cam, lights + [Sun((1, 0, 0), 0.0)], s, cl_device)

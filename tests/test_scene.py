@@ -37,7 +37,7 @@ def write(tmp_path, text, name="s.toml"):
 
 
 def test_good_scene_parses(tmp_path):
-    s = scene.load(write(tmp_path, GOOD))
+    s = scene.read(write(tmp_path, GOOD))
     assert s["points"] == {"generator": "blob", "count": 200}
     assert s["material"]["absorption"] == (0.1, 0.5, 2.0)
     assert [l["type"] for l in s["lights"]] == ["sun", "point"]
@@ -47,7 +47,7 @@ def test_good_scene_parses(tmp_path):
 def test_paths_resolve_relative_to_the_scene(tmp_path):
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "pts.xyz").write_text("0 0 0\n")
-    s = scene.load(write(tmp_path, '[points]\nfile = "pts.xyz"\n', "sub/s.toml"))
+    s = scene.read(write(tmp_path, '[points]\nfile = "pts.xyz"\n', "sub/s.toml"))
     assert s["points"]["file"] == (tmp_path / "sub" / "pts.xyz").resolve()
 
 
@@ -69,7 +69,7 @@ def test_paths_resolve_relative_to_the_scene(tmp_path):
 def test_bad_scenes_name_the_problem(tmp_path, text, words):
     p = write(tmp_path, text)
     with pytest.raises(UserError) as err:
-        scene.load(p)
+        scene.read(p)
     msg = str(err.value)
     assert "\n" not in msg and str(p) in msg
     for w in words:

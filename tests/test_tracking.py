@@ -185,7 +185,7 @@ def test_tracking_image_does_not_depend_on_the_launch(cl_device):
     launches (tiles overhanging the image edge) give the same image, bit for bit."""
     b = Bricks.from_dense(smooth_noise(20, 2), scaled(VOX, (-1.0, -1.0, -1.0)))
     cam = Camera((1.2, 0.8, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 13, 7)
-    base = dict(density_scale=3.0, spp=3, seed=9, estimator="track", depth=True)
+    base = dict(density_scale=3.0, spp=3, seed=9, estimator="track", aovs=("depth",))
     lights = [Sun((0.3, -1.0, 0.2), 2.0)]
     frag = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="fragment"), cl_device)
     tiled = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="tiled", tile=(4, 4)),

@@ -1,2 +1,20 @@
-"""volrender: OpenCL volume and molten-glass renderer."""
+"""volrender: OpenCL volume and molten-glass renderer.
+
+    import volrender
+    scene = volrender.load_scene("smoke.vdb", size=(320, 240), density_scale=2.0)
+    image = volrender.render(scene)              # PoCL, or device="nvidia"
+    image.save("smoke.exr")
+
+load_scene takes the command line's option names with underscores as keywords
+(`volrender render --help` lists them); Image holds rgba (H x W x 4 float32, linear), the
+AOVs, timings and the device name.
+"""
 __version__ = "0.1.0"
+
+from .errors import UserError  # noqa: E402
+from .lights import PointLight, Sun  # noqa: E402
+from .render import Image, render  # noqa: E402
+from .scene import Scene, load_scene  # noqa: E402
+
+__all__ = ["load_scene", "render", "Scene", "Image", "Sun", "PointLight", "UserError",
+           "__version__"]

@@ -8,6 +8,7 @@ import numpy as np
 
 from . import layout
 from .errors import UserError
+from .settings import SIZE, VEC3, floats, in_range, knob, one_of, pair, rgb
 
 # Default framing: the camera looks at the bounding box's centre from this direction
 # (from the centre towards the camera: in front (+z), a little right and above).
@@ -84,3 +85,46 @@ def frame_bounds(lo, hi, width, height, fov=DEFAULT_FOV, view=DEFAULT_VIEW, up=(
     dist = radius / math.sin(math.radians(fov) / 2.0)
     origin = centre + dist * _unit(view, "view")
     return Camera(tuple(origin), tuple(centre), tuple(up), fov, width, height)
+
+
+def _vec3_or_none(v):
+    return None if v is None else rgb(-1e30, 1e30)(v)
+
+
+UP_AXES = ("auto", "y", "z")
+
+
+@dataclass(frozen=True)
+class View:
+    """The camera a user asks for; `camera(lo, hi)` resolves it against the scene's bounds
+    (defaults, ranges and CLI/scene names: settings.knob)."""
+    size: tuple = knob((640, 480), "image size", metavar="WxH", parse=pair("--size"),
+                       toml=("render", "size"), kind=SIZE)
+    origin: tuple | None = knob(None, "camera position (default: frame the bounds: look at their "
+                                "centre from --azimuth/--elevation at the distance where their "
+                                "bounding sphere fills --fov)", metavar="X,Y,Z",
+                                parse=floats(3, name="--origin"), check=_vec3_or_none,
+                                toml=("camera", "origin"), kind=VEC3, show_default=False)
+    target: tuple | None = knob(None, "point looked at (default: the bounds' centre)",
+                                metavar="X,Y,Z", parse=floats(3, name="--target"),
+                                check=_vec3_or_none, toml=("camera", "target"), kind=VEC3,
+                                show_default=False)
+    up: tuple | None = knob(None, "camera up vector (default: the up axis)", metavar="X,Y,Z",
+                            parse=floats(3, name="--up"), check=_vec3_or_none,
+                            toml=("camera", "up"), kind=VEC3, show_default=False)
+    fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees", check=in_range(1e-3, 179),
+                      toml=("camera", "fov"))
+
+    def __post_init__(self):
+        from .settings import check_fields
+        check_fields(self)
+
+    def camera(self, lo, hi) -> "Camera":
+        """The Camera: origin/target as given, else framing the box lo..hi."""
+        up = self.up or (0.0, 1.0, 0.0)
+        w, h = self.size
+        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up)
+        if self.origin is not None or self.target is not None:
+            cam = Camera(tuple(self.origin or cam.origin), tuple(self.target or cam.target),
+                         tuple(up), self.fov, w, h)
+        return cam

@@ -1,4 +1,5 @@
-"""Command line: `volrender render | convert | info`."""
+"""Command line: `volrender render | convert | tree | info | bench`. It parses options,
+calls scene.load_scene and render.render, and writes; nothing else."""
 from __future__ import annotations
 
 import argparse
@@ -12,42 +13,13 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .dispatch import parse_tile
 from .errors import UserError
-
-VOLUME_SUFFIXES = (".vdb", ".npz")
 
 
 # ---------------------------------------------------------------- argument parsing
 
-def floats(n_min: int, n_max: int | None = None, name: str = "value"):
-    """argparse type: comma-separated floats, n_min..n_max of them."""
-    n_max = n_max or n_min
-
-    def parse(text: str):
-        try:
-            vals = tuple(float(v) for v in text.split(","))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name}: expected numbers separated by commas, got {text!r}")
-        if not n_min <= len(vals) <= n_max:
-            want = f"{n_min}" if n_min == n_max else f"{n_min} to {n_max}"
-            raise argparse.ArgumentTypeError(f"{name}: expected {want} numbers, got {len(vals)} in {text!r}")
-        return vals
-    return parse
-
-
-def size(text: str):
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH such as 640x480, got {text!r}")
-    if not (1 <= w <= 32768 and 1 <= h <= 32768):
-        raise argparse.ArgumentTypeError(f"image size must be 1..32768 per side, got {text!r}")
-    return w, h
-
-
-class Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    pass
+class Formatter(argparse.RawDescriptionHelpFormatter):
+    """Defaults are written into each help text once (from the settings classes)."""
 
 
 class Parser(argparse.ArgumentParser):
@@ -62,14 +34,80 @@ def add_common(p):
                    help="OpenCL device: substring of 'platform / device' or 'P:D' "
                         "(default: $VOLRENDER_DEVICE, else PoCL)")
     p.add_argument("--debug", action="store_true", help="show tracebacks and build logs")
-    p.add_argument("-v", "--verbose", action="store_true", help="log program builds and timings")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="log program builds and timings, and print the camera used")
+
+
+def _show(value) -> str:
+    if isinstance(value, tuple):
+        if len(value) == 2 and all(isinstance(v, int) for v in value):
+            return f"{value[0]}x{value[1]}"
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def add_option(group, opt, default):
+    """One render option from its settings knob (help and default written once)."""
+    from .settings import number
+    meta = opt.meta
+    text = meta["help"]
+    if meta["show_default"] and default is not None and meta["kind"] is not bool:
+        text += f" (default: {_show(default)})"
+    kw = dict(dest=opt.key, default=None, help=text)
+    if meta["kind"] is bool:
+        group.add_argument(opt.flag, action="store_true", **kw)
+        return
+    if opt.key == "aov":
+        group.add_argument(opt.flag, action="append", choices=meta["choices"], **kw)
+        return
+    parse = meta["parse"] or {float: number(opt.flag), "number": number(opt.flag),
+                              int: number(opt.flag, int)}.get(meta["kind"], str)
+    if meta["choices"]:
+        kw["choices"] = meta["choices"]
+    group.add_argument(opt.flag, type=parse, metavar=meta["metavar"], **kw)
+
+
+# which help group each render option joins: by owner, with a few common ones moved
+GROUPS = [("image and camera", "view"), ("lights", "lights"), ("volumes (.vdb, .npz)", "volume"),
+          ("molten glass (point clouds)", "glass"), ("sampling and dispatch", "common")]
+_GROUP_OF = {"shadows": "lights"}
+
+
+def add_render_options(r):
+    from .scene import options
+    from .glass import GlassSettings
+    from .volume import VolumeSettings
+    from .camera import View
+    from .settings import floats
+    defaults = {**{f.name: f.default for f in dataclasses.fields(View)},
+                **{f.name: f.default for f in dataclasses.fields(VolumeSettings)},
+                **{f.name: f.default for f in dataclasses.fields(GlassSettings)}}
+    groups = {owner: r.add_argument_group(title) for title, owner in GROUPS}
+    lg = groups["lights"]
+    lg.description = "default: one sun, direction -0.6,-1,-0.5, E=6"
+    lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=None,
+                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
+    lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
+                    default=None, metavar="X,Y,Z,I",
+                    help="point light: position and intensity, irradiance I/r^2 (repeatable)")
+    lg.add_argument("--no-lights", action="store_true", default=None,
+                    help="no lights: absorption and emission only")
+    for opt in options().values():
+        group = groups[_GROUP_OF.get(opt.field, opt.owner)]
+        add_option(group, opt, defaults[opt.field])
+
+
+RENDER_DEST = None      # the render options' argparse dests (set by build_parser)
 
 
 def build_parser():
+    global RENDER_DEST
     parser = Parser(
         prog="volrender", formatter_class=Formatter,
-        description="Render OpenVDB volumes with OpenCL (PoCL by default).",
+        description="Render OpenVDB volumes and point clouds (as molten glass) with OpenCL "
+                    "(PoCL by default).",
         epilog="Examples:\n  volrender render smoke.vdb -o smoke.png --sun 0,-1,-1,3\n"
+               "  volrender render bunny.ply -o bunny.exr --spp 4\n"
                "  volrender convert smoke.vdb smoke.npz\n  volrender info")
     parser.add_argument("--version", action="version", version=f"volrender {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -80,85 +118,21 @@ def build_parser():
                                    "Henyey-Greenstein phase; or a point cloud (.ply, .xyz, "
                                    ".csv, .txt, .npy, a generator NAME:COUNT such as "
                                    "glass_gather:2000, or a scene .toml) as molten glass. "
-                                   "Command-line options override the scene file.")
+                                   "Command-line options override the scene file; an option "
+                                   "the input's kind does not read is an error.")
     r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
                                  "GENERATOR:COUNT, or SCENE.toml")
-    r.add_argument("-o", "--output", required=True, help="OUT.exr (linear RGBA), .npy, or .png")
-    g = r.add_argument_group("image and camera")
-    g.add_argument("--size", type=size, default=None, metavar="WxH", help="image size (default: 640x480)")
-    g.add_argument("--origin", type=floats(3, name="--origin"), metavar="X,Y,Z",
-                   help="camera position (default: frame the volume's bounds)")
-    g.add_argument("--target", type=floats(3, name="--target"), metavar="X,Y,Z",
-                   help="point looked at (default: the bounds' centre)")
-    g.add_argument("--up", type=floats(3, name="--up"), default=(0.0, 1.0, 0.0), metavar="X,Y,Z")
-    g.add_argument("--fov", type=float, default=None, help="vertical field of view, degrees (default: 40)")
-    g.add_argument("--spp", type=int, default=None, help="samples per pixel, box filter (default: 1)")
-    g.add_argument("--seed", type=int, default=None, help="random seed (default: 0)")
-    g.add_argument("--background", type=floats(1, 3, "--background"), default=(0.0,),
-                   metavar="R,G,B", help="radiance behind the volume (one value = grey)")
-    lg = r.add_argument_group("lights (default: one sun, direction -0.6,-1,-0.5, E=6)")
-    lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=[],
-                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
-    lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
-                    default=[], metavar="X,Y,Z,I", help="point light: position and intensity (repeatable)")
-    lg.add_argument("--no-lights", action="store_true", help="no lights: absorption and emission only")
-    lg.add_argument("--no-shadows", action="store_true", help="lights are not attenuated by the volume")
-    m = r.add_argument_group("medium")
-    m.add_argument("--grid", default=None, help="density grid (default: 'density', else the only float fog grid)")
-    m.add_argument("--density-scale", type=float, default=1.0, help="sigma_t = scale * grid value")
-    m.add_argument("--albedo", type=float, default=0.9, help="single-scattering albedo")
-    m.add_argument("--phase", type=floats(1, 3, "--phase"), default=(0.6, -0.3, 0.8),
-                   metavar="G1,G2,W", help="w*HG(g1) + (1-w)*HG(g2); one value = single lobe; "
-                                           "g > 0 scatters forward; |g| clamped to 0.999")
-    m.add_argument("--emission-grid", default=None, help="grid emitting light (e.g. flame); off by default")
-    m.add_argument("--emission-scale", type=float, default=1.0, help="emitted radiance per unit length per grid value")
-    m.add_argument("--emission-temperature", type=float, default=1500.0, help="blackbody colour of the emission, K")
-    q = r.add_argument_group("quality")
-    q.add_argument("--step", type=float, default=0.5, help="primary step, voxels")
-    q.add_argument("--shadow-step", type=float, default=1.0, help="shadow-ray step, voxels")
-    q.add_argument("--estimator", choices=["march", "track"], default="march",
-                   help="volumes: march (ray marching: --step/--shadow-step, biased, low noise) or "
-                        "track (delta/ratio tracking on brick majorants: unbiased, noisier)")
-    q.add_argument("--no-skip", action="store_true", help="march empty bricks too (reference for skipping)")
-    q.add_argument("--dispatch", choices=["auto", "fragment", "tiled"], default=None,
-                   help="fragment: one independent work-item per pixel, launched in --tile "
-                        "blocks; tiled: work-groups own screen tiles and cull the scene into "
-                        "local memory first; auto: fragment, measured faster on PoCL and the "
-                        "H200 (default: auto)")
-    q.add_argument("--tile", type=parse_tile, default=None, metavar="WxH",
-                   help="work-group size in pixels: fragment's blocks, tiled's tiles (default: 8x8)")
-    gl = r.add_argument_group("molten glass (point clouds; defaults in volrender.glass.GlassSettings)")
-    gl.add_argument("--radius", type=float, default=None,
-                    help="sphere radius for every point (default: the file's radii, else half "
-                         "the median neighbour spacing)")
-    gl.add_argument("--blend", type=float, default=None,
-                    help="smooth-union width k, world units; 0 = plain union (default: twice the median radius)")
-    gl.add_argument("--leaf-size", type=int, default=None, help="points per tree leaf (default: 16)")
-    gl.add_argument("--no-tree", action="store_true", help="brute force over all spheres (reference)")
-    gl.add_argument("--bounces", type=int, default=None, help="surface events per path (default: 6)")
-    gl.add_argument("--ior", type=float, default=None, help="index of refraction (default: 1.5)")
-    gl.add_argument("--absorption", type=floats(3, name="--absorption"), default=None, metavar="R,G,B",
-                    help="Beer-Lambert coefficient inside glass, per unit length (default: 0.15,0.6,1.6)")
-    gl.add_argument("--color", type=floats(3, name="--color"), default=None, metavar="R,G,B",
-                    help="colour of the glow (default: 1,0.42,0.12)")
-    gl.add_argument("--reflectivity", type=float, default=None, help="scale on Fresnel reflection (default: 1)")
-    gl.add_argument("--glow", type=float, default=None, help="hot-glass emission per unit length (default: 0.6)")
-    gl.add_argument("--epsilon", type=float, default=None, help="relative hit threshold (default: 1e-4)")
-    gl.add_argument("--max-steps", type=int, default=None, help="sphere-tracing steps per ray (default: 256)")
-    gl.add_argument("--relax", type=float, default=None,
-                    help="over-relaxed sphere tracing, factor in [1, 1.9]; 1 = plain (default: 1.6)")
-    gl.add_argument("--env", default=None, metavar="ENV.exr",
-                    help="equirectangular environment (default: procedural sky)")
-    gl.add_argument("--opaque", action="store_true", help="no refraction: shaded opaque spheres")
-    gl.add_argument("--shadow-angle", type=float, default=None, metavar="DEG",
-                    help="angular radius of the lights: 0 = hard shadows, more = soft (default: 0)")
-    gl.add_argument("--no-point-colors", action="store_true",
-                    help="ignore the cloud's per-point colours (use --color everywhere)")
+    r.add_argument("-o", "--output", required=True,
+                   help="OUT.exr (linear RGBA + layers), OUT.npy (float32 HxWx4) or OUT.png "
+                        "(tone-mapped 8-bit sRGB)")
+    before = {a.dest for a in r._actions}
+    add_render_options(r)
+    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before]
     o = r.add_argument_group("output")
-    o.add_argument("--aov", action="append", default=[], choices=["depth", "transmittance"],
-                   help="volumes: extra EXR layer (repeatable): depth -> Z, transmittance -> T")
-    o.add_argument("--exposure", type=float, default=0.0, help="PNG only: exposure in stops")
-    o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic", help="PNG only")
+    o.add_argument("--exposure", type=_exposure, default=0.0,
+                   help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
+    o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
+                   help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")
     add_common(r)
@@ -169,10 +143,11 @@ def build_parser():
                                    "can be rendered where OpenVDB is not installed.")
     c.add_argument("input", help="IN.vdb")
     c.add_argument("output", help="OUT.npz")
-    c.add_argument("--grid", default=None, help="density grid (default: 'density', else the only float fog grid)")
+    c.add_argument("--grid", default=None,
+                   help="density grid (default: 'density', else the only float fog-volume grid)")
     c.add_argument("--emission-grid", default=None, help="also convert this emission grid")
     c.add_argument("--debug", action="store_true", help="show tracebacks")
-    c.add_argument("-v", "--verbose", action="store_true")
+    c.add_argument("-v", "--verbose", action="store_true", help="log what is done")
 
     t = sub.add_parser("tree", formatter_class=Formatter,
                        help="show the partition tree of a point cloud, or a volume's bricks (pyvista)",
@@ -181,21 +156,24 @@ def build_parser():
                                    "bricks of a volume (coloured by their maximum density).")
     t.add_argument("input", help="POINTS (.ply/.xyz/.csv/.txt/.npy), GENERATOR:COUNT, SCENE.toml, "
                                  "or a volume (.vdb/.npz)")
-    t.add_argument("--leaf-size", type=int, default=16, help="points per leaf (default: 16, as render)")
-    t.add_argument("--radius", type=float, default=None,
+    t.add_argument("--leaf-size", type=_int("--leaf-size"), default=None,
+                   help="points per leaf (default: 16, as render)")
+    t.add_argument("--radius", type=_float("--radius"), default=None,
                    help="sphere radius (default: the file's, else half the median spacing)")
-    t.add_argument("--blend", type=float, default=0.0, help="inflate node boxes by this margin")
-    t.add_argument("--grid", default=None, help="volume grid name")
+    t.add_argument("--blend", type=_float("--blend"), default=0.0,
+                   help="inflate node boxes by this margin (default: 0)")
+    t.add_argument("--grid", default=None, help="volume grid name (default: 'density')")
     lv = t.add_mutually_exclusive_group()
-    lv.add_argument("--depth", type=int, default=None, help="show only this level")
+    lv.add_argument("--depth", type=_int("--depth"), default=None, help="show only this level")
     lv.add_argument("--leaves", action="store_true", help="show only the leaves")
-    lv.add_argument("--max-depth", type=int, default=None, help="show levels 0..D")
+    lv.add_argument("--max-depth", type=_int("--max-depth"), default=None, help="show levels 0..D")
     t.add_argument("--show", action="store_true", help="open an interactive window")
     t.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to a PNG")
     t.add_argument("--export", default=None, metavar="OUT.vtm", help="write the boxes (.vtm, .vtk, .vtp)")
-    t.add_argument("--window-size", type=size, default=(1024, 768), metavar="WxH")
+    t.add_argument("--window-size", type=_pair("--window-size"), default=(1024, 768), metavar="WxH",
+                   help="window or screenshot size (default: 1024x768)")
     t.add_argument("--debug", action="store_true", help="show tracebacks")
-    t.add_argument("-v", "--verbose", action="store_true")
+    t.add_argument("-v", "--verbose", action="store_true", help="log what is done")
 
     b = sub.add_parser("bench", formatter_class=Formatter, help="run a benchmark (source checkout)",
                        description="Run a benchmark from bench/; results (JSON + plot, with the "
@@ -213,210 +191,66 @@ def build_parser():
     return parser
 
 
+def _exposure(text):
+    from .settings import number
+    v = number("--exposure")(text)
+    if not -64 <= v <= 64:
+        raise argparse.ArgumentTypeError(f"--exposure: must be in [-64, 64] stops, got {text!r}")
+    return v
+
+
+def _int(name):
+    from .settings import number
+    return number(name, int)
+
+
+def _float(name):
+    from .settings import number
+    return number(name)
+
+
+def _pair(name):
+    from .settings import pair
+    return pair(name)
+
+
 # ---------------------------------------------------------------- commands
 
-POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy")
+def render_overrides(args) -> dict:
+    """The load_scene overrides the user gave on the command line."""
+    return {k: getattr(args, k) for k in RENDER_DEST if getattr(args, k, None) is not None}
 
 
-def input_kind(text: str) -> str:
-    """'volume', 'points', 'scene' or 'generator' for a render input."""
-    from . import points
-    suffix = Path(text).suffix.lower()
-    if suffix in VOLUME_SUFFIXES:
-        return "volume"
-    if suffix in POINT_SUFFIXES:
-        return "points"
-    if suffix == ".toml":
-        return "scene"
-    if ":" in text and text.split(":", 1)[0] in points.GENERATORS:
-        return "generator"
-    raise UserError(f"unsupported input type {suffix or '(none)'!r}", path=text,
-                    fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
-                        f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
-                        f"with GENERATOR one of {', '.join(points.GENERATORS)}")
-
-
-def generated_cloud(text: str, seed: int = 0):
-    """PointCloud from GENERATOR:COUNT."""
-    from . import points
-    name, _, count = text.partition(":")
-    try:
-        n = int(float(count))
-    except ValueError:
-        raise UserError(f"expected GENERATOR:COUNT such as {name}:2000, got {text!r}") from None
-    if not 1 <= n <= 50_000_000:
-        raise UserError(f"point count must be in [1, 5e7], got {n}")
-    return points.generate(name, n, seed)
-
-
-def pick(*values):
-    """The first value that is not None."""
-    return next((v for v in values if v is not None), None)
-
-
-def cli_lights(args):
-    from .lights import PointLight, Sun
-    if args.no_lights and (args.sun or args.point_light):
-        raise UserError("--no-lights contradicts --sun/--point-light; drop one of them")
-    lights = [Sun(tuple(s[:3]), s[3]) for s in args.sun]
-    lights += [PointLight(tuple(p[:3]), p[3]) for p in args.point_light]
-    return lights or None
-
-
-def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
-    """Refuse an image whose buffers cannot exist, before anything is loaded or allocated:
-    the RGBA float32 buffer (plus one float per extra layer) must fit in one device
-    allocation and in the device's memory, and a few copies of it in host memory."""
-    import math
-    pixels = width * height
-    need = pixels * 4 * (4 + n_layers)
-    gib = 1 << 30
-    d = dev.device
-    limit = min(int(d.max_mem_alloc_size) * (4 + n_layers) // 4, int(d.global_mem_size) // 2)
-    where = f"on {dev.name}"
-    try:
-        host = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 3
-    except (ValueError, OSError, AttributeError):
-        host = None
-    if host is not None and host < limit:
-        limit, where = host, "in this machine's memory"
-    if need > limit:
-        side = int(math.sqrt(limit / (4 * (4 + n_layers)) * width / height))
-        hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
-        raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
-                        f"fits {where} ({limit / gib:.1f} GiB)",
-                        fix=f"render a smaller --size ({hint} at most)")
-
-
-def make_camera(args, lo, hi, scene_cam=None, scene_size=None):
-    from . import camera as camera_mod
-    scene_cam = scene_cam or {}
-    width, height = pick(args.size, scene_size, (640, 480))
-    fov = pick(args.fov, scene_cam.get("fov"), camera_mod.DEFAULT_FOV)
-    if not 0.0 < fov < 180.0:
-        raise UserError(f"--fov must be in (0, 180) degrees, got {fov}")
-    up = pick(args.up if args.up != (0.0, 1.0, 0.0) else None, scene_cam.get("up"), (0.0, 1.0, 0.0))
-    cam = camera_mod.frame_bounds(lo, hi, width, height, fov=fov, up=up)
-    origin, target = pick(args.origin, scene_cam.get("origin")), pick(args.target, scene_cam.get("target"))
-    if origin or target:
-        cam = camera_mod.Camera(origin or cam.origin, target or cam.target, up, fov, width, height)
-    return cam
+def describe(scene) -> str:
+    s = scene.settings
+    if scene.kind == "volume":
+        return f"{s.spp} spp"
+    return (f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, "
+            f"{'tree' if s.use_tree else 'no tree'}")
 
 
 def cmd_render(args):
     from . import image
-    kind = input_kind(args.input)
-    aovs = tuple(dict.fromkeys(args.aov))
-    if aovs and kind != "volume":
-        raise UserError(f"--aov {aovs[0]} is available for volumes only", path=args.input)
+    from .render import check_image_memory, get_device, render
+    from .scene import request
+    overrides = render_overrides(args)
+    req = request(args.input, **overrides)         # every option checked, nothing loaded
+    aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
-    if args.fov is not None and not 0.0 < args.fov < 180.0:
-        raise UserError(f"--fov must be in (0, 180) degrees, got {args.fov}")
-    lights = cli_lights(args)
-    if args.size is not None:
-        from . import device as device_mod
-        check_image_memory(*args.size, device_mod.get(args.device), len(aovs))
-    if kind == "volume":
-        result, what = render_volume_input(args, lights, aovs)
-    else:
-        result, what = render_points_input(args, kind, lights)
-    layers = {}
-    if "depth" in aovs:
-        layers["depth"] = result["depth"]
-    if "transmittance" in aovs:
-        layers["transmittance"] = 1.0 - result["rgba"][..., 3]
-    image.write_image(out_path, result["rgba"], layers or None,
-                      exposure=args.exposure, tonemap=args.tonemap)
-    h, w = result["rgba"].shape[:2]
-    print(f"wrote {out_path} ({w}x{h}, {what}) in {result['wall_ms'] / 1e3:.2f} s "
-          f"(kernel {result['kernel_ms'] / 1e3:.2f} s) on {result['device']}", file=sys.stderr)
+    dev = get_device(args.device)
+    check_image_memory(*req.view.size, dev, len(aovs))
+    scene = req.load()
+    for note in scene.notes:
+        print(f"volrender: {note}", file=sys.stderr)
+    if args.verbose:
+        c = scene.camera
+        print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
+              f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
+    img = render(scene, dev, progress=args.progress)
+    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap)
+    print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
+          f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
-
-
-def render_volume_input(args, lights, aovs):
-    from . import device as device_mod, vdb
-    from .lights import DEFAULT_LIGHTS
-    from .volume import VolumeSettings, render_volume
-
-    bg = args.background * 3 if len(args.background) == 1 else args.background
-    phase = (args.phase[0], 0.0, 1.0) if len(args.phase) == 1 else args.phase
-    spp = pick(args.spp, 1)
-    settings = VolumeSettings(
-        density_scale=args.density_scale, albedo=args.albedo, phase=phase, background=bg,
-        step=args.step, shadow_step=args.shadow_step, spp=spp, seed=pick(args.seed, 0),
-        shadows=not args.no_shadows, skip_empty=not args.no_skip,
-        emission_scale=args.emission_scale, emission_temperature=args.emission_temperature,
-        depth="depth" in aovs, estimator=args.estimator,
-        dispatch=pick(args.dispatch, "auto"), tile=pick(args.tile, (8, 8)))
-    if lights is None:
-        lights = [] if args.no_lights else list(DEFAULT_LIGHTS)
-    dev = device_mod.get(args.device)
-    bricks = vdb.load_volume(Path(args.input), grid=args.grid, emission_grid=args.emission_grid)
-    cam = make_camera(args, *bricks.world_bounds())
-    result = render_volume(bricks, cam, lights, settings, dev, progress=args.progress)
-    result["device"] = dev.name
-    return result, f"{spp} spp"
-
-
-def render_points_input(args, kind, lights):
-    from . import device as device_mod, glass, points, scene as scene_mod
-    from .lights import DEFAULT_LIGHTS, PointLight, Sun
-
-    scene, radius = {}, None
-    if kind == "scene":
-        scene = scene_mod.load(args.input)
-        cloud, radius = scene_mod.load_cloud(scene)
-    elif kind == "generator":
-        cloud = generated_cloud(args.input, pick(args.seed, 0))
-    else:
-        cloud = points.load_points(args.input)
-    mat, rnd = scene.get("material", {}), scene.get("render", {})
-    radius = pick(args.radius, radius)
-    if radius is None and cloud.radii is None:
-        radius = points.default_radius(cloud.centers)
-        print(f"volrender: {len(cloud.centers)} points without radii: using radius {radius:.4g} "
-              "(half the median neighbour spacing); set --radius", file=sys.stderr)
-    values = dict(
-        radius=radius, blend=pick(args.blend, rnd.get("blend")),
-        leaf_size=pick(args.leaf_size, rnd.get("leaf_size")),
-        use_tree=False if args.no_tree else rnd.get("tree"),
-        bounces=pick(args.bounces, rnd.get("bounces")), ior=pick(args.ior, mat.get("ior")),
-        absorption=pick(args.absorption, mat.get("absorption")),
-        color=pick(args.color, mat.get("color")),
-        reflectivity=pick(args.reflectivity, mat.get("reflectivity")),
-        glow=pick(args.glow, mat.get("glow")), epsilon=pick(args.epsilon, rnd.get("epsilon")),
-        max_steps=pick(args.max_steps, rnd.get("max_steps")), spp=pick(args.spp, rnd.get("spp")),
-        relax=pick(args.relax, rnd.get("relax")),
-        seed=pick(args.seed, rnd.get("seed")),
-        env=pick(args.env, scene.get("environment", {}).get("map")),
-        shadows=False if args.no_shadows else rnd.get("shadows"),
-        refraction=False if args.opaque else None,
-        shadow_angle=pick(args.shadow_angle, rnd.get("shadow_angle")),
-        point_colors=False if args.no_point_colors else None,
-        dispatch=pick(args.dispatch, rnd.get("dispatch")), tile=args.tile)
-    settings = glass.GlassSettings(**{k: v for k, v in values.items() if v is not None})
-    if settings.env is not None:
-        settings = dataclasses.replace(settings, env=str(settings.env))
-        if not Path(settings.env).is_file():
-            raise UserError("no such environment map", path=settings.env)
-    if lights is None:
-        lights = [Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                  if l["type"] == "sun" else
-                  PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                  for l in scene.get("lights", [])]
-        if not lights and not args.no_lights:
-            lights = list(DEFAULT_LIGHTS)
-    if args.no_lights:
-        lights = []
-    dev = device_mod.get(args.device)
-    if args.size is None:              # --size was checked in cmd_render already
-        check_image_memory(*pick(rnd.get("size"), (640, 480)), dev)
-    radii = glass.sphere_radii(cloud, settings)
-    cam = make_camera(args, *glass.sphere_bounds(cloud, radii), scene.get("camera"), rnd.get("size"))
-    result = glass.render_points(cloud, cam, lights, settings, dev, progress=args.progress)
-    result["device"] = dev.name
-    return result, (f"{len(cloud.centers)} spheres, {settings.spp} spp, "
-                    f"{'tree' if settings.use_tree else 'no tree'}")
 
 
 def cmd_convert(args):
@@ -444,12 +278,8 @@ def cmd_tree(args):
     view = dict(depth=args.depth, leaves=args.leaves, max_depth=args.max_depth,
                 screenshot=args.screenshot, export=args.export, show=args.show,
                 window_size=args.window_size)
-    if input_kind(args.input) == "generator":
-        t = inspect.show_cloud(generated_cloud(args.input), leaf_size=args.leaf_size, radius=args.radius,
-                               blend=args.blend, **view)
-    else:
-        t = inspect.inspect_input(args.input, leaf_size=args.leaf_size, radius=args.radius,
-                                  blend=args.blend, grid=args.grid, **view)
+    t = inspect.inspect_input(args.input, leaf_size=args.leaf_size, radius=args.radius,
+                              blend=args.blend, grid=args.grid, **view)
     done = [p for p in (args.screenshot, args.export) if p]
     if done:
         print(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})", file=sys.stderr)

@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass
 # Occupied bricks one tile's local list holds (tiled dispatch). A tile whose frustum
 # meets more falls back to the full march: correct, only slower. 16 bytes each (4 KB).
 VOLUME_TILE_CAP = 256
+# Spheres one glass tile's list holds (a power of two: sorted in place); 20 bytes each.
+GLASS_TILE_CAP = 512
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,17 @@ class VolumeFeatures:
         return {"tiled": True, "tile_w": int(dispatch.tile[0]), "tile_h": int(dispatch.tile[1]),
                 "tile_cap": int(VOLUME_TILE_CAP)}
 
+    @classmethod
+    def from_scene(cls, scene, dispatch) -> "VolumeFeatures":
+        """What a volume Scene compiles in (dispatch: the resolved Dispatch)."""
+        from .lights import counts
+        n_suns, n_points = counts(scene.lights)
+        s, bricks = scene.content.settings, scene.content.bricks
+        return cls(n_suns=n_suns, n_points=n_points, shadows=s.shadows,
+                   phase_mixed=s.phase[2] < 1.0, skip_empty=s.skip_empty,
+                   emission=bricks.emission is not None, depth=s.depth,
+                   **cls.dispatch_fields(dispatch))
+
     def flags(self) -> dict[str, int]:
         return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}
 
@@ -60,6 +73,31 @@ class GlassFeatures:
     uber: bool = False         # every feature compiled in, chosen at run time
     tree_stack: int = 48       # traversal stack entries: tree depth + 1 (private memory)
     stats: bool = False        # diagnostics: rgb = evaluations, node and sphere tests per pixel
+
+    @classmethod
+    def from_scene(cls, scene, packed, dispatch, variant=None) -> "GlassFeatures":
+        """What a glass Scene compiles in. packed: its glass.GlassScene; dispatch: the
+        resolved Dispatch; variant "uber": everything, light counts and feature bits read
+        at run time instead; "stats": count the field's work."""
+        from .lights import counts
+        n_suns, n_points = counts(scene.lights)
+        s = scene.content.settings
+        refr = s.refraction
+        tree = s.use_tree and len(packed.spheres) > 0
+        tiled = dispatch.tiled
+        tiling = dict(tiled=tiled, tile_w=dispatch.tile[0] if tiled else 0,
+                      tile_h=dispatch.tile[1] if tiled else 0,
+                      tile_cap=GLASS_TILE_CAP if tiled else 0,
+                      tree_stack=max(2, int(packed.first_leaf).bit_length()),
+                      stats=variant == "stats")
+        if variant == "uber":
+            return cls(tree=tree, shadows=True, refraction=True, absorption=True, glow=True,
+                       env_map=True, colors=True, uber=True, **tiling)
+        return cls(tree=tree, n_suns=n_suns, n_points=n_points,
+                   shadows=s.shadows and n_suns + n_points > 0, refraction=refr,
+                   absorption=refr and any(a > 0 for a in s.absorption),
+                   glow=refr and s.glow > 0, env_map=scene.environment is not None,
+                   colors=packed.colors is not None, **tiling)
 
     def flags(self) -> dict[str, int]:
         return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}

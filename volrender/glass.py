@@ -7,7 +7,6 @@ origin keep their float32 precision.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -16,105 +15,66 @@ import numpy as np
 
 from . import layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
+from .dispatch import Dispatch
 from .errors import UserError
 from .features import GlassFeatures
-from .dispatch import Dispatch, run_rows, upload
+from .settings import MAX_VALUE, NUM, PATH, CommonSettings, boolean, floats, in_range, knob, rgb
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
-TILE_CAP = 512               # tiled dispatch: spheres per tile list (a power of two)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
 
 
 @dataclass(frozen=True)
-class GlassSettings:
-    """Molten-glass look and tracing knobs. Lengths are world units.
-
-    radius: one radius for every point (None: the cloud's own radii).
-    blend: smooth-union width k (None: twice the median radius). 0 gives the plain union.
-    absorption: rgb Beer-Lambert coefficient inside glass, per unit length.
-    color: rgb colour of the glow (and the diffuse tint when refraction is off).
-    reflectivity: scale on the Fresnel-weighted environment reflection.
-    glow: hot-glass emission per unit length inside glass (weighted by absorption).
-    epsilon: relative hit threshold (times the path length) and ray offset.
-    env: None for the procedural sky, or a path to an equirectangular .exr.
-    shadow_angle: angular radius of the lights in degrees; 0 gives hard shadows, more
-        gives soft ones (a penumbra estimate from the sphere-traced distances).
-    point_colors: tint each point's glass with the cloud's own colours, if it has any.
-    relax: over-relaxed sphere tracing factor in [1, 1.9] (1: plain); misses nothing, moves
-        hits within epsilon. 1.6 (bench error, H200): x1.3 faster at the default knobs
-        with the same error against the converged reference.
-    dispatch, tile: volrender.dispatch.Dispatch (auto, fragment, or tiled with WxH tiles).
-    uber: compile every feature in and choose at run time (the specialisation baseline).
-    stats: diagnostics; the image's rgb holds the field evaluations, tree-node tests and
-        sphere tests per pixel (summed over its samples), alpha the coverage.
-    """
-    radius: float | None = None
-    blend: float | None = None
-    leaf_size: int = 16      # bench spheres: x1.13 faster than 8 at 3000 spheres (H200, PoCL)
-    use_tree: bool = True
-    bounces: int = 6
-    ior: float = 1.5
-    absorption: tuple = (0.15, 0.6, 1.6)
-    color: tuple = (1.0, 0.42, 0.12)
-    reflectivity: float = 1.0
-    glow: float = 0.6
-    shininess: float = 200.0
-    epsilon: float = 1e-4
-    max_steps: int = 256
-    spp: int = 1
-    seed: int = 0
-    env: str | None = None
-    shadows: bool = True
-    refraction: bool = True
-    shadow_angle: float = 0.0
-    point_colors: bool = True
-    relax: float = 1.6
-    dispatch: str = "auto"
-    tile: tuple = (8, 8)
-    uber: bool = False
-    stats: bool = False
-
-    def __post_init__(self):
-        def check(ok, msg):
-            if not ok:
-                raise UserError(msg)
-
-        def finite(v):
-            return isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v)
-
-        def rgb(v):
-            return len(v) == 3 and all(finite(c) and c >= 0 for c in v)
-
-        check(self.radius is None or (finite(self.radius) and self.radius >= 0),
-              f"--radius must be finite and >= 0, got {self.radius}")
-        check(self.blend is None or (finite(self.blend) and self.blend >= 0),
-              f"--blend must be finite and >= 0, got {self.blend}")
-        check(isinstance(self.leaf_size, (int, np.integer)) and self.leaf_size >= 1,
-              f"--leaf-size must be an integer >= 1, got {self.leaf_size}")
-        check(isinstance(self.bounces, (int, np.integer)) and 1 <= self.bounces <= 64,
-              f"--bounces must be in [1, 64], got {self.bounces}")
-        check(finite(self.ior) and 1.0 / 16 <= self.ior <= 16,
-              f"--ior must be in [1/16, 16], got {self.ior}")
-        check(rgb(self.absorption), f"--absorption takes three finite values >= 0, got {self.absorption}")
-        check(rgb(self.color), f"--color takes three finite values >= 0, got {self.color}")
-        check(finite(self.reflectivity) and self.reflectivity >= 0,
-              f"--reflectivity must be finite and >= 0, got {self.reflectivity}")
-        check(finite(self.glow) and self.glow >= 0, f"--glow must be finite and >= 0, got {self.glow}")
-        check(finite(self.shininess) and 1 <= self.shininess <= 1e5,
-              f"--shininess must be in [1, 1e5], got {self.shininess}")
-        check(finite(self.epsilon) and 1e-7 <= self.epsilon <= 1e-1,
-              f"--epsilon must be in [1e-7, 0.1], got {self.epsilon}")
-        check(isinstance(self.max_steps, (int, np.integer)) and 1 <= self.max_steps <= 1 << 16,
-              f"--max-steps must be in [1, 65536], got {self.max_steps}")
-        check(isinstance(self.spp, (int, np.integer)) and 1 <= self.spp <= 1 << 16,
-              f"--spp must be in [1, 65536], got {self.spp}")
-        check(finite(self.relax) and 1 <= self.relax <= 1.9,
-              f"--relax must be in [1, 1.9], got {self.relax}")
-        check(finite(self.shadow_angle) and 0 <= self.shadow_angle <= 45,
-              f"--shadow-angle must be in [0, 45] degrees, got {self.shadow_angle}")
-        Dispatch(self.dispatch, tuple(self.tile))
+class GlassSettings(CommonSettings):
+    """Molten-glass look and tracing knobs (defaults, ranges and CLI/scene names:
+    settings.knob). Lengths are world units."""
+    radius: float | None = knob(None, "sphere radius for every point (default: the file's "
+                                "radii, else half the median neighbour spacing)",
+                                check=in_range(0, MAX_EXTENT, allow_none=True),
+                                toml=("points", "radius"), kind=NUM, show_default=False)
+    blend: float | None = knob(None, "smooth-union width k; 0 = plain union (default: twice "
+                               "the median radius)", check=in_range(0, MAX_EXTENT, allow_none=True),
+                               toml=("render", "blend"), kind=NUM, show_default=False)
+    leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
+                          toml=("render", "leaf_size"))
+    use_tree: bool = knob(True, "brute force over all spheres (the reference)", check=boolean,
+                          flag="--no-tree", toml=("render", "tree"))
+    bounces: int = knob(6, "surface events per path", check=in_range(1, 64, integer=True),
+                        toml=("render", "bounces"))
+    ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
+                      toml=("material", "ior"))
+    absorption: tuple = knob((0.15, 0.6, 1.6), "Beer-Lambert coefficient inside glass, per unit "
+                             "length", metavar="R,G,B", parse=floats(3, name="--absorption"),
+                             check=rgb(0, MAX_VALUE), toml=("material", "absorption"))
+    color: tuple = knob((1.0, 0.42, 0.12), "colour of the glow (and the tint of opaque spheres)",
+                        metavar="R,G,B", parse=floats(3, name="--color"), check=rgb(0, MAX_VALUE),
+                        toml=("material", "color"))
+    reflectivity: float = knob(1.0, "scale on the Fresnel reflection", check=in_range(0, MAX_VALUE),
+                               toml=("material", "reflectivity"))
+    glow: float = knob(0.6, "hot-glass emission per unit length inside glass",
+                       check=in_range(0, MAX_VALUE), toml=("material", "glow"))
+    shininess: float = knob(200.0, "Blinn-Phong exponent of the highlights",
+                            check=in_range(1, 1e5), toml=("material", "shininess"))
+    epsilon: float = knob(1e-4, "relative hit threshold (times the path length) and ray offset",
+                          check=in_range(1e-7, 0.1), toml=("render", "epsilon"))
+    max_steps: int = knob(256, "sphere-tracing steps per ray segment",
+                          check=in_range(1, 65536, integer=True), toml=("render", "max_steps"))
+    relax: float = knob(1.6, "over-relaxed sphere tracing factor in [1, 1.9]; 1 = plain "
+                        "(misses nothing; bench error: x1.3 faster at the same error)",
+                        check=in_range(1, 1.9), toml=("render", "relax"))
+    shadow_angle: float = knob(0.0, "angular radius of the lights, degrees: 0 = hard shadows, "
+                               "more = soft", check=in_range(0, 45), metavar="DEG",
+                               toml=("render", "shadow_angle"))
+    refraction: bool = knob(True, "no refraction: shaded opaque spheres", check=boolean,
+                            flag="--opaque", toml=("render", "refraction"))
+    point_colors: bool = knob(True, "ignore the cloud's per-point colours (use --color everywhere)",
+                              check=boolean, flag="--no-point-colors",
+                              toml=("render", "point_colors"))
+    env: str | None = knob(None, "equirectangular environment map (.exr) (default: a "
+                           "procedural sky over a checker ground)", metavar="ENV.exr",
+                           toml=("environment", "map"), kind=PATH, show_default=False)
 
 
 @dataclass(frozen=True)
@@ -232,45 +192,29 @@ def dispatch_for(settings: GlassSettings, device) -> Dispatch:
     return Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
 
 
-def features_for(scene: GlassScene, lights, settings: GlassSettings) -> GlassFeatures:
-    """Compile only what the scene uses (with settings.uber: everything, light counts
-    and feature bits read at run time instead)."""
-    n_suns, n_points = lights_mod.counts(lights)
-    refr = settings.refraction
-    tree = settings.use_tree and len(scene.spheres) > 0
-    tiled = settings.dispatch == "tiled"
-    tiling = dict(tiled=tiled, tile_w=settings.tile[0] if tiled else 0,
-                  tile_h=settings.tile[1] if tiled else 0, tile_cap=TILE_CAP if tiled else 0,
-                  tree_stack=max(2, int(scene.first_leaf).bit_length()),
-                  stats=bool(settings.stats))
-    if settings.uber:
-        return GlassFeatures(tree=tree, shadows=True, refraction=True, absorption=True,
-                             glow=True, env_map=True, colors=True, uber=True, **tiling)
-    return GlassFeatures(tree=tree, n_suns=n_suns, n_points=n_points,
-                         shadows=settings.shadows and n_suns + n_points > 0,
-                         refraction=refr, absorption=refr and any(a > 0 for a in settings.absorption),
-                         glow=refr and settings.glow > 0, env_map=settings.env is not None,
-                         colors=scene.colors is not None, **tiling)
+def uber_bits(features: GlassFeatures) -> int:
+    """The runtime feature bits of the uber-kernel for what specialised `features` compile."""
+    return sum(bit for name, bit in UBER_BITS.items() if getattr(features, name))
 
 
-def uber_bits(scene: GlassScene, lights, settings: GlassSettings) -> int:
-    """The runtime feature bits the specialised flags would have compiled in."""
-    f = features_for(scene, lights, GlassSettings(**{**settings.__dict__, "uber": False}))
-    return sum(bit for name, bit in UBER_BITS.items() if getattr(f, name))
-
-
-def _env(settings: GlassSettings):
-    """(float32 (H*W, 4) texels, width, height); a 1-texel stand-in without a map."""
-    if settings.env is None:
-        return np.zeros((1, 4), np.float32), 0, 0
+def load_environment(path):
+    """float32 (H, W, 3) texels of an equirectangular .exr/.npy (NaN/Inf become 0)."""
     from .image import read_image
-    img = np.asarray(read_image(settings.env))
+    img = np.asarray(read_image(path))
     if img.dtype == np.uint8 or img.ndim != 3 or img.shape[2] < 3:
-        raise UserError("the environment must be a float image (.exr or .npy)", path=settings.env,
+        raise UserError("the environment must be a float image (.exr or .npy)", path=path,
                         fix="convert it to an equirectangular .exr")
+    return np.nan_to_num(img[..., :3], nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+
+
+def _env_texels(environment):
+    """(float32 (H*W, 4) texels, width, height); a 1-texel stand-in without a map."""
+    if environment is None:
+        return np.zeros((1, 4), np.float32), 0, 0
+    img = environment.texels
     h, w = img.shape[:2]
     tex = np.zeros((h * w, 4), np.float32)
-    tex[:, :3] = np.nan_to_num(img[..., :3].reshape(-1, 3), nan=0.0, posinf=0.0, neginf=0.0)
+    tex[:, :3] = img.reshape(-1, 3)
     return tex, w, h
 
 
@@ -281,46 +225,43 @@ def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
     return frame_bounds(lo, hi, width, height, fov)
 
 
-def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None):
-    """Render a PointCloud as glass. Returns a dict with 'rgba' (H, W, 4 float32; alpha =
-    coverage), 'kernel_ms', 'wall_ms', 'tree_ms', 'flags'."""
-    import pyopencl as cl
-
-    scene = pack_scene(cloud, settings)
+def plan(scene, device, variant=None):
+    """The launch of a glass scene (render.render runs it). variant "uber": every feature
+    compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
+    from .render import Plan
+    cloud, settings = scene.content.cloud, scene.content.settings
+    packed = pack_scene(cloud, settings)
     dispatch = dispatch_for(settings, device)
-    settings = dataclasses.replace(settings, dispatch=dispatch.kind)
-    features = features_for(scene, lights, settings)
-    kernel = device.kernel("render_glass", features.flags())
-    n_suns, n_points = lights_mod.counts(lights)
+    features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
+    n_suns, n_points = lights_mod.counts(scene.lights)
     w2f = np.eye(4)
-    w2f[:3, 3] = -scene.centre
-    cam = camera.pack(w2f, settings.spp, settings.seed)
-    env, env_w, env_h = _env(settings)
+    w2f[:3, 3] = -packed.centre
+    env, env_w, env_h = _env_texels(scene.environment)
+    bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
     params = layout.record(
-        "GlassParams", box_lo=[*scene.box_lo, 0], box_hi=[*scene.box_hi, 0],
+        "GlassParams", box_lo=[*packed.box_lo, 0], box_hi=[*packed.box_hi, 0],
         absorption=[*settings.absorption, 0], color=[*settings.color, 0],
-        blend=scene.blend, ior=settings.ior, reflectivity=settings.reflectivity,
+        blend=packed.blend, ior=settings.ior, reflectivity=settings.reflectivity,
         glow=settings.glow, epsilon=settings.epsilon, shininess=settings.shininess,
-        scale=scene.scale, n_spheres=len(scene.spheres), first_leaf=scene.first_leaf,
+        scale=packed.scale, n_spheres=len(packed.spheres), first_leaf=packed.first_leaf,
         bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
-        env_height=env_h, tile_margin=scene.margin,
+        env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
-        uber=uber_bits(scene, lights, settings) if settings.uber else 0,
-        n_suns=n_suns, n_points=n_points, relax=settings.relax)
-    light_rec = lights_mod.pack(lights, w2f)
+        uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
+    colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
+    inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
+              lights_mod.pack(scene.lights, w2f), packed.spheres, packed.nodes, env, colors]
+    W, H = scene.camera.width, scene.camera.height
+    return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
+                PIXELS_PER_LAUNCH, info={"tree_ms": packed.tree_ms})
 
-    ctx = device.context
-    W, H = camera.width, camera.height
-    out = np.empty((H, W, 4), np.float32)
-    d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    colors = scene.colors if scene.colors is not None else np.zeros((1, 4), np.float32)
-    bufs = [upload(ctx, a) for a in (cam, params, light_rec, scene.spheres, scene.nodes, env,
-                                      colors)]
-    t_start = time.perf_counter()
-    kernel_ms = run_rows(device, kernel, [*bufs, d_out], W, H, PIXELS_PER_LAUNCH, progress,
-                         dispatch)
-    cl.enqueue_copy(device.queue, out, d_out)
-    device.queue.finish()
-    return {"rgba": out, "kernel_ms": kernel_ms,
-            "wall_ms": 1e3 * (time.perf_counter() - t_start), "tree_ms": scene.tree_ms,
-            "flags": features.flags()}
+
+def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,
+                  variant=None):
+    """Render a PointCloud with the given camera, lights and settings (a shortcut for tests
+    and benchmarks: render.render of the equivalent Scene). Returns render.Image.as_dict()
+    ('rgba' with alpha = coverage, timings, 'tree_ms', 'flags')."""
+    from .render import render
+    from .scene import GlassContent, Scene
+    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
+    return render(scene, device, progress=progress, variant=variant).as_dict()

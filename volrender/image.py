@@ -133,20 +133,39 @@ def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
 
 # ---------------------------------------------------------------------------- writers
 
-def _write_exr(tmp: str, rgba, channels: dict, exposure, tonemap) -> None:
+def camera_attributes(camera) -> dict:
+    """EXR header attributes of the camera that made an image: OpenEXR's standard
+    `worldToCamera` (Imath row-vector convention: [x y z 1] @ M; camera space x right, y
+    up, +z the view direction, as RenderMan's) and volrender's own origin, target, up and
+    vertical fov (degrees), which `volrender render --camera` can read back."""
+    f, r, u = camera.basis()
+    o = np.asarray(camera.origin, np.float64)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = r, u, f
+    m[3, :3] = -o @ m[:3, :3]
+    return {'worldToCamera': m.astype(np.float32),
+            'volrender:origin': np.asarray(camera.origin, np.float32),
+            'volrender:target': np.asarray(camera.target, np.float32),
+            'volrender:up': np.asarray(camera.up, np.float32),
+            'volrender:fov': float(camera.fov)}
+
+
+def _write_exr(tmp: str, rgba, channels: dict, exposure, tonemap, camera=None) -> None:
     # The bindings read the raw buffer and ignore strides: pass C-contiguous arrays only.
     pixels = {'RGBA': np.ascontiguousarray(rgba, dtype=np.float32)}
     for name, data in channels.items():
         pixels[name] = np.ascontiguousarray(data, dtype=np.float32)
     # A fresh header each time: the constructor adds dataWindow/displayWindow to it.
     header = {'compression': OpenEXR.ZIP_COMPRESSION, 'type': OpenEXR.scanlineimage}
+    if camera is not None:
+        header.update(camera_attributes(camera))
     try:
         OpenEXR.File(header, pixels).write(tmp)
     except RuntimeError as e:  # the library's I/O errors (disk full, permissions)
         raise OSError(str(e)) from e
 
 
-def _write_npy(tmp: str, rgba, channels: dict, exposure, tonemap) -> None:
+def _write_npy(tmp: str, rgba, channels: dict, exposure, tonemap, camera=None) -> None:
     with open(tmp, 'wb') as f:
         np.save(f, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
 
@@ -171,7 +190,7 @@ def _encode_png(rgb8) -> bytes:
             + _png_chunk(b'IEND', b''))
 
 
-def _write_png(tmp: str, rgba, channels: dict, exposure: float, tonemap: str) -> None:
+def _write_png(tmp: str, rgba, channels: dict, exposure: float, tonemap: str, camera=None) -> None:
     data = _encode_png(to_srgb8(rgba[..., :3], exposure, tonemap))
     with open(tmp, 'wb') as f:
         f.write(data)
@@ -193,7 +212,7 @@ def _new_temp(out: Path) -> Path:
 
 
 def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
-                tonemap: str = 'filmic') -> Path:
+                tonemap: str = 'filmic', camera=None) -> Path:
     """Write a rendered image atomically; return the resolved path.
 
     ``rgba``: float ``H x W x 4``, linear, row 0 = top of the image. ``aovs``: optional
@@ -201,6 +220,7 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
     ``AOV_CHANNELS``). ``exposure`` and ``tonemap`` apply to ``.png`` only, which stores
     RGB without alpha: the renders already composite the background, so RGB is the
     final picture. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
+    ``camera``: a camera.Camera recorded in the EXR header (``camera_attributes``).
 
     Raises ``UserError`` for a bad path or a failed write (disk full, permissions); on any
     failure an existing file at ``path`` is left untouched and no temporary file remains.
@@ -226,7 +246,7 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
         raise UserError(f"cannot create a file in {str(out.parent)!r}: {e.strerror or e}",
                         path=out, fix="check the directory's permissions and free space") from e
     try:
-        _WRITERS[out.suffix.lower()](str(tmp), rgba, channels, exposure, tonemap)
+        _WRITERS[out.suffix.lower()](str(tmp), rgba, channels, exposure, tonemap, camera)
         fd = os.open(tmp, os.O_RDWR)
         try:
             os.fsync(fd)

@@ -30,8 +30,7 @@ from .points import default_radius  # noqa: F401  (re-exported for notebooks)
 
 __all__ = ["tree_boxes", "points_mesh", "brick_boxes", "tree_stats", "n_boxes",
            "leaf_of_points", "show_tree", "show_bricks", "inspect_input",
-           "default_radius", "INPUTS",
-           "SCREENSHOT_SUFFIXES", "EXPORT_SUFFIXES", "INPUT_SUFFIXES"]
+           "default_radius", "show_cloud", "SCREENSHOT_SUFFIXES", "EXPORT_SUFFIXES"]
 
 SCREENSHOT_SUFFIXES = (".png",)
 EXPORT_SUFFIXES = (".vtm", ".vtk", ".vtp")
@@ -441,39 +440,8 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
 
 # --------------------------------------------------------------------------- files
 
-def _inspect_volume(path, opts):
-    from .vdb import load_volume
-    bricks = load_volume(path, grid=opts["grid"])
-    show_bricks(bricks, **opts["output"])
-    return bricks
-
-
-def _inspect_points(path, opts):
-    from .points import load_points
-    return _show_cloud(load_points(path), opts)
-
-
-def _inspect_scene(path, opts):
-    from . import scene
-    cloud, radius = scene.load_cloud(scene.load(path))
-    return _show_cloud(cloud, {**opts, "radius": pick_radius(opts["radius"], radius)})
-
-
-def pick_radius(*values):
-    return next((v for v in values if v is not None), None)
-
-
-def _show_cloud(cloud, opts):
+def _show_cloud(cloud, radii, opts):
     from .tree import build
-    if opts["radius"] is not None:
-        radii = float(opts["radius"])
-        if not np.isfinite(radii) or radii < 0:
-            raise UserError(f"radius must be finite and >= 0, got {opts['radius']}",
-                            fix="pass e.g. radius=0.05")
-    elif cloud.radii is not None:
-        radii = cloud.radii
-    else:
-        radii = default_radius(cloud.centers)
     t = build(cloud.centers, radii, leaf_size=opts["leaf_size"], margin=opts["blend"])
     show_tree(t, cloud.centers, **opts["view"], **opts["output"])
     return t
@@ -483,36 +451,41 @@ def show_cloud(cloud, *, leaf_size=16, radius=None, blend=0.0, depth=None, leave
                max_depth=None, screenshot=None, export=None, show=False, window_size=(1024, 768)):
     """Build the tree of a PointCloud (as the renderer does) and show it; see inspect_input."""
     _check_outputs(screenshot, export, show)
-    opts = dict(leaf_size=leaf_size, radius=radius, blend=blend,
+    if radius is not None:
+        radii = float(radius)
+        if not np.isfinite(radii) or radii < 0:
+            raise UserError(f"radius must be finite and >= 0, got {radius}",
+                            fix="pass e.g. radius=0.05")
+    elif cloud.radii is not None:
+        radii = cloud.radii
+    else:
+        radii = default_radius(cloud.centers)
+    opts = dict(leaf_size=leaf_size, blend=blend,
                 output=dict(screenshot=screenshot, export=export, show=show, window_size=window_size),
                 view=dict(depth=depth, leaves=leaves, max_depth=max_depth))
-    return _show_cloud(cloud, opts)
+    return _show_cloud(cloud, radii, opts)
 
 
-# suffix -> handler(path, opts) returning the object shown; a new input kind (e.g. a
-# .toml scene) registers its handler here.
-INPUTS = {".vdb": _inspect_volume, ".npz": _inspect_volume, ".toml": _inspect_scene,
-          **{s: _inspect_points for s in (".ply", ".xyz", ".csv", ".txt", ".npy")}}
-INPUT_SUFFIXES = tuple(INPUTS)
-
-
-def inspect_input(path, *, leaf_size=16, radius=None, blend=0.0, grid=None, depth=None,
+def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, depth=None,
                   leaves=False, max_depth=None, screenshot=None, export=None, show=False,
                   window_size=(1024, 768)):
-    """View a file: a volume's bricks, or a point cloud's tree.
+    """View any render input: a volume's bricks, or a point cloud's tree.
 
     Parameters
     ----------
-    path : path
-        ``.vdb`` / ``.npz`` (a volume: :func:`show_bricks`) or ``.ply`` / ``.xyz``
-        / ``.csv`` / ``.txt`` / ``.npy`` (points: build the tree, :func:`show_tree`).
-    leaf_size : int
-        Tree leaf size.
+    path : path or str
+        Whatever ``volrender render`` reads: ``.vdb`` / ``.npz`` (a volume:
+        :func:`show_bricks`), ``.ply`` / ``.xyz`` / ``.csv`` / ``.txt`` / ``.npy``,
+        ``GENERATOR:COUNT`` or a ``.toml`` scene (points: build the tree,
+        :func:`show_tree`). It is resolved by :func:`volrender.load_scene`, so the
+        radius and leaf size are the renderer's.
+    leaf_size : int, optional
+        Tree leaf size (default: the renderer's).
     radius : float, optional
-        Sphere radius for every point, overriding the file's radii.  When the file
-        has none and no radius is given, :func:`default_radius` is used.
+        Sphere radius for every point, overriding the file's radii (default: the
+        renderer's choice).
     blend : float
-        Smooth-union blend width; the node boxes are inflated by it (tree margin).
+        The node boxes are inflated by this margin.
     grid : str, optional
         Grid name in a ``.vdb`` file (default: the density grid).
     depth, leaves, max_depth, screenshot, export, show, window_size
@@ -523,13 +496,15 @@ def inspect_input(path, *, leaf_size=16, radius=None, blend=0.0, grid=None, dept
     volrender.tree.Tree or volrender.vdb.Bricks
         What was shown.
     """
-    path = Path(path)
-    handler = INPUTS.get(path.suffix.lower())
-    if handler is None:
-        raise UserError(f"cannot inspect files of type '{path.suffix or '(none)'}'", path=path,
-                        fix=f"give one of: {', '.join(INPUTS)}")
-    output = dict(screenshot=screenshot, export=export, show=show, window_size=window_size)
+    from .glass import sphere_radii
+    from .scene import load_scene
     _check_outputs(screenshot, export, show)      # fail before loading a large file
-    opts = dict(leaf_size=leaf_size, radius=radius, blend=blend, grid=grid, output=output,
+    output = dict(screenshot=screenshot, export=export, show=show, window_size=window_size)
+    scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid)
+    if scene.kind == "volume":
+        show_bricks(scene.content.bricks, **output)
+        return scene.content.bricks
+    cloud, settings = scene.content.cloud, scene.content.settings
+    opts = dict(leaf_size=settings.leaf_size, blend=blend, output=output,
                 view=dict(depth=depth, leaves=leaves, max_depth=max_depth))
-    return handler(path, opts)
+    return _show_cloud(cloud, sphere_radii(cloud, settings), opts)

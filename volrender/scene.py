@@ -1,87 +1,207 @@
-"""Scene files (TOML) -> validated plain values. Unknown keys and wrong types are errors
-that name the file and the key by its full path, e.g. `[material].iro`.
+"""Scenes: everything a render needs, resolved before it starts.
 
-    [points]                 # a point cloud: file = ..., or generator = ... with count
-    file = "cloud.ply"       # relative to the scene file
+    scene = volrender.load_scene("smoke.vdb", size=(320, 240), density_scale=2.0)
+    scene = volrender.load_scene("bunny.ply", radius=0.002, bounces=4)
+    scene = volrender.load_scene("scenes/molten_glass.toml", spp=4)
+
+`source` is a volume (.vdb, .npz), a point cloud (.ply, .xyz, .csv, .txt, .npy), a
+generator `NAME:COUNT` (blob:2000) or a scene file (.toml). Override keys are the command
+line's option names with underscores (`density_scale=2.0`, `no_tree=True`, `origin=(0, 0, 4)`,
+`sun=[(-1, -1, 0, 3)]`, or `lights=[Sun(...), PointLight(...)]`); they win over the scene
+file, whose values win over the defaults, which live once, in the settings classes
+(VolumeSettings, GlassSettings, camera.View). An option the scene's kind does not read is
+an error naming it (pbrt's unused-parameter rule).
+
+Scene files (TOML) are validated in two steps: `read`/`parse` check each key's type and
+reject unknown keys and sections by full path (`[material].iro`); `load_scene` then checks
+ranges and kinds, naming the file and `[section].key`. Paths resolve relative to the file.
+
+    [volume]                 # a volume: file = ..., plus any VolumeSettings key
+    file = "smoke.vdb"
+    density_scale = 2.0
+
+    [points]                 # or a point cloud: file = ..., or generator = ... with count
+    generator = "glass_gather"
+    count = 2000
     radius = 0.02            # overrides per-point radii
 
-    [material]               # molten glass
-    color = [1.0, 0.6, 0.3]
-    ior = 1.5
-    absorption = [0.3, 1.0, 2.5]   # per unit length
-    reflectivity = 1.0
-    glow = 0.6
-
-    [camera]                 # optional: default framing fits the cloud
-    origin = [0, 1, 4]
-    target = [0, 0.5, 0]
-    fov = 35
-
-    [[lights]]
-    type = "sun"             # or "point" with position and intensity
-    direction = [-0.5, -1, -0.3]
-    irradiance = 3
-
-    [environment]
-    map = "sky.exr"          # equirectangular EXR; default: procedural sky
-
-    [render]
-    size = [640, 480]
-    spp = 4
-    bounces = 4
-    blend = 0.05
+    [material]               # molten glass: color, ior, absorption, reflectivity, glow, shininess
+    [camera]                 # origin, target, up, fov (default framing fits the content)
+    [[lights]]               # type = "sun" (direction, irradiance) or "point" (position, intensity)
+    [environment]            # map = "sky.exr" (glass)
+    [render]                 # size, spp, seed, shadows, dispatch, tile, and glass's tracing keys
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
+import numpy as np
+
+from .camera import View
 from .errors import UserError
+from .settings import (NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value, knobs,
+                       override_key)
 
-NUM = (int, float)
-MAX_COUNT = 50_000_000          # [points].count, as the CLI's GENERATOR:COUNT
-VEC3 = "vec3"
-SIZE = "size"
-PATH = "path"
-
-SCHEMA = {
-    "points": {"file": PATH, "generator": str, "count": int, "seed": int, "radius": NUM},
-    "material": {"color": VEC3, "ior": NUM, "absorption": VEC3, "reflectivity": NUM, "glow": NUM},
-    "camera": {"origin": VEC3, "target": VEC3, "up": VEC3, "fov": NUM},
-    "lights": {"type": str, "direction": VEC3, "irradiance": NUM, "position": VEC3,
-               "intensity": NUM, "color": VEC3},
-    "environment": {"map": PATH},
-    "render": {"size": SIZE, "spp": int, "seed": int, "bounces": int, "blend": NUM,
-               "leaf_size": int, "epsilon": NUM, "max_steps": int, "shadows": bool,
-               "tree": bool, "shadow_angle": NUM, "dispatch": str, "relax": NUM},
-}
+MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
+VOLUME_SUFFIXES = (".vdb", ".npz")
+POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy")
+KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 
 
-def _check(value, kind, where, base: Path):
+# --------------------------------------------------------------------------- the Scene
+
+@dataclass(frozen=True, eq=False)
+class VolumeContent:
+    bricks: object                    # vdb.Bricks
+    settings: object                  # volume.VolumeSettings
+    kind: ClassVar[str] = "volume"
+
+    def bounds(self):
+        return self.bricks.world_bounds()
+
+
+@dataclass(frozen=True, eq=False)
+class GlassContent:
+    cloud: object                     # points.PointCloud
+    settings: object                  # glass.GlassSettings
+    kind: ClassVar[str] = "glass"
+
+    def bounds(self):
+        from .glass import sphere_bounds, sphere_radii
+        return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
+
+
+@dataclass(frozen=True, eq=False)
+class Environment:
+    """An equirectangular environment: float32 (H, W, 3) radiance; row 0 looks up, the
+    image centre looks along -z (cl/glass.h)."""
+    texels: np.ndarray
+    source: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    camera: object                    # camera.Camera
+    lights: tuple                     # lights.Sun / lights.PointLight
+    content: VolumeContent | GlassContent
+    environment: Environment | None = None
+    source: str = ""
+    inputs: tuple = ()                # every file the scene reads (resolved paths)
+    notes: tuple = ()                 # choices made while resolving (the CLI prints them)
+
+    @property
+    def kind(self) -> str:
+        return self.content.kind
+
+    @property
+    def settings(self):
+        return self.content.settings
+
+    @classmethod
+    def of(cls, camera, lights, content, environment=None) -> "Scene":
+        """A Scene from parts already resolved (tests, benchmarks); a glass settings.env
+        path is read here."""
+        if environment is None and content.kind == "glass" and content.settings.env is not None:
+            environment = _environment(content.settings.env, "env")
+        return cls(camera, tuple(lights), content, environment)
+
+    def replace(self, **changes) -> "Scene":
+        return dataclasses.replace(self, **changes)
+
+
+# --------------------------------------------------------------------------- options
+
+@dataclass(frozen=True)
+class Option:
+    key: str                          # override keyword (CLI flag with underscores)
+    field: str                        # settings field it sets
+    owner: str                        # "common", "volume", "glass" or "view"
+    meta: dict
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.key.replace("_", "-")
+
+
+def _options() -> dict[str, Option]:
+    from .glass import GlassSettings
+    from .volume import VolumeSettings
+    out = {}
+    common = {f.name for f, _ in knobs(CommonSettings)}
+    for cls, owner in ((View, "view"), (CommonSettings, "common"), (VolumeSettings, "volume"),
+                       (GlassSettings, "glass")):
+        for f, meta in knobs(cls):
+            if owner != "common" and f.name in common:
+                continue
+            key = override_key(f, meta)
+            out[key] = Option(key, f.name, owner, meta)
+    return out
+
+
+LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
+
+
+def options() -> dict[str, Option]:
+    """Every override key -> Option (the CLI builds its render options from these)."""
+    global _OPTIONS
+    if _OPTIONS is None:
+        _OPTIONS = _options()
+    return _OPTIONS
+
+
+_OPTIONS = None
+
+
+# --------------------------------------------------------------------------- scene files
+
+def _schema() -> dict:
+    """Scene-file sections -> key -> value kind (bool, int, str or settings.NUM ...)."""
+    schema = {"points": {"file": PATH, "generator": str, "count": int, "seed": int},
+              "volume": {"file": PATH}, "material": {}, "camera": {},
+              "lights": {"type": str, "direction": VEC3, "irradiance": NUM, "position": VEC3,
+                         "intensity": NUM, "color": VEC3},
+              "environment": {}, "render": {}}
+    for opt in options().values():
+        if opt.meta["toml"]:
+            section, key = opt.meta["toml"]
+            schema[section][key] = opt.meta["kind"]
+    return schema
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_type(value, kind, where, base: Path):
     def bad(want):
         raise UserError(f"{where} must be {want}, got {value!r}")
     if kind is bool:
         return value if isinstance(value, bool) else bad("true or false")
     if kind is int:
         return value if isinstance(value, int) and not isinstance(value, bool) else bad("an integer")
-    if kind is NUM:
-        if isinstance(value, bool) or not isinstance(value, NUM) or not math.isfinite(value):
-            bad("a finite number")
-        return float(value)
     if kind is str:
         return value if isinstance(value, str) else bad("a string")
-    if kind == VEC3:
-        if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, NUM) and not isinstance(v, bool) and math.isfinite(v)
-                           for v in value)):
-            bad("a list of 3 finite numbers")
+    if kind == NUM:
+        return float(value) if _finite(value) else bad("a finite number")
+    if kind in (VEC3, VEC):
+        n = (3,) if kind == VEC3 else (1, 2, 3)
+        if not (isinstance(value, list) and len(value) in n and all(map(_finite, value))):
+            bad("a list of 3 finite numbers" if kind == VEC3 else "a list of 1 to 3 finite numbers")
         return tuple(float(v) for v in value)
     if kind == SIZE:
         if (not isinstance(value, list) or len(value) != 2
                 or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32768
                            for v in value)):
             bad("[width, height] with integers 1..32768")
+        return tuple(value)
+    if kind == STRS:
+        if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+            bad("a list of strings")
         return tuple(value)
     if kind == PATH:
         if not isinstance(value, str) or not value:
@@ -112,13 +232,13 @@ def _section(table, name, where, base):
         if key not in schema:
             raise UserError(f"unknown key {where}.{key}",
                             fix=f"known keys: {', '.join(sorted(schema))}")
-        out[key] = _check(value, schema[key], f"{where}.{key}", base)
+        out[key] = _check_type(value, schema[key], f"{where}.{key}", base)
     return out
 
 
-def load(path) -> dict:
-    """Parse and validate a scene file; returns {section: {key: value}} with 'lights' a
-    list and paths resolved relative to the file."""
+def read(path) -> dict:
+    """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
+    resolved relative to the file."""
     path = Path(path)
     if not path.is_file():
         raise UserError("no such scene file", path=path)
@@ -144,9 +264,20 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
                            for i, t in enumerate(table)]
         else:
             scene[name] = _section(table, name, f"[{name}]", base)
-    pts = scene.get("points")
-    if pts is None:
-        raise UserError("the scene has no [points] section", fix="add [points] with file = ... or generator = ...")
+    pts, vol = scene.get("points"), scene.get("volume")
+    if pts is None and vol is None:
+        raise UserError("the scene has no [points] or [volume] section",
+                        fix="add [points] with file = ... or generator = ..., or [volume] with file = ...")
+    if pts is not None and vol is not None:
+        raise UserError("the scene has both [points] and [volume]; a scene renders one of them")
+    if vol is not None:
+        if "file" not in vol:
+            raise UserError("[volume] needs file = ...")
+        for section in ("material", "environment"):
+            if section in scene:
+                raise UserError(f"[{section}] applies to point clouds (molten glass), not to "
+                                "a [volume]", fix=f"remove [{section}]")
+        return scene
     if ("file" in pts) == ("generator" in pts):
         raise UserError("[points] needs exactly one of file = ... or generator = ...")
     if "generator" in pts and "count" not in pts:
@@ -171,14 +302,236 @@ def _light(d, i):
     return d
 
 
-def load_cloud(scene: dict):
-    """(PointCloud, radius or None) from a parsed scene's [points] section."""
+# --------------------------------------------------------------------------- resolving
+
+def source_kind(source) -> str:
+    """'volume', 'points', 'scene' or 'generator' for a render input."""
     from . import points
-    pts = scene["points"]
-    if "file" in pts:
-        cloud = points.load_points(pts["file"])
+    text = str(source)
+    suffix = Path(text).suffix.lower()
+    if suffix in VOLUME_SUFFIXES:
+        return "volume"
+    if suffix in POINT_SUFFIXES:
+        return "points"
+    if suffix == ".toml":
+        return "scene"
+    if ":" in text and text.split(":", 1)[0] in points.GENERATORS:
+        return "generator"
+    raise UserError(f"unsupported input type {suffix or '(none)'!r}", path=text,
+                    fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
+                        f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
+                        f"with GENERATOR one of {', '.join(points.GENERATORS)}")
+
+
+def generated_cloud_count(text: str) -> int:
+    """The COUNT of GENERATOR:COUNT, checked."""
+    name, _, count = text.partition(":")
+    try:
+        n = float(count)
+        n = int(n) if math.isfinite(n) else -1
+    except ValueError:
+        raise UserError(f"expected GENERATOR:COUNT such as {name}:2000, got {text!r}") from None
+    if not 1 <= n <= MAX_COUNT:
+        raise UserError(f"point count must be in [1, 5e7], got {count!r}", path=text)
+    return n
+
+
+def generated_cloud(text: str, seed: int = 0):
+    """PointCloud from GENERATOR:COUNT."""
+    from . import points
+    return points.generate(text.partition(":")[0], generated_cloud_count(text), seed)
+
+
+def _negates(opt) -> bool:
+    """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
+    return opt.meta["kind"] is bool and opt.key != opt.field
+
+
+def _given_from_overrides(overrides) -> dict:
+    """{option key: (field value, where)} for keyword overrides. Keys are the CLI flags
+    with underscores (`no_tree=True`); a field's own name works too (`use_tree=False`)."""
+    opts = options()
+    by_field = {opt.field: opt for opt in opts.values()}
+    given = {}
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        if key in LIGHT_KEYS:
+            given[key] = (value, "--" + key.replace("_", "-"))
+            continue
+        opt = opts.get(key) or by_field.get(key)
+        if opt is None:
+            known = ", ".join(sorted([*opts, *LIGHT_KEYS]))
+            raise UserError(f"unknown option {key!r}", fix=f"known options: {known}")
+        if isinstance(value, list):
+            value = tuple(value)
+        if key == opt.key and _negates(opt):
+            if not isinstance(value, bool):
+                raise UserError(f"{opt.flag} is a switch: give True or False, got {value!r}")
+            value = not value
+        given[opt.key] = (value, opt.flag if key == opt.key else f"{key}=")
+    return given
+
+
+def _given_from_file(doc, path) -> dict:
+    """{option key: (field value, where)} for the settings keys of a parsed scene file."""
+    by_toml = {opt.meta["toml"]: opt for opt in options().values() if opt.meta["toml"]}
+    given = {}
+    for section, table in doc.items():
+        if section == "lights" or not isinstance(table, dict):
+            continue
+        for key, value in table.items():
+            opt = by_toml.get((section, key))
+            if opt is not None:
+                given[opt.key] = (value, f"{path}: [{section}].{key}")
+    return given
+
+
+def _check_kinds(given, kind, label):
+    for key, (value, where) in given.items():
+        if key in LIGHT_KEYS:
+            continue
+        owner = options()[key].owner
+        if owner in ("volume", "glass") and owner != kind:
+            raise UserError(f"{where} applies to {KIND_NAMES[owner]} only, but {label} is "
+                            f"{'a volume' if kind == 'volume' else 'a point cloud'}",
+                            fix=f"remove {where.split(': ')[-1]}")
+
+
+def _field_values(given, owners):
+    """Checked {field: value} of the given keys whose owner is in owners."""
+    out = {}
+    for key, (value, where) in given.items():
+        if key in LIGHT_KEYS:
+            continue
+        opt = options()[key]
+        if opt.owner in owners:
+            check_value(opt.meta, value, where)
+            out[opt.field] = value
+    return out
+
+
+def _lights(given, doc):
+    from .lights import DEFAULT_LIGHTS, PointLight, Sun
+    no_lights = given.get("no_lights", (False, ""))[0]
+    explicit = [k for k in ("lights", "sun", "point_light") if k in given]
+    if no_lights and explicit:
+        raise UserError(f"--no-lights contradicts --{explicit[0].replace('_', '-')}; drop one of them")
+    if no_lights:
+        return ()
+    if "lights" in given:
+        return tuple(given["lights"][0])
+    if "sun" in given or "point_light" in given:
+        out = [Sun(tuple(s[:3]), s[3]) for s in given.get("sun", ((),))[0] if s]
+        out += [PointLight(tuple(p[:3]), p[3]) for p in given.get("point_light", ((),))[0] if p]
+        return tuple(out)
+    if doc.get("lights"):
+        return tuple(Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                     if l["type"] == "sun" else
+                     PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
+                     for l in doc["lights"])
+    return tuple(DEFAULT_LIGHTS)
+
+
+def _environment(path, where):
+    from .glass import load_environment
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{where}: no such environment map", path=p, fix="check the path")
+    return Environment(load_environment(p), str(p))
+
+
+@dataclass(frozen=True, eq=False)
+class Request:
+    """A scene's options, checked but nothing loaded (only a .toml is read): `load()`
+    reads the content and frames the camera."""
+    source: str
+    kind: str                         # "volume" or "glass"
+    origin: str                       # "volume", "points", "generator" or "scene"
+    doc: dict                         # the parsed scene file ({} without one)
+    view: View
+    lights: tuple
+    settings: object                  # VolumeSettings or GlassSettings
+    given: dict                       # {option key: (value, where)}
+
+    @property
+    def inputs(self) -> tuple:
+        """Every file the request names (the content and environment files too)."""
+        out = []
+        if self.origin in ("volume", "points", "scene"):
+            out.append(Path(self.source))
+        for section in ("volume", "points"):
+            if "file" in self.doc.get(section, {}):
+                out.append(Path(self.doc[section]["file"]))
+        if self.kind == "glass" and self.settings.env is not None:
+            out.append(Path(self.settings.env))
+        return tuple(dict.fromkeys(p.resolve() for p in out))
+
+    def load(self) -> Scene:
+        notes = []
+        settings = self.settings
+        environment = None
+        if self.kind == "volume":
+            from . import vdb
+            path = self.doc["volume"]["file"] if self.doc else Path(self.source)
+            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid)
+            content = VolumeContent(bricks, settings)
+        else:
+            from . import points
+            if self.origin == "scene":
+                pts = self.doc["points"]
+                if "file" in pts:
+                    cloud = points.load_points(pts["file"])
+                else:
+                    cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
+            elif self.origin == "generator":
+                cloud = generated_cloud(self.source, settings.seed)
+            else:
+                cloud = points.load_points(self.source)
+            if settings.radius is None and cloud.radii is None:
+                radius = points.default_radius(cloud.centers)
+                settings = dataclasses.replace(settings, radius=radius)
+                notes.append(f"{len(cloud.centers)} points without radii: using radius "
+                             f"{radius:.4g} (half the median neighbour spacing); set --radius")
+            content = GlassContent(cloud, settings)
+            if settings.env is not None:
+                environment = _environment(settings.env, self.given["env"][1])
+        lo, hi = content.bounds()
+        return Scene(self.view.camera(lo, hi), self.lights, content, environment, self.source,
+                     self.inputs, tuple(notes))
+
+
+def request(source, **overrides) -> Request:
+    """Check `source` and the overrides (kinds, types, ranges) without loading anything
+    but a scene file; see load_scene."""
+    given = _given_from_overrides(overrides)
+    origin = source_kind(source)
+    doc = {}
+    if origin == "scene":
+        doc = read(source)
+        given = {**_given_from_file(doc, Path(source)), **given}
+    if origin == "generator":
+        generated_cloud_count(str(source))
+    kind = "volume" if origin == "volume" or "volume" in doc else "glass"
+    _check_kinds(given, kind, str(source))
+    view = View(**_field_values(given, ("view",)))
+    lights = _lights(given, doc)
+    values = _field_values(given, ("common", kind))
+    if kind == "volume":
+        from .volume import VolumeSettings
+        settings = VolumeSettings(**values)
     else:
-        if not 1 <= pts["count"] <= MAX_COUNT:
-            raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
-        cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
-    return cloud, pts.get("radius")
+        from .glass import GlassSettings
+        settings = GlassSettings(**values)
+        if settings.env is not None and not Path(settings.env).is_file():
+            raise UserError(f"{given['env'][1]}: no such environment map", path=settings.env,
+                            fix="check the path")
+    return Request(str(source), kind, origin, doc, view, lights, settings, given)
+
+
+def load_scene(source, **overrides) -> Scene:
+    """Resolve `source` and the overrides into a Scene (see the module docstring)."""
+    return request(source, **overrides).load()
+
+
+SCHEMA = _schema()

@@ -14,6 +14,7 @@ object (its __post_init__ calls it).
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -21,19 +22,29 @@ from dataclasses import dataclass, field
 from .errors import UserError
 
 
-def knob(default, help: str, *, check=None, flag: str | None = "", toml=None,
-         parse=None, metavar=None, choices=None, unit: str | None = None, show_default=True):
+# Value kinds of scene-file keys (scene.py checks them; the ranges are the knobs' checks).
+NUM, VEC3, VEC, SIZE, PATH, STRS = "number", "vec3", "vec", "size", "path", "strings"
+
+
+def knob(default, help: str, *, check=None, flag: str | None = "", toml=None, kind=None,
+         parse=None, metavar=None, choices=None, show_default=True):
     """A dataclass field carrying its option metadata.
 
     flag: CLI spelling ('' = `--name-with-dashes`; None = not on the command line). A bool
     field is a switch: default False gives `--name`, default True gives the `flag` given
     (e.g. `--no-tree`), which sets it to False.
     check: value -> None or a phrase like "must be > 0" (see the checks below).
-    toml: (section, key) of the scene file that sets it, or None.
+    toml: (section, key) of the scene file that sets it, or None; kind: the scene-file
+    value kind (bool, int, str or one of NUM, VEC3, VEC, SIZE, PATH, STRS; default: from
+    the default value).
     parse: argparse type for the CLI value.
     """
-    meta = {"help": help, "check": check, "flag": flag, "toml": toml, "parse": parse,
-            "metavar": metavar, "choices": choices, "unit": unit, "show_default": show_default}
+    if kind is None:
+        kind = {bool: bool, int: int, float: NUM, str: str}.get(type(default))
+        if isinstance(default, tuple) and len(default) == 3:
+            kind = VEC3
+    meta = {"help": help, "check": check, "flag": flag, "toml": toml, "kind": kind,
+            "parse": parse, "metavar": metavar, "choices": choices, "show_default": show_default}
     if isinstance(default, (list, dict, set)):
         raise TypeError("mutable defaults are not allowed; use a tuple")
     return field(default=default, metadata={"knob": meta})
@@ -87,6 +98,58 @@ def _show(value):
     return repr(value) if isinstance(value, str) else str(value)
 
 
+# ---------------------------------------------------------------------- CLI parsers
+# argparse types: they raise ArgumentTypeError, which argparse reports as a usage error.
+
+def floats(n_min: int, n_max: int | None = None, name: str = "value"):
+    """Comma-separated finite floats, n_min..n_max of them."""
+    n_max = n_max or n_min
+
+    def parse(text: str):
+        try:
+            vals = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{name}: expected numbers separated by commas, got {text!r}") from None
+        if not n_min <= len(vals) <= n_max:
+            want = f"{n_min}" if n_min == n_max else f"{n_min} to {n_max}"
+            raise argparse.ArgumentTypeError(f"{name}: expected {want} numbers, got {len(vals)} in {text!r}")
+        if not all(map(math.isfinite, vals)):
+            raise argparse.ArgumentTypeError(f"{name}: values must be finite, got {text!r}")
+        return vals
+    parse.__name__ = name
+    return parse
+
+
+def pair(name: str, lo: int = 1, hi: int = 32768):
+    """WxH: two integers in [lo, hi]."""
+    def parse(text: str):
+        try:
+            w, h = (int(v) for v in text.lower().split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: expected WxH such as 640x480, got {text!r}") from None
+        if not (lo <= w <= hi and lo <= h <= hi):
+            raise argparse.ArgumentTypeError(f"{name}: must be {lo}..{hi} per side, got {text!r}")
+        return w, h
+    parse.__name__ = name
+    return parse
+
+
+def number(name: str, kind=float):
+    """A finite float (or int)."""
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"{name}: expected {what}, got {text!r}") from None
+        if kind is float and not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{name}: must be finite, got {text!r}")
+        return v
+    parse.__name__ = name
+    return parse
+
+
 # ---------------------------------------------------------------------- the checks
 
 def _num(v) -> bool:
@@ -111,12 +174,13 @@ def in_range(lo, hi, *, integer=False, allow_none=False):
     return check
 
 
-def rgb(lo=0.0, hi=math.inf, n=3):
-    """n finite numbers in [lo, hi]."""
+def rgb(lo=0.0, hi=math.inf, n=(3,)):
+    """n finite numbers in [lo, hi] (n: the allowed counts)."""
     def check(v):
-        if not (isinstance(v, tuple) and len(v) == n and all(_num(c) and lo <= c <= hi for c in v)):
+        if not (isinstance(v, tuple) and len(v) in n and all(_num(c) and lo <= c <= hi for c in v)):
             bound = f">= {lo:g}" if hi == math.inf else f"in [{lo:g}, {hi:g}]"
-            return f"takes {n} finite values {bound}"
+            count = " or ".join(map(str, n))
+            return f"takes {count} finite values {bound}"
         return None
     return check
 
@@ -141,19 +205,21 @@ MAX_VALUE = 1e30
 @dataclass(frozen=True)
 class CommonSettings:
     """Knobs both renderers read."""
-    spp: int = knob(1, "samples per pixel (box filter, stratified)", check=in_range(1, 65536, integer=True),
-                    toml=("render", "spp"), parse=int)
+    spp: int = knob(1, "samples per pixel (box filter, stratified)",
+                    check=in_range(1, 65536, integer=True), toml=("render", "spp"),
+                    parse=number("--spp", int))
     seed: int = knob(0, "random seed", check=in_range(-2 ** 63, 2 ** 64 - 1, integer=True),
-                     toml=("render", "seed"), parse=int)
-    shadows: bool = knob(True, "lights are attenuated on their way (off: unshadowed lights)",
+                     toml=("render", "seed"), parse=number("--seed", int))
+    shadows: bool = knob(True, "lights are not attenuated on their way (unshadowed lights)",
                          check=boolean, flag="--no-shadows", toml=("render", "shadows"))
     dispatch: str = knob("auto", "fragment: one independent work-item per pixel, launched in "
                          "--tile blocks; tiled: work-groups own screen tiles and cull the scene "
                          "into local memory first; auto: fragment (measured faster on PoCL and "
-                         "the H200)", check=one_of(("auto", "fragment", "tiled")),
+                         "the H200)", check=one_of(("auto", "fragment", "tiled", "fragment-driver")),
                          choices=("auto", "fragment", "tiled"), toml=("render", "dispatch"))
     tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles",
-                       metavar="WxH", toml=("render", "tile"))
+                       metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
+                       kind=SIZE)
 
     def __post_init__(self):
         check_fields(self)

@@ -4,66 +4,91 @@ the scene, the settings and the seed."""
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import layout, lights as lights_mod
+from .dispatch import Dispatch
 from .errors import UserError
 from .features import VolumeFeatures
-from .dispatch import Dispatch, run_rows, upload
+from .settings import (MAX_VALUE, STRS, VEC, CommonSettings, boolean, floats, in_range, knob,
+                       one_of, rgb)
 
 G_MAX = 0.999          # |g| is clamped here: HG at |g| = 1 is a delta
 PIXELS_PER_LAUNCH = 1 << 16
 # march: jittered ray marching (biased by the step, low noise); track: delta/ratio
 # tracking on per-brick majorants (unbiased; step and shadow_step are unused).
 ESTIMATORS = ("march", "track")
+AOVS = ("depth", "transmittance")
+
+
+def _phase_ok(v):
+    if not (isinstance(v, tuple) and len(v) in (1, 3) and all(map(math.isfinite, v))):
+        return "takes g1,g2,w (or one g) as finite numbers"
+    if len(v) == 3 and not 0.0 <= v[2] <= 1.0:
+        return "weight w must be in [0, 1]"
+    return None
+
+
+def _aovs_ok(v):
+    if not isinstance(v, tuple) or any(a not in AOVS for a in v):
+        return f"takes layers from {', '.join(AOVS)}"
+    return None
 
 
 @dataclass(frozen=True)
-class VolumeSettings:
-    density_scale: float = 1.0      # sigma_t = density_scale * grid value (per world unit)
-    albedo: float = 0.9             # sigma_s / sigma_t
-    phase: tuple = (0.6, -0.3, 0.8) # g1, g2, w: p = w HG(g1) + (1-w) HG(g2)
-    background: tuple = (0.0, 0.0, 0.0)
-    step: float = 0.5               # primary step, voxels
-    shadow_step: float = 1.0        # shadow step, voxels
-    spp: int = 1
-    seed: int = 0
-    shadows: bool = True
-    skip_empty: bool = True
-    emission_scale: float = 1.0     # radiance per unit length per emission-grid value
-    emission_temperature: float = 1500.0  # K, colour of the emission
-    depth: bool = False             # also return the opacity-weighted mean depth
-    estimator: str = "march"        # "march" (cl/render_volume.cl) or "track" (cl/track_volume.cl)
-    dispatch: str = "auto"          # volrender.dispatch: "auto", "fragment" or "tiled"
-    tile: tuple = (8, 8)            # tiled: work-group tile, pixels (w, h)
+class VolumeSettings(CommonSettings):
+    """How a volume is read and rendered (defaults, ranges and CLI/scene names: settings.knob)."""
+    grid: str | None = knob(None, "density grid (default: 'density', else the only float "
+                            "fog-volume grid)", toml=("volume", "grid"), kind=str,
+                            show_default=False)
+    emission_grid: str | None = knob(None, "grid emitting light, e.g. flame (off by default)",
+                                     toml=("volume", "emission_grid"), kind=str,
+                                     show_default=False)
+    density_scale: float = knob(1.0, "sigma_t = scale * grid value, per world unit",
+                                check=in_range(0, 1e30), toml=("volume", "density_scale"))
+    albedo: float = knob(0.9, "single-scattering albedo sigma_s / sigma_t",
+                         check=in_range(0, 1), toml=("volume", "albedo"))
+    phase: tuple = knob((0.6, -0.3, 0.8), "w*HG(g1) + (1-w)*HG(g2); one value = a single "
+                        "lobe; g > 0 scatters forward; |g| clamped to 0.999", metavar="G1,G2,W",
+                        parse=floats(1, 3, "--phase"), check=_phase_ok, toml=("volume", "phase"),
+                        kind=VEC)
+    background: tuple = knob((0.0, 0.0, 0.0), "radiance behind the volume (one value = grey)",
+                             metavar="R,G,B", parse=floats(1, 3, "--background"),
+                             check=rgb(0, MAX_VALUE, n=(1, 3)), toml=("volume", "background"), kind=VEC)
+    emission_scale: float = knob(1.0, "emitted radiance per unit length per emission-grid value",
+                                 check=in_range(0, MAX_VALUE), toml=("volume", "emission_scale"))
+    emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin",
+                                       check=in_range(100, 1e5),
+                                       toml=("volume", "emission_temperature"))
+    step: float = knob(0.5, "primary march step, voxels", check=in_range(1e-3, 1e4),
+                       toml=("volume", "step"))
+    shadow_step: float = knob(1.0, "shadow-ray march step, voxels", check=in_range(1e-3, 1e4),
+                              toml=("volume", "shadow_step"))
+    estimator: str = knob("march", "march: ray marching with --step/--shadow-step (biased by the "
+                          "step, low noise); track: delta/ratio tracking on the brick majorants "
+                          "(unbiased, noisier; the reference)", check=one_of(ESTIMATORS),
+                          choices=ESTIMATORS, toml=("volume", "estimator"))
+    skip_empty: bool = knob(True, "march empty bricks too (the reference for empty-space skipping)",
+                            check=boolean, flag="--no-skip", toml=("volume", "skip_empty"))
+    aovs: tuple = knob((), "extra EXR layer (repeatable): depth -> Z (opacity-weighted mean "
+                       "distance), transmittance -> T", flag="--aov", choices=AOVS,
+                       check=_aovs_ok, toml=("volume", "aov"), kind=STRS, show_default=False)
 
     def __post_init__(self):
-        def check(ok, msg):
-            if not ok:
-                raise UserError(msg)
-        check(math.isfinite(self.density_scale) and 0 <= self.density_scale <= 1e30,
-              f"--density-scale must be in [0, 1e30], got {self.density_scale}")
-        check(0.0 <= self.albedo <= 1.0, f"--albedo must be in [0, 1], got {self.albedo}")
-        check(len(self.phase) == 3 and all(map(math.isfinite, self.phase)),
-              f"--phase takes g1,g2,w, got {self.phase}")
-        check(0.0 <= self.phase[2] <= 1.0, f"--phase weight w must be in [0, 1], got {self.phase[2]}")
-        check(all(math.isfinite(c) and c >= 0 for c in self.background) and len(self.background) == 3,
-              f"--background takes three finite values >= 0, got {self.background}")
-        check(math.isfinite(self.step) and self.step > 0, f"--step must be > 0 voxels, got {self.step}")
-        check(math.isfinite(self.shadow_step) and self.shadow_step > 0,
-              f"--shadow-step must be > 0 voxels, got {self.shadow_step}")
-        check(1 <= self.spp <= 1 << 16, f"--spp must be in [1, 65536], got {self.spp}")
-        check(math.isfinite(self.emission_scale) and self.emission_scale >= 0,
-              f"--emission-scale must be finite and >= 0, got {self.emission_scale}")
-        check(100.0 <= self.emission_temperature <= 1e5,
-              f"--emission-temperature must be in [100, 1e5] K, got {self.emission_temperature}")
-        check(self.estimator in ESTIMATORS,
-              f"--estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
-        Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid
+        if len(self.phase) == 1:
+            object.__setattr__(self, "phase", (float(self.phase[0]), 0.0, 1.0))
+        if len(self.background) == 1:
+            object.__setattr__(self, "background", tuple(self.background) * 3)
+        object.__setattr__(self, "aovs", tuple(dict.fromkeys(self.aovs)))
+        super().__post_init__()
+
+    @property
+    def depth(self) -> bool:
+        """Whether the kernel writes the depth layer."""
+        return "depth" in self.aovs
 
     def clamped_phase(self):
         g1, g2, w = self.phase
@@ -124,50 +149,39 @@ def volume_params(bricks, settings: VolumeSettings | None = None):
     return params, w2l
 
 
-def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
-    """Render a Bricks volume. Returns a dict with 'rgba' (H, W, 4 float32), optionally
-    'depth' (H, W), plus 'kernel_ms', 'wall_ms', 'flags'."""
-    import pyopencl as cl
+ENTRIES = {"march": "render_volume", "track": "track_volume"}
 
-    n_suns, n_points = lights_mod.counts(lights)
+
+def plan(scene, device, variant=None):
+    """The launch of a volume scene (render.render runs it): the marcher or the tracker."""
+    from .render import Plan
+    if variant is not None:
+        raise UserError(f"the {variant!r} variant exists for glass only")
+    bricks, settings = scene.content.bricks, scene.content.settings
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
-    features = VolumeFeatures(n_suns=n_suns, n_points=n_points, shadows=settings.shadows,
-                              phase_mixed=settings.phase[2] < 1.0, skip_empty=settings.skip_empty,
-                              emission=bricks.emission is not None, depth=settings.depth,
-                              **VolumeFeatures.dispatch_fields(dispatch))
-    entry = "track_volume" if settings.estimator == "track" else "render_volume"
-    kernel = device.kernel(entry, features.flags())
-
+    features = VolumeFeatures.from_scene(scene, dispatch)
     params, w2l = volume_params(bricks, settings)
-    cam = camera.pack(w2l, settings.spp, settings.seed)
-    light_rec = lights_mod.pack(lights, w2l)
-
-    ctx = device.context
-    W, H = camera.width, camera.height
     emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
-    bufs = [upload(ctx, a) for a in (cam, params, light_rec, np.asarray(bricks.table, np.int32),
-                                      np.asarray(bricks.data, np.float32),
-                                      np.asarray(emission, np.float32))]
+    inputs = [scene.camera.pack(w2l, settings.spp, settings.seed), params,
+              lights_mod.pack(scene.lights, w2l), np.asarray(bricks.table, np.int32),
+              np.asarray(bricks.data, np.float32), np.asarray(emission, np.float32)]
+    extra = []
     if settings.estimator == "track":
-        bufs.append(upload(ctx, track_majorants(bricks, settings)))
-    out = np.empty((H, W, 4), np.float32)
-    depth = np.empty((H, W), np.float32) if settings.depth else np.empty(1, np.float32)
-    d_out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    d_depth = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, depth.nbytes)
-    tail = [d_out, d_depth]
-    if entry == "render_volume":      # + the occupied bricks, which only tiled culling reads
-        culls = features.tiled and features.skip_empty
-        occ = occupied_bricks(bricks) if culls else np.zeros((0, 4), np.int32)
-        tail += [upload(ctx, occ), np.int32(len(occ))]
-    t_start = time.perf_counter()
-    kernel_ms = run_rows(device, kernel, [*bufs, *tail], W, H, PIXELS_PER_LAUNCH, progress,
-                         dispatch=dispatch)
-    cl.enqueue_copy(device.queue, out, d_out)
-    if settings.depth:
-        cl.enqueue_copy(device.queue, depth, d_depth)
-    device.queue.finish()
-    result = {"rgba": out, "kernel_ms": kernel_ms,
-              "wall_ms": 1e3 * (time.perf_counter() - t_start), "flags": features.flags()}
-    if settings.depth:
-        result["depth"] = depth
-    return result
+        inputs.append(track_majorants(bricks, settings))
+    else:                             # the occupied bricks, which only tiled culling reads
+        occ = occupied_bricks(bricks) if features.tiled and features.skip_empty \
+            else np.zeros((0, 4), np.int32)
+        extra = [occ, np.int32(len(occ))]
+    W, H = scene.camera.width, scene.camera.height
+    outputs = [("rgba", (H, W, 4)), ("depth", (H, W) if settings.depth else (1,))]
+    return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
+                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs)
+
+
+def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
+    """Render Bricks with the given camera, lights and settings (a shortcut for tests and
+    benchmarks: render.render of the equivalent Scene). Returns render.Image.as_dict()."""
+    from .render import render
+    from .scene import Scene, VolumeContent
+    scene = Scene(camera, tuple(lights), VolumeContent(bricks, settings))
+    return render(scene, device, progress=progress).as_dict()

@@ -1,0 +1,163 @@
+"""One render path for both integrators: features -> program -> packed params -> launch
+-> read back.
+
+    scene = volrender.load_scene("smoke.vdb", size=(320, 240))
+    image = volrender.render(scene)          # PoCL, or device="nvidia"
+    image.save("smoke.exr")
+
+The integrator modules (volume.py, glass.py) turn a Scene into a Plan: the kernel entry,
+its features, the arrays it reads and the outputs it writes. Everything else, the same for
+both, happens here. Each work-item owns its pixel (no float atomics), so an image depends
+only on the scene and its seed.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .dispatch import Dispatch, run_rows, upload
+from .errors import UserError
+
+VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
+
+
+@dataclass
+class Plan:
+    """What one launch needs. Kernel arguments are `inputs` (uploaded read-only; numpy
+    scalars are passed by value), then one buffer per output, then `extra`, then the
+    band's first row (added by dispatch.run_rows)."""
+    entry: str                       # cl/<entry>.cl and its kernel
+    features: object                 # frozen Features with .flags()
+    inputs: list
+    outputs: list                    # [(name, shape)]: float32 buffers the kernel writes
+    dispatch: Dispatch
+    band_pixels: int                 # pixels per launch on CPUs (GPUs launch whole frames)
+    extra: list = field(default_factory=list)
+    aovs: tuple = ()                 # layers to return besides rgba
+    info: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class Image:
+    """A rendered image: `rgba` is H x W x 4 float32, linear, top row first (premultiplied:
+    alpha = 1 - transmittance for volumes, coverage for glass); `aovs` the extra layers by
+    name (H x W float32)."""
+    rgba: np.ndarray
+    aovs: dict
+    kernel_ms: float                 # OpenCL profiling events, summed over launches
+    wall_ms: float                   # host time from the first launch to the read-back
+    cpu_ms: float                    # process CPU time over the same span (PoCL's work)
+    device: str
+    flags: dict
+    camera: object = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def width(self) -> int:
+        return self.rgba.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.rgba.shape[0]
+
+    def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic") -> Path:
+        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB), atomically."""
+        from .image import write_image
+        return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
+                           camera=self.camera)
+
+    def as_dict(self) -> dict:
+        """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
+        return {"rgba": self.rgba, **self.aovs, "kernel_ms": self.kernel_ms,
+                "wall_ms": self.wall_ms, "cpu_ms": self.cpu_ms, "flags": self.flags,
+                "device": self.device, **self.info}
+
+
+def _planner(kind):
+    if kind == "volume":
+        from .volume import plan
+    elif kind == "glass":
+        from .glass import plan
+    else:
+        raise ValueError(f"unknown scene kind {kind!r}")
+    return plan
+
+
+def get_device(device=None):
+    """A device.Device from None (PoCL or $VOLRENDER_DEVICE), a spec string, or itself."""
+    from . import device as device_mod
+    if device is None or isinstance(device, str):
+        return device_mod.get(device)
+    return device
+
+
+def render(scene, device=None, *, progress=None, variant=None) -> Image:
+    """Render a Scene (volrender.load_scene) on `device` (a spec such as "nvidia", a
+    device.Device, or None for the default). `progress`: a bar on stderr (None: when it
+    is a terminal). `variant`: "uber" or "stats" builds of the glass kernel (benchmarks)."""
+    import pyopencl as cl
+
+    if variant not in VARIANTS:
+        raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
+    dev = get_device(device)
+    cam = scene.camera
+    plan = _planner(scene.kind)(scene, dev, variant)
+    check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
+    kernel = dev.kernel(plan.entry, plan.features.flags())
+    ctx = dev.context
+    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.inputs]
+    outs = {name: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * int(np.prod(shape)))
+            for name, shape in plan.outputs}
+    args += list(outs.values())
+    args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.extra]
+    t0, c0 = time.perf_counter(), time.process_time()
+    kernel_ms = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
+                         dispatch=plan.dispatch)
+    host = {}
+    for name, shape in plan.outputs:
+        if name == "rgba" or name in plan.aovs:
+            host[name] = np.empty(shape, np.float32)
+            cl.enqueue_copy(dev.queue, host[name], outs[name])
+    dev.queue.finish()
+    wall_ms, cpu_ms = 1e3 * (time.perf_counter() - t0), 1e3 * (time.process_time() - c0)
+    rgba = host.pop("rgba")
+    aovs = {}
+    for name in plan.aovs:
+        aovs[name] = host[name] if name in host else _derived_aov(name, rgba)
+    return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
+                 device=dev.name, flags=plan.features.flags(), camera=cam, info=plan.info)
+
+
+def _derived_aov(name, rgba):
+    if name == "transmittance":
+        return 1.0 - rgba[..., 3]
+    raise AssertionError(f"no kernel output for AOV {name!r}")
+
+
+def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
+    """Refuse an image whose buffers cannot exist, before anything is allocated: the RGBA
+    float32 buffer (plus one float per extra layer) must fit in one device allocation
+    and in the device's memory, and a few copies of it in host memory."""
+    pixels = width * height
+    need = pixels * 4 * (4 + n_layers)
+    gib = 1 << 30
+    d = dev.device
+    limit = min(int(d.max_mem_alloc_size) * (4 + n_layers) // 4, int(d.global_mem_size) // 2)
+    where = f"on {dev.name}"
+    try:
+        host = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 3
+    except (ValueError, OSError, AttributeError):
+        host = None
+    if host is not None and host < limit:
+        limit, where = host, "in this machine's memory"
+    if need > limit:
+        side = int(math.sqrt(limit / (4 * (4 + n_layers)) * width / height))
+        hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
+        raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
+                        f"fits {where} ({limit / gib:.1f} GiB)",
+                        fix=f"render a smaller --size ({hint} at most)")
