@@ -13,17 +13,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import layout, lights as lights_mod, tree as tree_mod
+from . import cells as cells_mod, layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
 from .dispatch import Dispatch
 from .errors import UserError
 from .features import GlassFeatures
-from .settings import MAX_VALUE, NUM, PATH, CommonSettings, boolean, floats, in_range, knob, rgb
+from .settings import (MAX_VALUE, NUM, PATH, CommonSettings, boolean, floats, in_range, knob,
+                       one_of, rgb)
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
+ACCELS = ("grid", "tree", "none")
 
 
 @dataclass(frozen=True)
@@ -39,8 +41,20 @@ class GlassSettings(CommonSettings):
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))
-    use_tree: bool = knob(True, "brute force over all spheres (the reference)", check=boolean,
-                          flag="--no-tree", toml=("render", "tree"))
+    accel: str = knob("grid", "how the field finds the spheres near a point: grid = support "
+                      "cells (each lists the spheres that can matter in it; rays skip cells away "
+                      "from the surface), tree = walk the partition tree, none = brute force "
+                      "over all spheres (the reference)", check=one_of(ACCELS), choices=ACCELS,
+                      toml=("render", "accel"))
+    use_tree: bool = knob(True, "brute force over all spheres, the reference (= --accel none)",
+                          check=boolean, flag="--no-tree", toml=("render", "tree"))
+    cell_size: float | None = knob(None, "support-cell edge, world units (default: a quarter "
+                                   "of the median radius plus half the blend)",
+                                   check=in_range(0, MAX_EXTENT, allow_none=True),
+                                   toml=("render", "cell_size"), kind=NUM, show_default=False)
+    cell_skip: bool = knob(True, "support cells: list every cell instead of letting rays skip "
+                           "those away from the surface (the same field; tests, benchmarks)",
+                           check=boolean, flag="--no-cell-skip", toml=("render", "cell_skip"))
     bounces: int = knob(6, "surface events per path", check=in_range(1, 64, integer=True),
                         toml=("render", "bounces"))
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
@@ -76,6 +90,11 @@ class GlassSettings(CommonSettings):
                            "procedural sky over a checker ground)", metavar="ENV.exr",
                            toml=("environment", "map"), kind=PATH, show_default=False)
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.use_tree is False and self.accel != "none":   # --no-tree means --accel none
+            object.__setattr__(self, "accel", "none")
+
 
 @dataclass(frozen=True)
 class GlassScene:
@@ -91,6 +110,9 @@ class GlassScene:
     tree_ms: float
     colors: np.ndarray | None = None   # float32 (N, 4) rgb per sphere, tree order
     margin: float = 0.0     # tiled dispatch: list spheres within this of a tile's frustum
+    accel: str = "none"     # what the kernel uses: grid, tree or none
+    cells: object = None    # cells.Cells with accel grid
+    note: str = ""          # why accel differs from the settings' (a fallback)
 
 
 def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
@@ -127,8 +149,10 @@ def _outward(a, down: bool):
     return np.where(np.isfinite(a32), step, a32)
 
 
-def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
-    """Spheres and tree in the render frame; builds the tree only when use_tree."""
+def pack_scene(cloud, settings: GlassSettings, eye=None, device=None) -> GlassScene:
+    """Spheres, tree and support cells in the render frame. The tree is built for accel
+    tree and grid (it builds the cells); eye (world) sets the cells' skip threshold
+    (cells.threshold); device: where the cells are built (default: the default device)."""
     centers = np.asarray(cloud.centers, np.float64)
     n = len(centers)
     radii = sphere_radii(cloud, settings) if n else np.zeros(0)
@@ -144,7 +168,8 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     lo, hi = sphere_bounds(cloud, radii)
     centre = 0.5 * (lo + hi)
     order = np.arange(n)
-    if settings.use_tree:
+    accel = settings.accel
+    if accel in ("tree", "grid"):
         t0 = time.perf_counter()
         tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0)
         tree_ms = 1e3 * (time.perf_counter() - t0)
@@ -181,8 +206,34 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
                         fix="rescale the points (or lower --blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
+    grid, note = None, ""
+    if accel == "grid":
+        grid, note = _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale,
+                                  settings, None if eye is None else np.asarray(eye) - centre,
+                                  device)
+        if grid is None:
+            accel = "tree"
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
-                      colors, margin)
+                      colors, margin, accel, grid, note)
+
+
+def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings, eye,
+                 device):
+    """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
+    if device is None:
+        from .render import get_device
+        device = get_device(None)
+    cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
+    tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
+                              len(spheres))
+    force = []
+    if eye is not None and np.all(eye >= box_lo) and np.all(eye <= box_hi):
+        force.append(eye)
+    try:
+        return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau, device,
+                               force=force, classify=settings.cell_skip), ""
+    except cells_mod.TooLarge as exc:
+        return None, f"support cells too large ({exc}): using the tree walk"
 
 
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
@@ -230,7 +281,7 @@ def plan(scene, device, variant=None):
     compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
     from .render import Plan
     cloud, settings = scene.content.cloud, scene.content.settings
-    packed = pack_scene(cloud, settings)
+    packed = pack_scene(cloud, settings, eye=scene.camera.origin, device=device)
     dispatch = dispatch_for(settings, device)
     features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
     n_suns, n_points = lights_mod.counts(scene.lights)
@@ -249,11 +300,30 @@ def plan(scene, device, variant=None):
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
+    grid = packed.cells
+    none2 = np.zeros((1, 2), np.int32)
+    spheres = packed.spheres
+    info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
+    if grid is not None:
+        params["grid_lo"] = [*grid.lo, grid.cell]
+        params["grid_dims"] = [*grid.dims, 0]
+        params["brick_dims"] = [*grid.bdims, 0]
+        params["grid_inv"] = np.float32(1.0 / grid.cell)
+        params["grid_nudge"] = 1e-3 * grid.cell
+        params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
+        # a far sentinel sphere: list padding points at it (cl/build_cells.cl)
+        spheres = np.vstack([spheres, np.array([[1e30, 1e30, 1e30, 0.0]], np.float32)])
+        info.update(cells_ms=grid.build_ms, cells=grid.stats())
+    if packed.note:
+        info["note"] = packed.note
+    grid_arrays = ([grid.bricks, grid.cells, grid.lists, grid.items] if grid is not None else
+                   [none2, none2, np.zeros((1, 4), np.int32), np.zeros(1, np.int32)])
     inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
-              lights_mod.pack(scene.lights, w2f), packed.spheres, packed.nodes, env, colors]
+              lights_mod.pack(scene.lights, w2f), spheres, packed.nodes, env, colors,
+              *grid_arrays]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
-                PIXELS_PER_LAUNCH, info={"tree_ms": packed.tree_ms})
+                PIXELS_PER_LAUNCH, info=info)
 
 
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,

@@ -1,0 +1,350 @@
+"""Support cells: the glass field's second acceleration structure (cl/cells.h reads it).
+
+A sparse world-space grid over the clip box (render frame), cells of edge `cell` in bricks
+of CELL_BRICK^3. Every cell the surface can pass through lists every sphere that can
+contribute to the field anywhere inside it (ascending sphere index, so a fold over the
+list sums in brute force's order); cells and whole bricks wholly outside the glass carry a
+lower bound of the field and cells wholly inside an upper one, and rays of that side cross
+them without evaluating anything. Bounds and lists are derived in cl/build_cells.cl's
+banner and docs/DESIGN.md; `oracle` below is the same construction in numpy (float64,
+brute force over all spheres) for tests.
+
+The build runs on the render device, walking the partition tree (volrender/tree.py):
+classify every brick, then every cell of the bricks that are not uniform, then fill the
+lists of the cells that need one (two passes: count, prefix sum on the host, write).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import layout
+
+B = layout.CELL_BRICK
+B3 = B ** 3
+OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
+MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
+MAX_ITEMS = 1 << 30           # list entries (4 bytes each); beyond: the tree walk instead
+CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
+PAD = 1e-5                    # list threshold and bound margins, relative to the extent
+J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
+
+
+class TooLarge(Exception):
+    """The lists would not fit (MAX_ITEMS): use the tree walk."""
+
+
+@dataclass(frozen=True, eq=False)
+class Cells:
+    lo: np.ndarray            # float32 (3,): min corner of cell (0, 0, 0), render frame
+    cell: float               # cell edge, world units
+    dims: np.ndarray          # int (3,): cells per axis
+    bdims: np.ndarray         # int (3,): bricks per axis
+    bricks: np.ndarray        # int32 (n_bricks, 2): code, bound bits (cl/cells.h)
+    cells: np.ndarray         # int32 (n_blocks * B^3, 2): code, bound bits
+    lists: np.ndarray         # int32 (n_lists, 4): list start, count, core start, count
+                              # into items (core: spheres that can be the nearest)
+    items: np.ndarray         # int32: sphere indices (tree order), ascending per list
+    tau: float                # skippable cells have |F| > tau
+    pad: float                # lists hold lo_i <= U + k + pad
+    build_ms: float
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists, self.items))
+
+    def stats(self) -> dict:
+        """Counts for reports and benchmarks."""
+        codes = self.cells[:, 0]
+        bcodes = self.bricks[:, 0]
+        n = self.lists[:, 1]
+        nc = self.lists[:, 3]
+        return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
+                "bricks": int(len(bcodes)), "mixed_bricks": int((bcodes >= 0).sum()),
+                "bricks_outside": int((bcodes == OUTSIDE).sum()),
+                "bricks_inside": int((bcodes == INSIDE).sum()),
+                "cells_listed": int(len(self.lists)),
+                "cells_outside": int((codes == OUTSIDE).sum()),
+                "cells_inside": int((codes == INSIDE).sum()),
+                "list_mean": float(n.mean()) if len(n) else 0.0,
+                "list_max": int(n.max()) if len(n) else 0,
+                "core_mean": float(nc.mean()) if len(nc) else 0.0,
+                "items": int(len(self.items)), "bytes": int(self.nbytes), "build_ms": self.build_ms}
+
+    def box(self, q):
+        """(lo, hi) float64 of the cells with integer coordinates q (..., 3)."""
+        q = np.asarray(q, np.float64)
+        lo = self.lo.astype(np.float64)
+        return lo + q * self.cell, lo + (q + 1) * self.cell
+
+    def locate(self, x):
+        """Integer cell coordinates of render-frame points x (M, 3), clamped (cl/cells.h)."""
+        g = np.floor((np.asarray(x, np.float32) - self.lo) * np.float32(1.0 / self.cell))
+        return np.clip(g, 0, self.dims - 1).astype(np.int64)
+
+    def lookup(self, q):
+        """For cell coordinates q (M, 3): (code, bound, list of sphere indices or None); the
+        cores are `core(code)`."""
+        q = np.asarray(q, np.int64).reshape(-1, 3)
+        b = q // B
+        bi = (b[:, 2] * self.bdims[1] + b[:, 1]) * self.bdims[0] + b[:, 0]
+        e = self.bricks[bi]
+        code = e[:, 0].copy()
+        bound = e[:, 1].view(np.float32).astype(np.float64)
+        mixed = code >= 0
+        l = q[mixed] - b[mixed] * B
+        v = self.cells[e[mixed, 0] * B3 + (l[:, 2] * B + l[:, 1]) * B + l[:, 0]]
+        code[mixed] = v[:, 0]
+        bound[mixed] = v[:, 1].view(np.float32)
+        lists = [None] * len(q)
+        for j in np.nonzero(code >= 0)[0]:
+            s, n = self.lists[code[j], :2]
+            lists[j] = self.items[s:s + n]
+        return code, bound, lists
+
+    def core(self, code):
+        """The core list (the spheres that can be nearest) of listed cell `code`."""
+        s, n = self.lists[code, 2:]
+        return self.items[s:s + n]
+
+
+def auto_cell_size(radii, blend) -> float:
+    """The cell edge chosen from the spheres: CELL_FACTOR * (median radius + blend / 2)."""
+    r = float(np.median(radii)) if len(radii) else 0.0
+    return CELL_FACTOR * (r + 0.5 * float(blend))
+
+
+def grid_shape(box_lo, box_hi, cell):
+    """(cell, dims, bdims) covering [box_lo, box_hi]; the edge grows until the brick
+    table fits MAX_BRICKS (and is never 0)."""
+    ext = np.maximum(np.asarray(box_hi, np.float64) - np.asarray(box_lo, np.float64), 0.0)
+    size = float(ext.max())
+    if not cell > 0 or not math.isfinite(cell):
+        cell = size / 64 if size > 0 else 1.0
+    cell = max(cell, size * 2.0 ** -20, 1e-30)
+    while True:
+        dims = np.maximum(np.ceil(ext / cell).astype(np.int64), 1)
+        bdims = -(-dims // B)
+        if int(bdims.prod()) <= MAX_BRICKS:
+            return float(cell), dims, bdims
+        cell *= 1.25
+
+
+def threshold(epsilon, bounces, scale, box_lo, box_hi, eye=None, blend=0.0, n=1) -> float:
+    """tau: above every hit threshold eps * (base + t) a render can test (cl/shade_glass.h:
+    base + t is at most the hit floor plus the eye's distance to the far side of the box plus
+    one box diagonal per segment and one for the shadow ray), and above float32 rounding of
+    the field."""
+    lo, hi = np.asarray(box_lo, np.float64), np.asarray(box_hi, np.float64)
+    diag = float(np.linalg.norm(hi - lo))
+    if eye is None:
+        far = 4.0 * diag
+    else:
+        corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                            for c in (lo[2], hi[2])])
+        far = float(np.linalg.norm(corners - np.asarray(eye, np.float64), axis=1).max())
+    t_max = 1e-2 * scale + far + (bounces + 2) * diag
+    extent = float(np.abs(np.concatenate([lo, hi])).max())
+    rounding = PAD * (extent + blend * (1.0 + math.log(max(n, 1))))
+    return 2.0 * epsilon * t_max + rounding
+
+
+def _round_up(n, m=64):
+    return max(m, -(-n // m) * m)
+
+
+def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
+          force=(), classify=True) -> Cells:
+    """Support cells over [box_lo, box_hi] (render frame) for float32 `spheres` (N, 4, tree
+    order) and their TreeNode records, on `device` (a volrender.device.Device).
+    force: render-frame points whose cells get a list whatever their class (the eye: its
+    first sample reads the colour there). classify=False lists every cell (tests)."""
+    import pyopencl as cl
+
+    t0 = time.perf_counter()
+    n = len(spheres)
+    cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
+    lo = np.asarray(box_lo, np.float32)
+    extent = float(np.abs(np.concatenate([np.asarray(box_lo, np.float64),
+                                          np.asarray(box_hi, np.float64)])).max())
+    pad = PAD * (extent + blend)
+    tau_run = float(tau) if classify else math.inf
+    params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad, tau=tau_run,
+                           n_spheres=n, first_leaf=first_leaf, box_cells=B)
+    if math.isinf(tau_run):
+        params["tau"] = np.float32(3e38)
+    flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
+    k_tree = device.kernel("build_cells", flags, "build_classify")
+    k_sub = device.kernel("build_cells", flags, "build_classify_sub")
+    k_fill = device.kernel("build_cells", flags, "build_fill")
+    ctx, queue = device.context, device.queue
+    mf = cl.mem_flags
+
+    def buf(a):
+        a = np.ascontiguousarray(a)
+        if a.nbytes == 0:
+            a = np.zeros((1,) + a.shape[1:], a.dtype)
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
+
+    d_sp, d_nodes = buf(spheres), buf(nodes)
+    none_i = buf(np.zeros(1, np.int32))
+    none_i4 = buf(np.zeros((1, 4), np.int32))
+
+    def prm(size):
+        p = params.copy()
+        p["box_cells"] = size
+        return buf(p)
+
+    def classify(origins, size, cand=None, cand_lists=None):
+        """(class, count, bound bits, U bits) per box, from the tree or the parents' lists."""
+        out = np.empty((len(origins), 4), np.int32)
+        if len(origins):
+            d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+            g = (_round_up(len(origins)),)
+            if cand is None:
+                k_tree(queue, g, None, prm(size), d_sp, d_nodes, buf(origins), d_out,
+                       np.int32(len(origins)))
+            else:
+                k_sub(queue, g, None, prm(size), d_sp, cand, cand_lists, buf(origins), d_out,
+                      np.int32(len(origins)))
+            cl.enqueue_copy(queue, out, d_out)
+        return out
+
+    def fill(origins, size, out, parent=None, cand=None, cand_lists=None):
+        """The lists of boxes: device items, host (start, count, core start, core count)
+        int32, total entries. Each box's core follows its list."""
+        counts = out[:, 1].astype(np.int64)
+        core = out[:, 2].astype(np.int64)
+        total = int(counts.sum() + core.sum())
+        if total > MAX_ITEMS:
+            raise TooLarge(f"{total} list entries")
+        lists = np.zeros((len(origins), 4), np.int32)
+        ends = np.cumsum(counts + core)
+        lists[:, 0] = ends - counts - core
+        lists[:, 1] = counts
+        lists[:, 2] = ends - core
+        lists[:, 3] = core
+        d_items = cl.Buffer(ctx, mf.READ_WRITE, 4 * max(total, 1))
+        if len(origins):
+            from_tree = cand is None
+            k_fill(queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
+                   none_i if from_tree else cand, none_i4 if from_tree else cand_lists,
+                   none_i if from_tree else buf(parent.astype(np.int32)), buf(origins),
+                   buf(out[:, 3].view(np.float32)), buf(lists), d_items, np.int32(len(origins)),
+                   np.int32(from_tree))
+        return d_items, lists, total
+
+    forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0, dims - 1)
+              .astype(np.int64) for p in force]
+
+    def force_open(origins, size, cls):
+        """Keep forced cells' boxes unclassified down to the cell level."""
+        for q in forced:
+            inside = np.all((origins[:, :3] <= q) & (q < origins[:, :3] + size), axis=1)
+            cls[inside] = 0
+
+    # bricks from the tree; then the octants of unclassified boxes, each from its parent's
+    # list, down to cells
+    bz, by, bx = np.meshgrid(*(np.arange(v) for v in bdims[::-1]), indexing="ij")
+    borig = np.zeros((bx.size, 4), np.int32)
+    borig[:, 0], borig[:, 1], borig[:, 2] = (bx.ravel() * B, by.ravel() * B, bz.ravel() * B)
+    bout = classify(borig, B)
+    bcls = bout[:, 0].copy()
+    force_open(borig, B, bcls)
+    mixed = np.nonzero(bcls == 0)[0]
+    block_of = np.full(len(borig), -1, np.int64)
+    block_of[mixed] = np.arange(len(mixed))
+    ccls = np.zeros(len(mixed) * B3, np.int32)       # the mixed bricks' cells
+    cbound = np.zeros(len(mixed) * B3, np.int32)
+    origins, size = borig[mixed], B
+    cand, lists, total = fill(origins, size, bout[mixed])
+    d_lists = buf(lists)
+    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
+    while size > 1:
+        size //= 2
+        origins = (origins[:, None, :] + size * octants[None]).reshape(-1, 4)
+        out = classify(origins, size, cand, d_lists)
+        cls = out[:, 0].copy()
+        force_open(origins, size, cls)
+        # paint the classified boxes into their bricks' blocks
+        done = np.nonzero(cls != 0)[0]
+        o = origins[done, :3].astype(np.int64)
+        span = np.arange(size)
+        sub = (span[:, None, None] * B * B + span[None, :, None] * B + span[None, None, :]).ravel()
+        at = (_block_cell(o, block_of, bdims)[:, None] + sub[None]).ravel()
+        ccls[at] = np.repeat(cls[done], len(sub))
+        cbound[at] = np.repeat(out[done, 2], len(sub))
+        keep = np.nonzero(cls == 0)[0]
+        origins = origins[keep]
+        cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
+        d_lists = buf(lists)
+    items = np.empty(max(total, 1), np.int32)
+    cl.enqueue_copy(queue, items, cand)
+    items = items[:total]
+    # the tables the renderer reads
+    sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
+    bricks = np.empty((len(borig), 2), np.int32)
+    bricks[:, 0] = np.where(bcls == 0, block_of, bcls)
+    bricks[:, 1] = np.where(bcls == 0, 0, bout[:, 2])
+    cells = np.empty((len(ccls), 2), np.int32)
+    cells[:, 0] = ccls
+    cells[:, 1] = cbound
+    cells[sel, 0] = np.arange(len(sel))
+    cells[sel, 1] = 0
+    return Cells(lo, cell, dims, bdims, bricks, cells, lists, items, float(tau), pad,
+                 1e3 * (time.perf_counter() - t0))
+
+
+def _block_cell(q, block_of, bdims):
+    """Index in the cell table of cells q (M, 3) of mixed bricks."""
+    b = q // B
+    local = q - b * B
+    return block_of[_brick_index(b, bdims)] * B3 + (local[:, 2] * B + local[:, 1]) * B + local[:, 0]
+
+
+def _brick_index(b, bdims):
+    return (b[:, 2] * bdims[1] + b[:, 1]) * bdims[0] + b[:, 0]
+
+
+# --------------------------------------------------------------------------- numpy oracle
+
+def box_distances(centres, radii, lo, hi):
+    """lo_i and hi_i (float64, (M, N)) of N spheres against M boxes [lo, hi] (M, 3)."""
+    c = np.asarray(centres, np.float64)[None]
+    lo, hi = np.asarray(lo, np.float64)[:, None], np.asarray(hi, np.float64)[:, None]
+    g = np.maximum(np.maximum(lo - c, c - hi), 0.0)
+    f = np.maximum(np.abs(c - lo), np.abs(c - hi))
+    r = np.asarray(radii, np.float64)[None]
+    return np.linalg.norm(g, axis=2) - r, np.linalg.norm(f, axis=2) - r
+
+
+def oracle(centres, radii, blend, lo, hi):
+    """The construction of cl/build_cells.cl in float64 over all spheres, for boxes
+    [lo, hi] (M, 3): (member (M, N) bool: lo_i <= U + k, lower L (M,), upper UF (M,))."""
+    dlo, dhi = box_distances(centres, radii, lo, hi)
+    M, U = dlo.min(axis=1), dhi.min(axis=1)
+    k = float(blend)
+    if k <= 1e-20:
+        return dlo <= U[:, None], M, U
+    member = dlo <= (U + k)[:, None]
+    t = M[:, None] + (U - M)[:, None] * (np.arange(J + 1) / J)[None]
+    t[:, J] = U
+    lower = np.full(len(M), np.inf)
+    upper = np.full(len(M), -np.inf)
+    for j in range(J):
+        shi = (np.where(member, np.maximum(1 - (dlo - t[:, j + 1, None]) / k, 0), 0) ** 2).sum(1)
+        slo = (np.where(member, np.maximum(1 - (dhi - t[:, j, None]) / k, 0), 0) ** 2).sum(1)
+        lower = np.minimum(lower, t[:, j] - 0.5 * k * np.log(np.maximum(shi, 1.0)))
+        upper = np.maximum(upper, t[:, j + 1] - 0.5 * k * np.log(np.maximum(slo, 1.0)))
+    return member, lower, upper
+
+
+def support(x, centres, radii, blend):
+    """Boolean (M, N): sphere i matters at point x (d_i < m + k; the nearest when k = 0)."""
+    d = np.linalg.norm(np.asarray(x, np.float64)[:, None] - np.asarray(centres, np.float64)[None],
+                       axis=2) - np.asarray(radii, np.float64)[None]
+    m = d.min(axis=1, keepdims=True)
+    return d < m + blend if blend > 1e-20 else d <= m
