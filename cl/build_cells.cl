@@ -234,8 +234,9 @@ inline CbAcc cb_list_tree(__constant CellBuild* cb, __global const float4* sp,
     return a;
 }
 
-/* M and U, then the list, from candidates (a parent box's list: it holds every sphere that
-   can be on a sub-box's list, and the minimisers of M and U) */
+/* M and U, then the list, from candidates: a parent box P's list holds every sphere that
+   can be on a sub-box C's list (lo_i(P) <= lo_i(C) <= U(C) + k <= U(P) + k), and P's core
+   the minimisers of M(C) and U(C) (lo_j(P) <= lo_j(C) <= hi_j(C) = U(C) <= U(P)) */
 inline void cb_nearest_of(__global const float4* sp, __global const int* cand, int nc, float3 lo,
                           float3 hi, float* M, float* U)
 {
@@ -331,7 +332,7 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
     cb_box(cb, origins, gid, &lo, &hi);
     int4 pl = lists[gid / 8];
     float M, U;
-    cb_nearest_of(sp, cand + pl.x, pl.y, lo, hi, &M, &U);
+    cb_nearest_of(sp, cand + pl.z, pl.w, lo, hi, &M, &U);
     if (U < -cb->tau) {
         out[gid] = (int4)(VR_CELL_INSIDE, 0, as_int(U), as_int(U));
         return;
