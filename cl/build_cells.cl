@@ -317,11 +317,12 @@ __kernel void build_classify(__constant CellBuild* cb, __global const float4* re
     out[gid] = cb_classify(cb, M, U, a.n, a.nc, cb_finish(cb, &a, M, U, 0));
 }
 
-/* The same for the 8 octants of each parent box (origins[gid], parent gid / 8), from the
-   parent's list: cand[lists[gid / 8]] */
+/* The same for sub-boxes origins[gid] of parent boxes parent[gid], from the parent's list
+   and core: cand[lists[parent[gid]]] */
 __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4* restrict sp,
                                  __global const int* restrict cand,
                                  __global const int4* restrict lists,
+                                 __global const int* restrict parent,
                                  __global const int4* restrict origins, __global int4* out,
                                  int n_boxes)
 {
@@ -330,7 +331,7 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
         return;
     float3 lo, hi;
     cb_box(cb, origins, gid, &lo, &hi);
-    int4 pl = lists[gid / 8];
+    int4 pl = lists[parent[gid]];
     float M, U;
     cb_nearest_of(sp, cand + pl.z, pl.w, lo, hi, &M, &U);
     if (U < -cb->tau) {

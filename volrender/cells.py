@@ -193,23 +193,28 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     none_i = buf(np.zeros(1, np.int32))
     none_i4 = buf(np.zeros((1, 4), np.int32))
 
-    def prm(size):
+    def prm(size, open_=False):
         p = params.copy()
         p["box_cells"] = size
+        if open_:
+            p["tau"] = np.float32(3e38)
         return buf(p)
 
-    def classify(origins, size, cand=None, cand_lists=None):
-        """(class, count, bound bits, U bits) per box, from the tree or the parents' lists."""
+    def classify(origins, size, cand=None, cand_lists=None, parents=None, open_=False):
+        """(class, count, core count or bound bits, U bits) per box, from the tree or (cand)
+        the lists of parent boxes parents (default: box j // 8); open_: class 0 always."""
         out = np.empty((len(origins), 4), np.int32)
         if len(origins):
             d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             g = (_round_up(len(origins)),)
             if cand is None:
-                k_tree(queue, g, None, prm(size), d_sp, d_nodes, buf(origins), d_out,
+                k_tree(queue, g, None, prm(size, open_), d_sp, d_nodes, buf(origins), d_out,
                        np.int32(len(origins)))
             else:
-                k_sub(queue, g, None, prm(size), d_sp, cand, cand_lists, buf(origins), d_out,
-                      np.int32(len(origins)))
+                if parents is None:
+                    parents = np.arange(len(origins)) // 8
+                k_sub(queue, g, None, prm(size, open_), d_sp, cand, cand_lists,
+                      buf(parents.astype(np.int32)), buf(origins), d_out, np.int32(len(origins)))
             cl.enqueue_copy(queue, out, d_out)
         return out
 
@@ -240,11 +245,15 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0, dims - 1)
               .astype(np.int64) for p in force]
 
-    def force_open(origins, size, cls):
-        """Keep forced cells' boxes unclassified down to the cell level."""
+    def force_open(origins, size, out, cand=None, cand_lists=None):
+        """Keep forced cells' boxes unclassified down to the cell level (their class,
+        counts and U redone without classifying)."""
+        hit = np.zeros(len(origins), bool)
         for q in forced:
-            inside = np.all((origins[:, :3] <= q) & (q < origins[:, :3] + size), axis=1)
-            cls[inside] = 0
+            hit |= np.all((origins[:, :3] <= q) & (q < origins[:, :3] + size), axis=1)
+        j = np.nonzero(hit & (out[:, 0] != 0))[0]
+        if len(j):
+            out[j] = classify(origins[j], size, cand, cand_lists, j // 8, open_=True)
 
     # bricks from the tree; then the octants of unclassified boxes, each from its parent's
     # list, down to cells
@@ -252,8 +261,8 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     borig = np.zeros((bx.size, 4), np.int32)
     borig[:, 0], borig[:, 1], borig[:, 2] = (bx.ravel() * B, by.ravel() * B, bz.ravel() * B)
     bout = classify(borig, B)
+    force_open(borig, B, bout)
     bcls = bout[:, 0].copy()
-    force_open(borig, B, bcls)
     mixed = np.nonzero(bcls == 0)[0]
     block_of = np.full(len(borig), -1, np.int64)
     block_of[mixed] = np.arange(len(mixed))
@@ -261,14 +270,14 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     cbound = np.zeros(len(mixed) * B3, np.int32)
     origins, size = borig[mixed], B
     cand, lists, total = fill(origins, size, bout[mixed])
-    d_lists = buf(lists)
     octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
     while size > 1:
         size //= 2
         origins = (origins[:, None, :] + size * octants[None]).reshape(-1, 4)
+        d_lists = buf(lists)
         out = classify(origins, size, cand, d_lists)
+        force_open(origins, size, out, cand, d_lists)
         cls = out[:, 0].copy()
-        force_open(origins, size, cls)
         # paint the classified boxes into their bricks' blocks
         done = np.nonzero(cls != 0)[0]
         o = origins[done, :3].astype(np.int64)
@@ -280,7 +289,6 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         keep = np.nonzero(cls == 0)[0]
         origins = origins[keep]
         cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
-        d_lists = buf(lists)
     items = np.empty(max(total, 1), np.int32)
     cl.enqueue_copy(queue, items, cand)
     items = items[:total]

@@ -300,30 +300,36 @@ def plan(scene, device, variant=None):
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
-    grid = packed.cells
-    none2 = np.zeros((1, 2), np.int32)
-    spheres = packed.spheres
+    spheres, grid_arrays = kernel_arrays(packed, params)
     info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
-    if grid is not None:
-        params["grid_lo"] = [*grid.lo, grid.cell]
-        params["grid_dims"] = [*grid.dims, 0]
-        params["brick_dims"] = [*grid.bdims, 0]
-        params["grid_inv"] = np.float32(1.0 / grid.cell)
-        params["grid_nudge"] = 1e-3 * grid.cell
-        params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
-        # a far sentinel sphere: list padding points at it (cl/build_cells.cl)
-        spheres = np.vstack([spheres, np.array([[1e30, 1e30, 1e30, 0.0]], np.float32)])
-        info.update(cells_ms=grid.build_ms, cells=grid.stats())
+    if packed.cells is not None:
+        info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.stats())
     if packed.note:
         info["note"] = packed.note
-    grid_arrays = ([grid.bricks, grid.cells, grid.lists, grid.items] if grid is not None else
-                   [none2, none2, np.zeros((1, 4), np.int32), np.zeros(1, np.int32)])
     inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
               lights_mod.pack(scene.lights, w2f), spheres, packed.nodes, env, colors,
               *grid_arrays]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
                 PIXELS_PER_LAUNCH, info=info)
+
+
+def kernel_arrays(packed: GlassScene, params):
+    """The spheres and the four support-cell arrays the kernel reads (cl/cells.h), with the
+    grid's fields of the GlassParams record `params` set; stand-ins without cells."""
+    grid = packed.cells
+    if grid is None:
+        return packed.spheres, [np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int32),
+                                np.zeros((1, 4), np.int32), np.zeros(1, np.int32)]
+    params["grid_lo"] = [*grid.lo, grid.cell]
+    params["grid_dims"] = [*grid.dims, 0]
+    params["brick_dims"] = [*grid.bdims, 0]
+    params["grid_inv"] = np.float32(1.0 / grid.cell)
+    params["grid_nudge"] = 1e-3 * grid.cell
+    params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
+    # a far sentinel sphere: list padding points at it (cl/build_cells.cl)
+    spheres = np.vstack([packed.spheres, np.array([[1e30, 1e30, 1e30, 0.0]], np.float32)])
+    return spheres, [grid.bricks, grid.cells, grid.lists, grid.items]
 
 
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,
