@@ -502,7 +502,8 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     cloud = PointCloud(c, np.full(n, 0.3))
     cam = Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.5), (0.0, 1.0, 0.0), 20.0, 3, 3)
     img = glass.render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1,
-                                                                  max_steps=32), cl_device)["rgba"]
+                                                                  max_steps=32, accel="tree"),
+                              cl_device)["rgba"]
     finite(img)
     assert img[1, 1, 3] == 1.0
     (t,) = built

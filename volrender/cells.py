@@ -27,7 +27,9 @@ B = layout.CELL_BRICK
 B3 = B ** 3
 OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
 MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
-MAX_ITEMS = 1 << 30           # list entries (4 bytes each); beyond: the tree walk instead
+MAX_ITEMS = 1 << 28           # list entries (4 bytes each, 1 GiB); beyond: the tree walk
+MAX_LIST = 1 << 18            # spheres on one brick's list; beyond: the tree walk (lists of
+                              # coincident points or a blend dwarfing the cloud)
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
@@ -182,6 +184,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     k_fill = device.kernel("build_cells", flags, "build_fill")
     ctx, queue = device.context, device.queue
     mf = cl.mem_flags
+    max_items = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 4)
 
     def buf(a):
         a = np.ascontiguousarray(a)
@@ -224,8 +227,10 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         counts = out[:, 1].astype(np.int64)
         core = out[:, 2].astype(np.int64)
         total = int(counts.sum() + core.sum())
-        if total > MAX_ITEMS:
-            raise TooLarge(f"{total} list entries")
+        if total > max_items:
+            raise TooLarge(f"over {max_items} list entries")
+        if size == B and len(counts) and counts.max() > MAX_LIST:
+            raise TooLarge(f"a brick's list holds {counts.max()} spheres")
         lists = np.zeros((len(origins), 4), np.int32)
         ends = np.cumsum(counts + core)
         lists[:, 0] = ends - counts - core
