@@ -19,9 +19,10 @@
    threshold and rounding error). A cheap first test for bricks: S <= N (list length),
    so L0 = M - (k/2) ln N is a bound too, and N is counted from whole subtrees.
    k <= VR_BLEND_MIN (plain union): L = M, UF = U.
-   Kernels: build_classify (class, list length, bound, U per box: bricks, then the octants
-   of the boxes left unclassified, down to single cells), build_fill (the lists, in
-   increasing sphere index: the walk visits the leaves left to right). */
+   Lists are stored as runs (first, count) of consecutive sphere indices, ascending (the
+   walk visits the leaves left to right; spheres are in tree order, so neighbours are runs).
+   Kernels: build_classify (class, run counts, bound, U per box: bricks, then the octants of
+   the boxes left unclassified, down to single cells), build_fill (the runs). */
 #include "common.h"
 #include "structs.h"
 
@@ -136,7 +137,9 @@ typedef struct {
     float t[CB_J + 1];          /* the partition of [M, U] */
     float shi[CB_J], slo[CB_J]; /* Shi(t_j+1), Slo(t_j) */
     float core;                 /* core threshold U + pad */
-    int n, nc;                  /* list and core lengths */
+    int n, nc;                  /* runs on the list and on the core */
+    int first, last;            /* the list's open run */
+    int firstc, lastc;          /* the core's open run */
 } CbAcc;
 
 inline CbAcc cb_start(__constant CellBuild* cb, float M, float U)
@@ -152,31 +155,53 @@ inline CbAcc cb_start(__constant CellBuild* cb, float M, float U)
     for (int j = 0; j < CB_J; ++j) { a.shi[j] = 0.0f; a.slo[j] = 0.0f; }
     a.n = 0;
     a.nc = 0;
+    a.first = a.last = -2;
+    a.firstc = a.lastc = -2;
     return a;
 }
 
-/* Where cb_add writes: the list at items[0, cap) and the core at core[0, core_cap) */
+/* Where cb_add writes: the list's runs at runs[0, cap) and the core's at core[0, core_cap).
+   A run (first, count) is consecutive sphere indices; spheres arrive in ascending order. */
 typedef struct {
-    __global int* items;
+    __global int2* runs;
     int cap;
-    __global int* core;
+    __global int2* core;
     int core_cap;
 } CbOut;
 
-/* one candidate sphere i: on the list when lo_i <= thr, on the core when lo_i <= U + pad */
+/* Count (and with runs, write) sphere i into a run list: *n runs so far, the last one
+   starting at *first and ending at *last (written when the next run starts) */
+inline void cb_run(__global int2* runs, int cap, int* n, int* first, int* last, int i)
+{
+    if (i == *last + 1 && *n > 0) {
+        *last = i;
+        return;
+    }
+    if (runs && *n > 0 && *n <= cap)
+        runs[*n - 1] = (int2)(*first, *last - *first + 1);
+    ++*n;
+    *first = i;
+    *last = i;
+}
+
+inline void cb_run_end(__global int2* runs, int cap, int n, int first, int last)
+{
+    if (runs && n > 0 && n <= cap)
+        runs[n - 1] = (int2)(first, last - first + 1);
+}
+
+/* one candidate sphere i: on the list when lo_i <= thr, on the core when lo_i <= U + pad;
+   the bounds' sums only when counting (w == 0: the fill pass needs the runs alone) */
 inline void cb_add(CbAcc* a, float4 s, int i, float3 lo, float3 hi, const CbOut* w)
 {
     float dlo, dhi;
     cb_sphere(s, lo, hi, &dlo, &dhi);
     if (dlo <= a->thr) {
-        if (w && a->n < w->cap)
-            w->items[a->n] = i;
-        ++a->n;
-        if (dlo <= a->core) {
-            if (w && a->nc < w->core_cap)
-                w->core[a->nc] = i;
-            ++a->nc;
-        }
+        cb_run(w ? w->runs : 0, w ? w->cap : 0, &a->n, &a->first, &a->last, i);
+        if (dlo <= a->core)
+            cb_run(w ? w->core : 0, w ? w->core_cap : 0, &a->nc, &a->firstc, &a->lastc, i);
+        if (w)
+            return;
         for (int j = 0; j < CB_J; ++j) {
             float ha = fmax(1.0f - (dlo - a->t[j + 1]) * a->inv_k, 0.0f);
             float hb = fmax(1.0f - (dhi - a->t[j]) * a->inv_k, 0.0f);
@@ -186,14 +211,16 @@ inline void cb_add(CbAcc* a, float4 s, int i, float3 lo, float3 hi, const CbOut*
     }
 }
 
-/* L and UF from the sums; the sentinel n_spheres fills written lists' unused tails */
+/* L and UF from the sums; empty runs fill written lists' unused tails */
 inline float2 cb_finish(__constant CellBuild* cb, CbAcc* a, float M, float U, const CbOut* w)
 {
     if (w) {
+        cb_run_end(w->runs, w->cap, a->n, a->first, a->last);
+        cb_run_end(w->core, w->core_cap, a->nc, a->firstc, a->lastc);
         for (int j = a->n; j < w->cap; ++j)
-            w->items[j] = cb->n_spheres;
+            w->runs[j] = (int2)(0, 0);
         for (int j = a->nc; j < w->core_cap; ++j)
-            w->core[j] = cb->n_spheres;
+            w->core[j] = (int2)(0, 0);
     }
     if (a->k == 0.0f)
         return (float2)(M, U);
@@ -234,30 +261,36 @@ inline CbAcc cb_list_tree(__constant CellBuild* cb, __global const float4* sp,
     return a;
 }
 
-/* M and U, then the list, from candidates: a parent box P's list holds every sphere that
-   can be on a sub-box C's list (lo_i(P) <= lo_i(C) <= U(C) + k <= U(P) + k), and P's core
-   the minimisers of M(C) and U(C) (lo_j(P) <= lo_j(C) <= hi_j(C) = U(C) <= U(P)) */
-inline void cb_nearest_of(__global const float4* sp, __global const int* cand, int nc, float3 lo,
+/* M and U, then the list, from candidate runs: a parent box P's list holds every sphere
+   that can be on a sub-box C's list (lo_i(P) <= lo_i(C) <= U(C) + k <= U(P) + k), and P's
+   core the minimisers of M(C) and U(C) (lo_j(P) <= lo_j(C) <= hi_j(C) = U(C) <= U(P)) */
+inline void cb_nearest_of(__global const float4* sp, __global const int2* cand, int nc, float3 lo,
                           float3 hi, float* M, float* U)
 {
     float m = INFINITY, u = INFINITY;
     for (int j = 0; j < nc; ++j) {
-        float a, b;
-        cb_sphere(sp[cand[j]], lo, hi, &a, &b);
-        m = fmin(m, a);
-        u = fmin(u, b);
+        int2 r = cand[j];
+        for (int i = r.x; i < r.x + r.y; ++i) {
+            float a, b;
+            cb_sphere(sp[i], lo, hi, &a, &b);
+            m = fmin(m, a);
+            u = fmin(u, b);
+        }
     }
     *M = m;
     *U = u;
 }
 
 inline CbAcc cb_list_of(__constant CellBuild* cb, __global const float4* sp,
-                        __global const int* cand, int nc, float3 lo, float3 hi, float M, float U,
+                        __global const int2* cand, int nc, float3 lo, float3 hi, float M, float U,
                         const CbOut* w)
 {
     CbAcc a = cb_start(cb, M, U);
-    for (int j = 0; j < nc; ++j)
-        cb_add(&a, sp[cand[j]], cand[j], lo, hi, w);
+    for (int j = 0; j < nc; ++j) {
+        int2 r = cand[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            cb_add(&a, sp[i], i, lo, hi, w);
+    }
     return a;
 }
 
@@ -271,8 +304,8 @@ inline void cb_box(__constant CellBuild* cb, __global const int4* origins, int g
     *hi = cb->grid_lo.xyz + convert_float3(o.xyz + cb->box_cells) * h;
 }
 
-/* class of a box from M, U, the list and core lengths and the bounds: VR_CELL_OUTSIDE
-   (bound = L), VR_CELL_INSIDE (bound = UF) or 0 (the list is needed) */
+/* class of a box from M, U, the list's and core's run counts and the bounds:
+   VR_CELL_OUTSIDE (bound = L), VR_CELL_INSIDE (bound = UF) or 0 (the list is needed) */
 inline int4 cb_classify(__constant CellBuild* cb, float M, float U, int n, int nc, float2 b)
 {
     int cls = 0;
@@ -287,7 +320,7 @@ inline int4 cb_classify(__constant CellBuild* cb, float M, float U, int n, int n
     return (int4)(cls, n, cls ? as_int(bound) : nc, as_int(U));
 }
 
-/* out[gid] = (class, list length, bound bits or (class 0) core length, U bits) of box
+/* out[gid] = (class, list runs, bound bits or (class 0) core runs, U bits) of box
    origins[gid], from the tree */
 __kernel void build_classify(__constant CellBuild* cb, __global const float4* restrict sp,
                              __global const TreeNode* restrict nodes,
@@ -320,7 +353,7 @@ __kernel void build_classify(__constant CellBuild* cb, __global const float4* re
 /* The same for sub-boxes origins[gid] of parent boxes parent[gid], from the parent's list
    and core: cand[lists[parent[gid]]] */
 __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4* restrict sp,
-                                 __global const int* restrict cand,
+                                 __global const int2* restrict cand,
                                  __global const int4* restrict lists,
                                  __global const int* restrict parent,
                                  __global const int4* restrict origins, __global int4* out,
@@ -343,14 +376,15 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
 }
 
 /* The list and core of each box origins[j] (thresholds upper[j] + k + pad and upper[j] +
-   pad), written at items[l.x, l.x + l.y) and items[l.z, l.z + l.w), l = lists[j]; from the
-   tree (from_tree), or from the list of parent box parent[j], cand[cand_lists[parent[j]]] */
+   pad), written as runs at runs[l.x, l.x + l.y) and runs[l.z, l.z + l.w), l = lists[j];
+   from the tree (from_tree), or from the list of parent box parent[j],
+   cand[cand_lists[parent[j]]] */
 __kernel void build_fill(__constant CellBuild* cb, __global const float4* restrict sp,
                          __global const TreeNode* restrict nodes,
-                         __global const int* restrict cand, __global const int4* restrict cand_lists,
+                         __global const int2* restrict cand, __global const int4* restrict cand_lists,
                          __global const int* restrict parent,
                          __global const int4* restrict origins, __global const float* restrict upper,
-                         __global const int4* restrict lists, __global int* items, int n_boxes,
+                         __global const int4* restrict lists, __global int2* runs, int n_boxes,
                          int from_tree)
 {
     int j = get_global_id(0);
@@ -360,7 +394,7 @@ __kernel void build_fill(__constant CellBuild* cb, __global const float4* restri
     cb_box(cb, origins, j, &lo, &hi);
     float U = upper[j];                 /* membership needs U only (M sets the bounds) */
     int4 l = lists[j];
-    CbOut w = { items + l.x, l.y, items + l.z, l.w };
+    CbOut w = { runs + l.x, l.y, runs + l.z, l.w };
     CbAcc a;
     if (from_tree) {
         a = cb_list_tree(cb, sp, nodes, lo, hi, U, U, &w);

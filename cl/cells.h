@@ -4,8 +4,9 @@
    brick's cells in `cells`; VR_CELL_OUTSIDE / VR_CELL_INSIDE: the whole brick lies outside
    the glass (F >= bound > tau) or inside it (F <= bound < -tau). cells[block * B^3 + local]
    likewise: code >= 0 is the cell's list, lists[code] = (start, count, core start, core
-   count) into `items`: the indices of every sphere that can matter in the cell, ascending,
-   and of those that can be the nearest (the core, enough for m). A ray on one side of the
+   count) into `runs`: runs (first, count) of consecutive indices of every sphere that can
+   matter in the cell, ascending, and of those that can be the nearest (the core, enough
+   for m). A ray on one side of the
    surface crosses skippable cells of its side without evaluating the field (DDA to the exit
    of the cell or brick). Include from sdf.h (SdfScene holds the grid). */
 #ifndef VR_CELLS_H

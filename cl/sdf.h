@@ -47,8 +47,8 @@ typedef struct {
 #if VR_GRID
     __global const int2* bricks;      /* cl/cells.h */
     __global const int2* cells;
-    __global const int4* lists;       /* (start, count, core start, core count) into items */
-    __global const int* items;        /* sphere indices, ascending per list */
+    __global const int4* lists;       /* (start, count, core start, core count) into runs */
+    __global const int2* runs;        /* (first sphere, count), ascending per list */
     float3 grid_lo;                   /* min corner of cell (0, 0, 0) */
     float cell, inv_cell;             /* cell edge and its inverse */
     float nudge;                      /* step past a skipped cell's exit face */
@@ -134,8 +134,9 @@ inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, 
 #endif
 #if VR_GRID
     for (int j = list.z; j < list.z + list.w; ++j) {     /* the core holds the nearest */
-        int i = sc->items[j];
-        SDF_NEAREST(sc->spheres[i], i)
+        int2 r = sc->runs[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            SDF_NEAREST(sc->spheres[i], i)
     }
 #elif VR_TREE
     int stack[VR_TREE_STACK];
@@ -215,8 +216,9 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
     {
 #if VR_GRID
     for (int j = list.x; j < list.x + list.y; ++j) {
-        int i = sc->items[j];
-        SDF_ACCUMULATE(sc->spheres[i], i)
+        int2 r = sc->runs[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            SDF_ACCUMULATE(sc->spheres[i], i)
     }
 #elif VR_TREE
     int stack[VR_TREE_STACK];

@@ -15,7 +15,7 @@ SOURCE = """
 inline SdfScene probe_scene(__global const float4* spheres, __global const TreeNode* nodes,
                             __constant GlassParams* gp, __global const int2* bricks,
                             __global const int2* cells, __global const int4* lists,
-                            __global const int* items)
+                            __global const int2* runs)
 {
     SdfScene sc;
     sc.spheres = spheres;
@@ -27,7 +27,7 @@ inline SdfScene probe_scene(__global const float4* spheres, __global const TreeN
     sc.bricks = bricks;
     sc.cells = cells;
     sc.lists = lists;
-    sc.items = items;
+    sc.runs = runs;
     sc.grid_lo = gp->grid_lo.xyz;
     sc.cell = gp->grid_lo.w;
     sc.inv_cell = gp->grid_inv;
@@ -41,8 +41,8 @@ inline SdfScene probe_scene(__global const float4* spheres, __global const TreeN
 
 #define PROBE_ARGS __global const float4* spheres, __global const TreeNode* nodes, \\
     __constant GlassParams* gp, __global const int2* bricks, __global const int2* cells, \\
-    __global const int4* lists, __global const int* items
-#define PROBE_SCENE probe_scene(spheres, nodes, gp, bricks, cells, lists, items)
+    __global const int4* lists, __global const int2* runs
+#define PROBE_SCENE probe_scene(spheres, nodes, gp, bricks, cells, lists, runs)
 
 /* out: grad xyz, F */
 __kernel void field(PROBE_ARGS, __global const float4* pts, __global float4* out)

@@ -71,7 +71,7 @@ def test_stats_count_the_field_work(cl_device, accel):
         np.testing.assert_array_equal(tests, 2 * len(cloud.centers) * evals)
     else:
         grid = glass.pack_scene(cloud, base, device=cl_device).cells
-        longest = int((grid.lists[:, 1] + grid.lists[:, 3]).max())
+        longest = int((grid.lengths() + grid.lengths(core=True)).max())
         assert (nodes >= evals).all() and nodes.sum() > evals.sum()   # lookups, skips
         assert (tests <= longest * evals).all() and tests.sum() > 0
         assert (evals[img[..., 3] == 0] == 0).mean() > 0.5   # most misses cross only skips

@@ -27,8 +27,8 @@ B = layout.CELL_BRICK
 B3 = B ** 3
 OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
 MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
-MAX_ITEMS = 1 << 28           # list entries (4 bytes each, 1 GiB); beyond: the tree walk
-MAX_LIST = 1 << 18            # spheres on one brick's list; beyond: the tree walk (lists of
+MAX_ITEMS = 1 << 27           # list runs (8 bytes each, 1 GiB); beyond: the tree walk
+MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk (lists of
                               # coincident points or a blend dwarfing the cloud)
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
@@ -48,22 +48,30 @@ class Cells:
     bricks: np.ndarray        # int32 (n_bricks, 2): code, bound bits (cl/cells.h)
     cells: np.ndarray         # int32 (n_blocks * B^3, 2): code, bound bits
     lists: np.ndarray         # int32 (n_lists, 4): list start, count, core start, count
-                              # into items (core: spheres that can be the nearest)
-    items: np.ndarray         # int32: sphere indices (tree order), ascending per list
+                              # in runs (core: the spheres that can be the nearest)
+    runs: np.ndarray          # int32 (n_runs, 2): first sphere, count of consecutive sphere
+                              # indices (tree order), ascending within a list
     tau: float                # skippable cells have |F| > tau
     pad: float                # lists hold lo_i <= U + k + pad
     build_ms: float
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists, self.items))
+        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists, self.runs))
+
+    def lengths(self, core=False):
+        """Spheres on each list (or core)."""
+        start, count = (self.lists[:, 2], self.lists[:, 3]) if core else \
+            (self.lists[:, 0], self.lists[:, 1])
+        c = np.concatenate([[0], np.cumsum(self.runs[:, 1], dtype=np.int64)])
+        return c[start + count] - c[start]
 
     def stats(self) -> dict:
         """Counts for reports and benchmarks."""
         codes = self.cells[:, 0]
         bcodes = self.bricks[:, 0]
-        n = self.lists[:, 1]
-        nc = self.lists[:, 3]
+        n = self.lengths()
+        nc = self.lengths(core=True)
         return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
                 "bricks": int(len(bcodes)), "mixed_bricks": int((bcodes >= 0).sum()),
                 "bricks_outside": int((bcodes == OUTSIDE).sum()),
@@ -74,7 +82,7 @@ class Cells:
                 "list_mean": float(n.mean()) if len(n) else 0.0,
                 "list_max": int(n.max()) if len(n) else 0,
                 "core_mean": float(nc.mean()) if len(nc) else 0.0,
-                "items": int(len(self.items)), "bytes": int(self.nbytes), "build_ms": self.build_ms}
+                "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)), "bytes": int(self.nbytes), "build_ms": self.build_ms}
 
     def box(self, q):
         """(lo, hi) float64 of the cells with integer coordinates q (..., 3)."""
@@ -104,13 +112,20 @@ class Cells:
         lists = [None] * len(q)
         for j in np.nonzero(code >= 0)[0]:
             s, n = self.lists[code[j], :2]
-            lists[j] = self.items[s:s + n]
+            lists[j] = _expand(self.runs[s:s + n])
         return code, bound, lists
 
     def core(self, code):
         """The core list (the spheres that can be nearest) of listed cell `code`."""
         s, n = self.lists[code, 2:]
-        return self.items[s:s + n]
+        return _expand(self.runs[s:s + n])
+
+
+def _expand(runs):
+    """Sphere indices of runs (first, count)."""
+    if len(runs) == 0:
+        return np.zeros(0, np.int64)
+    return np.concatenate([np.arange(a, a + c) for a, c in runs])
 
 
 def auto_cell_size(radii, blend) -> float:
@@ -184,7 +199,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     k_fill = device.kernel("build_cells", flags, "build_fill")
     ctx, queue = device.context, device.queue
     mf = cl.mem_flags
-    max_items = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 4)
+    max_runs = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 8)
 
     def buf(a):
         a = np.ascontiguousarray(a)
@@ -222,30 +237,30 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         return out
 
     def fill(origins, size, out, parent=None, cand=None, cand_lists=None):
-        """The lists of boxes: device items, host (start, count, core start, core count)
-        int32, total entries. Each box's core follows its list."""
+        """The lists of boxes: device runs, host (start, count, core start, core count)
+        int32 in runs, total runs. Each box's core follows its list."""
         counts = out[:, 1].astype(np.int64)
         core = out[:, 2].astype(np.int64)
         total = int(counts.sum() + core.sum())
-        if total > max_items:
-            raise TooLarge(f"over {max_items} list entries")
+        if total > max_runs:
+            raise TooLarge(f"over {max_runs} list runs")
         if size == B and len(counts) and counts.max() > MAX_LIST:
-            raise TooLarge(f"a brick's list holds {counts.max()} spheres")
+            raise TooLarge(f"a brick's list holds {counts.max()} runs")
         lists = np.zeros((len(origins), 4), np.int32)
         ends = np.cumsum(counts + core)
         lists[:, 0] = ends - counts - core
         lists[:, 1] = counts
         lists[:, 2] = ends - core
         lists[:, 3] = core
-        d_items = cl.Buffer(ctx, mf.READ_WRITE, 4 * max(total, 1))
+        d_runs = cl.Buffer(ctx, mf.READ_WRITE, 8 * max(total, 1))
         if len(origins):
             from_tree = cand is None
             k_fill(queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
                    none_i if from_tree else cand, none_i4 if from_tree else cand_lists,
                    none_i if from_tree else buf(parent.astype(np.int32)), buf(origins),
-                   buf(out[:, 3].view(np.float32)), buf(lists), d_items, np.int32(len(origins)),
+                   buf(out[:, 3].view(np.float32)), buf(lists), d_runs, np.int32(len(origins)),
                    np.int32(from_tree))
-        return d_items, lists, total
+        return d_runs, lists, total
 
     forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0, dims - 1)
               .astype(np.int64) for p in force]
@@ -294,9 +309,9 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         keep = np.nonzero(cls == 0)[0]
         origins = origins[keep]
         cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
-    items = np.empty(max(total, 1), np.int32)
-    cl.enqueue_copy(queue, items, cand)
-    items = items[:total]
+    runs = np.empty((max(total, 1), 2), np.int32)
+    cl.enqueue_copy(queue, runs, cand)
+    runs = runs[:total]
     # the tables the renderer reads
     sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
     bricks = np.empty((len(borig), 2), np.int32)
@@ -307,7 +322,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     cells[:, 1] = cbound
     cells[sel, 0] = np.arange(len(sel))
     cells[sel, 1] = 0
-    return Cells(lo, cell, dims, bdims, bricks, cells, lists, items, float(tau), pad,
+    return Cells(lo, cell, dims, bdims, bricks, cells, lists, runs, float(tau), pad,
                  1e3 * (time.perf_counter() - t0))
 
 

@@ -320,16 +320,14 @@ def kernel_arrays(packed: GlassScene, params):
     grid = packed.cells
     if grid is None:
         return packed.spheres, [np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int32),
-                                np.zeros((1, 4), np.int32), np.zeros(1, np.int32)]
+                                np.zeros((1, 4), np.int32), np.zeros((1, 2), np.int32)]
     params["grid_lo"] = [*grid.lo, grid.cell]
     params["grid_dims"] = [*grid.dims, 0]
     params["brick_dims"] = [*grid.bdims, 0]
     params["grid_inv"] = np.float32(1.0 / grid.cell)
     params["grid_nudge"] = 1e-3 * grid.cell
     params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
-    # a far sentinel sphere: list padding points at it (cl/build_cells.cl)
-    spheres = np.vstack([packed.spheres, np.array([[1e30, 1e30, 1e30, 0.0]], np.float32)])
-    return spheres, [grid.bricks, grid.cells, grid.lists, grid.items]
+    return packed.spheres, [grid.bricks, grid.cells, grid.lists, grid.runs]
 
 
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,
