@@ -33,6 +33,8 @@ MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk 
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
+CPU_CELLS = 1 << 20           # automatic cell edge: cells in the surface's bricks, CPUs
+GPU_CELLS = 1 << 24           # and GPUs (build_cells' budget)
 
 
 class TooLarge(Exception):
@@ -134,6 +136,13 @@ def auto_cell_size(radii, blend) -> float:
     return CELL_FACTOR * (r + 0.5 * float(blend))
 
 
+def cell_budget(device) -> int:
+    """Most cells the automatic cell edge lets the surface's bricks hold: CPU_CELLS on CPUs,
+    where building them costs about as much as rendering a small image, GPU_CELLS on GPUs."""
+    from .dispatch import is_gpu
+    return GPU_CELLS if is_gpu(device) else CPU_CELLS
+
+
 def grid_shape(box_lo, box_hi, cell):
     """(cell, dims, bdims) covering [box_lo, box_hi]; the edge grows until the brick
     table fits MAX_BRICKS (and is never 0)."""
@@ -174,25 +183,22 @@ def _round_up(n, m=64):
 
 
 def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
-          force=(), classify=True) -> Cells:
+          force=(), classify=True, max_cells=None) -> Cells:
     """Support cells over [box_lo, box_hi] (render frame) for float32 `spheres` (N, 4, tree
     order) and their TreeNode records, on `device` (a volrender.device.Device).
     force: render-frame points whose cells get a list whatever their class (the eye: its
-    first sample reads the colour there). classify=False lists every cell (tests)."""
+    first sample reads the colour there). classify=False lists every cell (tests).
+    max_cells: when the bricks the surface passes through hold more cells than this, the
+    cell edge grows (by (cells / max_cells)^0.4, the brick pass redone) until they fit."""
     import pyopencl as cl
 
     t0 = time.perf_counter()
     n = len(spheres)
-    cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
     lo = np.asarray(box_lo, np.float32)
     extent = float(np.abs(np.concatenate([np.asarray(box_lo, np.float64),
                                           np.asarray(box_hi, np.float64)])).max())
     pad = PAD * (extent + blend)
-    tau_run = float(tau) if classify else math.inf
-    params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad, tau=tau_run,
-                           n_spheres=n, first_leaf=first_leaf, box_cells=B)
-    if math.isinf(tau_run):
-        params["tau"] = np.float32(3e38)
+    tau_run = float(tau) if classify else 3e38
     flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
     k_tree = device.kernel("build_cells", flags, "build_classify")
     k_sub = device.kernel("build_cells", flags, "build_classify_sub")
@@ -262,9 +268,6 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
                    np.int32(from_tree))
         return d_runs, lists, total
 
-    forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0, dims - 1)
-              .astype(np.int64) for p in force]
-
     def force_open(origins, size, out, cand=None, cand_lists=None):
         """Keep forced cells' boxes unclassified down to the cell level (their class,
         counts and U redone without classifying)."""
@@ -277,13 +280,22 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
 
     # bricks from the tree; then the octants of unclassified boxes, each from its parent's
     # list, down to cells
-    bz, by, bx = np.meshgrid(*(np.arange(v) for v in bdims[::-1]), indexing="ij")
-    borig = np.zeros((bx.size, 4), np.int32)
-    borig[:, 0], borig[:, 1], borig[:, 2] = (bx.ravel() * B, by.ravel() * B, bz.ravel() * B)
-    bout = classify(borig, B)
-    force_open(borig, B, bout)
-    bcls = bout[:, 0].copy()
-    mixed = np.nonzero(bcls == 0)[0]
+    while True:
+        cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
+        params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
+                               tau=tau_run, n_spheres=n, first_leaf=first_leaf, box_cells=B)
+        forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0,
+                          dims - 1).astype(np.int64) for p in force]
+        bz, by, bx = np.meshgrid(*(np.arange(v) for v in bdims[::-1]), indexing="ij")
+        borig = np.zeros((bx.size, 4), np.int32)
+        borig[:, 0], borig[:, 1], borig[:, 2] = (bx.ravel() * B, by.ravel() * B, bz.ravel() * B)
+        bout = classify(borig, B)
+        force_open(borig, B, bout)
+        bcls = bout[:, 0].copy()
+        mixed = np.nonzero(bcls == 0)[0]
+        if max_cells is None or len(mixed) * B3 <= max_cells or len(mixed) <= 1:
+            break
+        cell *= max(1.1, (len(mixed) * B3 / max_cells) ** 0.4)
     block_of = np.full(len(borig), -1, np.int64)
     block_of[mixed] = np.arange(len(mixed))
     ccls = np.zeros(len(mixed) * B3, np.int32)       # the mixed bricks' cells

@@ -225,8 +225,7 @@ def describe(scene) -> str:
     s = scene.settings
     if scene.kind == "volume":
         return f"{s.spp} spp"
-    return (f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, "
-            f"{'tree' if s.use_tree else 'no tree'}")
+    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {s.accel}"
 
 
 def cmd_render(args):

@@ -25,19 +25,23 @@ PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
+SCAN_BLEND = 4.0             # default blend of clouds without radii, in nearest-neighbour spacings
 ACCELS = ("grid", "tree", "none")
 
 
 @dataclass(frozen=True)
 class GlassSettings(CommonSettings):
     """Molten-glass look and tracing knobs (defaults, ranges and CLI/scene names:
-    settings.knob). Lengths are world units."""
+    settings.knob). Lengths are world units, except that absorption and glow are per
+    material_unit (default: the cloud's bounding radius)."""
     radius: float | None = knob(None, "sphere radius for every point (default: the file's "
-                                "radii, else half the median neighbour spacing)",
+                                "radii, else half the median nearest-neighbour spacing)",
                                 check=in_range(0, MAX_EXTENT, allow_none=True),
                                 toml=("points", "radius"), kind=NUM, show_default=False)
     blend: float | None = knob(None, "smooth-union width k; 0 = plain union (default: twice "
-                               "the median radius)", check=in_range(0, MAX_EXTENT, allow_none=True),
+                               "the median radius; for points without radii, four times "
+                               "the median nearest-neighbour spacing, so a scan melts into one "
+                               "surface)", check=in_range(0, MAX_EXTENT, allow_none=True),
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))
@@ -59,16 +63,23 @@ class GlassSettings(CommonSettings):
                         toml=("render", "bounces"))
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
                       toml=("material", "ior"))
-    absorption: tuple = knob((0.15, 0.6, 1.6), "Beer-Lambert coefficient inside glass, per unit "
-                             "length", metavar="R,G,B", parse=floats(3, name="--absorption"),
-                             check=rgb(0, MAX_VALUE), toml=("material", "absorption"))
+    absorption: tuple = knob((0.25, 1.0, 2.7), "Beer-Lambert coefficient inside glass, per "
+                             "--material-unit of length", metavar="R,G,B",
+                             parse=floats(3, name="--absorption"), check=rgb(0, MAX_VALUE),
+                             toml=("material", "absorption"))
     color: tuple = knob((1.0, 0.42, 0.12), "colour of the glow (and the tint of opaque spheres)",
                         metavar="R,G,B", parse=floats(3, name="--color"), check=rgb(0, MAX_VALUE),
                         toml=("material", "color"))
     reflectivity: float = knob(1.0, "scale on the Fresnel reflection", check=in_range(0, MAX_VALUE),
                                toml=("material", "reflectivity"))
-    glow: float = knob(0.6, "hot-glass emission per unit length inside glass",
+    glow: float = knob(1.0, "hot-glass emission per --material-unit of length inside glass",
                        check=in_range(0, MAX_VALUE), toml=("material", "glow"))
+    material_unit: float | None = knob(None, "the length absorption and glow are given per, "
+                                       "world units (default: the cloud's bounding radius, so "
+                                       "the material looks the same at any scale; 1 = per "
+                                       "world unit)", check=in_range(1e-30, MAX_EXTENT,
+                                                                     allow_none=True),
+                                       toml=("material", "unit"), kind=NUM, show_default=False)
     shininess: float = knob(200.0, "Blinn-Phong exponent of the highlights",
                             check=in_range(1, 1e5), toml=("material", "shininess"))
     epsilon: float = knob(1e-4, "relative hit threshold (times the path length) and ray offset",
@@ -224,6 +235,7 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
         from .render import get_device
         device = get_device(None)
     cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
+    budget = None if settings.cell_size else cells_mod.cell_budget(device)
     tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
                               len(spheres))
     force = []
@@ -231,9 +243,16 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
         force.append(eye)
     try:
         return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau, device,
-                               force=force, classify=settings.cell_skip), ""
+                               force=force, classify=settings.cell_skip,
+                               max_cells=budget), ""
     except cells_mod.TooLarge as exc:
         return None, f"support cells too large ({exc}): using the tree walk"
+
+
+def material_unit(packed: GlassScene, settings: GlassSettings) -> float:
+    """World length that absorption and glow are per: settings.material_unit, else the
+    cloud's bounding radius (packed.scale), so a 15 cm scan and a 3-unit gather look alike."""
+    return float(settings.material_unit) if settings.material_unit else float(packed.scale)
 
 
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
@@ -289,11 +308,12 @@ def plan(scene, device, variant=None):
     w2f[:3, 3] = -packed.centre
     env, env_w, env_h = _env_texels(scene.environment)
     bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
+    unit = material_unit(packed, settings)
     params = layout.record(
         "GlassParams", box_lo=[*packed.box_lo, 0], box_hi=[*packed.box_hi, 0],
-        absorption=[*settings.absorption, 0], color=[*settings.color, 0],
+        absorption=[*(np.asarray(settings.absorption) / unit), 0], color=[*settings.color, 0],
         blend=packed.blend, ior=settings.ior, reflectivity=settings.reflectivity,
-        glow=settings.glow, epsilon=settings.epsilon, shininess=settings.shininess,
+        glow=settings.glow / unit, epsilon=settings.epsilon, shininess=settings.shininess,
         scale=packed.scale, n_spheres=len(packed.spheres), first_leaf=packed.first_leaf,
         bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
         env_height=env_h, tile_margin=packed.margin,

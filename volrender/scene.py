@@ -433,6 +433,21 @@ def _lights(given, doc):
     return tuple(DEFAULT_LIGHTS)
 
 
+def _scan_defaults(cloud, settings):
+    """Radius and blend of a cloud without radii (a scan), from its exact median
+    nearest-neighbour spacing s: radius s / 2, blend glass.SCAN_BLEND * s (neighbours melt
+    into one surface). Returns (settings, note)."""
+    from . import points
+    from .glass import SCAN_BLEND
+    s = points.nn_spacing(cloud.centers)
+    radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
+    blend = settings.blend if settings.blend is not None else \
+        (SCAN_BLEND * s if s > 0 else 2.0 * radius)
+    settings = dataclasses.replace(settings, radius=radius, blend=blend)
+    return settings, (f"{len(cloud.centers)} points without radii, median spacing {s:.4g}: "
+                      f"radius {radius:.4g}, blend {blend:.4g}; set --radius, --blend")
+
+
 def _environment(path, where):
     from .glass import load_environment
     p = Path(path)
@@ -488,11 +503,9 @@ class Request:
                 cloud = generated_cloud(self.source, settings.seed)
             else:
                 cloud = points.load_points(self.source)
-            if settings.radius is None and cloud.radii is None:
-                radius = points.default_radius(cloud.centers)
-                settings = dataclasses.replace(settings, radius=radius)
-                notes.append(f"{len(cloud.centers)} points without radii: using radius "
-                             f"{radius:.4g} (half the median neighbour spacing); set --radius")
+            if cloud.radii is None and (settings.radius is None or settings.blend is None):
+                settings, note = _scan_defaults(cloud, settings)
+                notes.append(note)
             content = GlassContent(cloud, settings)
             if settings.env is not None:
                 environment = _environment(settings.env, self.given["env"][1])
