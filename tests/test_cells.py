@@ -302,3 +302,24 @@ def test_cli_accel_and_cell_size(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(["render", "blob:200", "-o", str(out), "--size", "12x10", "--accel", "bvh"])
     assert exc.value.code == 2 and "--accel" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ inspect
+
+def test_cell_boxes_and_the_tree_command(cl_device, tmp_path, capsys):
+    """`volrender tree --cells`: one wireframe per listed cell, in world space around the
+    cloud, with its list length; the export and the screenshot are written."""
+    pytest.importorskip("pyvista")
+    from volrender import inspect
+    cloud = points.blob(150, seed=2)
+    p = packed(cl_device, cloud)
+    boxes = inspect.cell_boxes(p.cells, p.centre)
+    assert inspect.n_boxes(boxes) == len(p.cells.lists)
+    np.testing.assert_array_equal(np.unique(boxes.cell_data["spheres"]),
+                                  np.unique(p.cells.lengths()))
+    lo, hi = np.asarray(boxes.bounds[0::2]), np.asarray(boxes.bounds[1::2])
+    assert (lo <= cloud.centers.min(0)).all() and (hi >= cloud.centers.max(0)).all()
+    vtk, png = tmp_path / "cells.vtk", tmp_path / "cells.png"
+    assert cli.main(["tree", "blob:150", "--cells", "--export", str(vtk), "--screenshot", str(png),
+                     "--window-size", "160x120"]) == 0
+    assert vtk.stat().st_size > 0 and png.stat().st_size > 0
