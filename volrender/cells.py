@@ -278,30 +278,25 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         if len(j):
             out[j] = classify(origins[j], size, cand, cand_lists, j // 8, open_=True)
 
-    # bricks from the tree; then the octants of unclassified boxes, each from its parent's
-    # list, down to cells
+    if max_cells is not None:
+        cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
     while True:
         cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
         params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
                                tau=tau_run, n_spheres=n, first_leaf=first_leaf, box_cells=B)
         forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0,
                           dims - 1).astype(np.int64) for p in force]
-        bz, by, bx = np.meshgrid(*(np.arange(v) for v in bdims[::-1]), indexing="ij")
-        borig = np.zeros((bx.size, 4), np.int32)
-        borig[:, 0], borig[:, 1], borig[:, 2] = (bx.ravel() * B, by.ravel() * B, bz.ravel() * B)
-        bout = classify(borig, B)
-        force_open(borig, B, bout)
-        bcls = bout[:, 0].copy()
-        mixed = np.nonzero(bcls == 0)[0]
+        bricks, (origins, out, cand, lists) = _bricks(classify, fill, force_open, buf, bdims)
+        mixed = np.nonzero(bricks[:, 0] == 0)[0]
         if max_cells is None or len(mixed) * B3 <= max_cells or len(mixed) <= 1:
             break
-        cell *= max(1.1, (len(mixed) * B3 / max_cells) ** 0.4)
-    block_of = np.full(len(borig), -1, np.int64)
+        cell *= max(1.1, (len(mixed) * B3 / max_cells) ** 0.5)
+    # the octants of unclassified boxes, each from its parent's list, down to cells
+    block_of = np.full(len(bricks), -1, np.int64)
     block_of[mixed] = np.arange(len(mixed))
     ccls = np.zeros(len(mixed) * B3, np.int32)       # the mixed bricks' cells
     cbound = np.zeros(len(mixed) * B3, np.int32)
-    origins, size = borig[mixed], B
-    cand, lists, total = fill(origins, size, bout[mixed])
+    size = B
     octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
     while size > 1:
         size //= 2
@@ -326,9 +321,8 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     runs = runs[:total]
     # the tables the renderer reads
     sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
-    bricks = np.empty((len(borig), 2), np.int32)
-    bricks[:, 0] = np.where(bcls == 0, block_of, bcls)
-    bricks[:, 1] = np.where(bcls == 0, 0, bout[:, 2])
+    bricks[mixed, 0] = np.arange(len(mixed))
+    bricks[mixed, 1] = 0
     cells = np.empty((len(ccls), 2), np.int32)
     cells[:, 0] = ccls
     cells[:, 1] = cbound
@@ -336,6 +330,78 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     cells[sel, 1] = 0
     return Cells(lo, cell, dims, bdims, bricks, cells, lists, runs, float(tau), pad,
                  1e3 * (time.perf_counter() - t0))
+
+
+TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
+
+
+def _bricks(classify, fill, force_open, buf, bdims):
+    """Classify every brick: boxes of 2^t bricks from the tree first (t: the smallest with
+    at most TOP_BOXES of them), then the octants of the unclassified ones from their
+    parents' lists, down to bricks. Returns the brick table (class or 0, bound bits) and the
+    mixed bricks' (origins, classify output, device list runs, lists), in the order of
+    np.nonzero(table[:, 0] == 0)."""
+    t = 0
+    while t < 4 and int(np.prod(-(-bdims // (1 << t)))) > TOP_BOXES:
+        t += 1
+    size = B << t
+    tdims = -(-bdims // (1 << t))
+    tz, ty, tx = np.meshgrid(*(np.arange(v) for v in tdims[::-1]), indexing="ij")
+    origins = np.zeros((tx.size, 4), np.int32)
+    origins[:, 0], origins[:, 1], origins[:, 2] = tx.ravel() * size, ty.ravel() * size, \
+        tz.ravel() * size
+    out = classify(origins, size)
+    force_open(origins, size, out)
+    table = np.full((int(np.prod(bdims)), 2), -99, np.int32)
+    cand = d_lists = None
+    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
+    while True:
+        cls = out[:, 0]
+        # paint the classified boxes' bricks (clipped to the grid)
+        nb = size // B
+        done = np.nonzero(cls != 0)[0]
+        span = np.arange(nb)
+        sub = np.stack(np.meshgrid(span, span, span, indexing="ij"), -1).reshape(-1, 3)
+        q = (origins[done, None, :3] // B + sub[None]).reshape(-1, 3)
+        ok = np.all(q < bdims, axis=1)
+        at = _brick_index(q[ok], bdims)
+        table[at, 0] = np.repeat(cls[done], len(sub))[ok]
+        table[at, 1] = np.repeat(out[done, 2], len(sub))[ok]
+        keep = np.nonzero(cls == 0)[0]
+        inside = np.all(origins[keep, :3] // B < bdims, axis=1)   # boxes past the grid: dropped
+        keep = keep[inside]
+        if size == B:
+            # the mixed bricks in table order, with their lists
+            order = np.argsort(_brick_index(origins[keep, :3] // B, bdims), kind="stable")
+            keep = keep[order]
+            table[_brick_index(origins[keep, :3] // B, bdims)] = 0
+            assert (table[:, 0] != -99).all(), "a brick was left unclassified"
+            parents = None if cand is None else keep // 8
+            c2, lists2, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
+            return table, (origins[keep], out[keep], c2, lists2)
+        parents = None if cand is None else keep // 8
+        cand, lists, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
+        size //= 2
+        origins = (origins[keep][:, None, :] + size * octants[None]).reshape(-1, 4)
+        d_lists = buf(lists)
+        out = classify(origins, size, cand, d_lists)
+        force_open(origins, size, out, cand, d_lists)
+
+
+def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
+    """The cell edge, grown until the bricks that hold a sphere centre, with their
+    neighbours within the blend, hold at most max_cells cells (a cheap estimate of the
+    bricks the surface passes through, before any is classified)."""
+    c = np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
+    r = float(np.max(spheres[:, 3])) if len(spheres) else 0.0
+    for _ in range(60):
+        edge = B * max(cell, 1e-30)
+        occupied = len(np.unique(np.floor(c / edge).astype(np.int64), axis=0))
+        grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
+        if occupied * min(grow, 3.0) ** 2 * B3 <= max_cells:
+            return cell
+        cell *= 1.25
+    return cell
 
 
 def _block_cell(q, block_of, bdims):
