@@ -283,6 +283,11 @@ inline SdfSample sdf_eval_in(const SdfScene* sc, float3 x, int4 list)
     ++sc->stats->x;
 #endif
     int a, in_tile = sdf_in_tile(sc, x);
+#if VR_GRID && VR_TILED
+    /* with cells the tile's list serves only where it is the shorter (fewer spheres than
+       the cell's list has runs) */
+    in_tile = in_tile && sc->tile_n < list.y;
+#endif
     float m;
     /* the list serves when every sphere off it (d_i > margin) is beyond m + k */
     if (in_tile)

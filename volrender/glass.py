@@ -25,7 +25,8 @@ PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
-SCAN_BLEND = 4.0             # default blend of clouds without radii, in nearest-neighbour spacings
+SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
+SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
 ACCELS = ("grid", "tree", "none")
 
 
@@ -39,9 +40,9 @@ class GlassSettings(CommonSettings):
                                 check=in_range(0, MAX_EXTENT, allow_none=True),
                                 toml=("points", "radius"), kind=NUM, show_default=False)
     blend: float | None = knob(None, "smooth-union width k; 0 = plain union (default: twice "
-                               "the median radius; for points without radii, four times "
-                               "the median nearest-neighbour spacing, so a scan melts into one "
-                               "surface)", check=in_range(0, MAX_EXTENT, allow_none=True),
+                               "the median radius; for points without radii, three times "
+                               "the 90th percentile of the nearest-neighbour spacings, so a "
+                               "scan melts into one surface)", check=in_range(0, MAX_EXTENT, allow_none=True),
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))

@@ -596,18 +596,22 @@ def generate(name: str, n: int, seed: int = 0) -> PointCloud:
     return GENERATORS[name](n, seed)
 
 
-def nn_spacing(centers) -> float:
-    """Median distance from each point to its nearest distinct neighbour (exact: a k-d tree,
-    scipy.spatial.cKDTree), 0 when no two points differ. Coincident points say nothing of
-    the spacing and are left out."""
+def nn_distances(centers) -> np.ndarray:
+    """Distance from each point to its nearest distinct neighbour (exact: a k-d tree,
+    scipy.spatial.cKDTree). Coincident points say nothing of the spacing and are left out."""
     from scipy.spatial import cKDTree
     centers = np.asarray(centers, np.float64)
     if len(centers) < 2:
-        return 0.0
+        return np.zeros(0)
     d, _ = cKDTree(centers).query(centers, k=2, workers=-1)
     nn = d[:, 1]
-    nn = nn[np.isfinite(nn) & (nn > 0)]
-    return float(np.median(nn)) if nn.size else 0.0
+    return nn[np.isfinite(nn) & (nn > 0)]
+
+
+def nn_spacing(centers, percentile=50) -> float:
+    """A percentile (default: the median) of nn_distances, 0 when no two points differ."""
+    nn = nn_distances(centers)
+    return float(np.percentile(nn, percentile)) if nn.size else 0.0
 
 
 def default_radius(centers, fallback: float = 0.5) -> float:

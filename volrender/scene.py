@@ -434,18 +434,21 @@ def _lights(given, doc):
 
 
 def _scan_defaults(cloud, settings):
-    """Radius and blend of a cloud without radii (a scan), from its exact median
-    nearest-neighbour spacing s: radius s / 2, blend glass.SCAN_BLEND * s (neighbours melt
-    into one surface). Returns (settings, note)."""
+    """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
+    spacings: radius half the median, blend glass.SCAN_BLEND times the SCAN_PERCENTILE-th
+    percentile (neighbours melt into one surface, also where the scan is sparser). Returns
+    (settings, note)."""
     from . import points
-    from .glass import SCAN_BLEND
-    s = points.nn_spacing(cloud.centers)
+    from .glass import SCAN_BLEND, SCAN_PERCENTILE
+    nn = points.nn_distances(cloud.centers)
+    s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
     radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
     blend = settings.blend if settings.blend is not None else \
-        (SCAN_BLEND * s if s > 0 else 2.0 * radius)
+        (SCAN_BLEND * far if far > 0 else 2.0 * radius)
     settings = dataclasses.replace(settings, radius=radius, blend=blend)
-    return settings, (f"{len(cloud.centers)} points without radii, median spacing {s:.4g}: "
-                      f"radius {radius:.4g}, blend {blend:.4g}; set --radius, --blend")
+    return settings, (f"{len(cloud.centers)} points without radii, nearest-neighbour spacing "
+                      f"{s:.4g} (median), {far:.4g} ({SCAN_PERCENTILE}th percentile): radius "
+                      f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
 
 
 def _environment(path, where):
