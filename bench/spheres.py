@@ -61,10 +61,10 @@ class Cached:
         self.real = glass.pack_scene
         self.memo = {}
 
-    def __call__(self, cloud, settings, eye=None, device=None):
+    def __call__(self, cloud, settings, eye=None, device=None, samples=None):
         key = (id(cloud), settings, None if eye is None else tuple(np.asarray(eye, float)))
         if key not in self.memo:
-            self.memo[key] = self.real(cloud, settings, eye=eye, device=device)
+            self.memo[key] = self.real(cloud, settings, eye=eye, device=device, samples=samples)
         return self.memo[key]
 
     def clear(self):
@@ -76,7 +76,8 @@ def measure(cloud, cam, settings, dev, repeat, lights, cache, variant=None):
     renders and one stats render, all reusing the build."""
     cache.clear()
     t0 = time.perf_counter()
-    packed = cache(cloud, settings, eye=cam.origin, device=dev)
+    packed = cache(cloud, settings, eye=cam.origin, device=dev,
+                   samples=cam.width * cam.height * settings.spp)
     build_s = time.perf_counter() - t0
     glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings,
                         dev, variant=variant)
@@ -178,6 +179,8 @@ def main(argv=None):
                     help=f"scanned clouds to render too: {', '.join(SCANS)}")
     ap.add_argument("--scan-size", default=None, help="image size of the scans (default: --size)")
     ap.add_argument("--no-sweep", action="store_true", help="only the scans")
+    ap.add_argument("--cell-factor", type=float, default=None,
+                    help="grid: cell edge = this times the median radius (default: automatic)")
     ap.add_argument("--tag", default=None)
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -212,8 +215,12 @@ def main(argv=None):
                         continue
                     if accel == "none" and not brute_ok[(disp, lit)]:
                         continue
+                    cell = None
+                    if accel == "grid" and args.cell_factor:
+                        cell = args.cell_factor * float(np.median(cloud.radii))
                     s = glass.GlassSettings(bounces=args.bounces, accel=accel, dispatch=disp,
-                                            tile=args.tile, refraction=not args.opaque)
+                                            tile=args.tile, refraction=not args.opaque,
+                                            cell_size=cell)
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat,
                                      [SUN] if lit == "lit" else [], cache)

@@ -33,8 +33,10 @@ MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk 
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
-CPU_CELLS = 1 << 20           # automatic cell edge: cells in the surface's bricks, CPUs
-GPU_CELLS = 1 << 24           # and GPUs (build_cells' budget)
+CPU_CELLS = 1 << 20           # automatic cell edge: cells in the surface's bricks (CPUs),
+CPU_CELLS_PER_SAMPLE = 32     # per pixel sample on CPUs (PoCL: build ~ render at 320x240),
+CPU_CELLS_MIN = 1 << 18
+GPU_CELLS = 1 << 24           # and on GPUs (build_cells' max_cells)
 
 
 class TooLarge(Exception):
@@ -136,11 +138,17 @@ def auto_cell_size(radii, blend) -> float:
     return CELL_FACTOR * (r + 0.5 * float(blend))
 
 
-def cell_budget(device) -> int:
-    """Most cells the automatic cell edge lets the surface's bricks hold: CPU_CELLS on CPUs,
-    where building them costs about as much as rendering a small image, GPU_CELLS on GPUs."""
+def cell_budget(device, samples=None) -> int:
+    """Most cells the automatic cell edge lets the surface's bricks hold. GPUs: GPU_CELLS
+    (the build is a small part of a frame). CPUs, where building a cell costs about what a
+    few pixels do: CPU_CELLS_PER_SAMPLE per pixel sample (pixels x spp), within
+    [CPU_CELLS_MIN, GPU_CELLS]; CPU_CELLS without a sample count."""
     from .dispatch import is_gpu
-    return GPU_CELLS if is_gpu(device) else CPU_CELLS
+    if is_gpu(device):
+        return GPU_CELLS
+    if samples is None:
+        return CPU_CELLS
+    return int(min(max(CPU_CELLS_PER_SAMPLE * samples, CPU_CELLS_MIN), GPU_CELLS))
 
 
 def grid_shape(box_lo, box_hi, cell):

@@ -161,10 +161,12 @@ def _outward(a, down: bool):
     return np.where(np.isfinite(a32), step, a32)
 
 
-def pack_scene(cloud, settings: GlassSettings, eye=None, device=None) -> GlassScene:
+def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
+               samples=None) -> GlassScene:
     """Spheres, tree and support cells in the render frame. The tree is built for accel
     tree and grid (it builds the cells); eye (world) sets the cells' skip threshold
-    (cells.threshold); device: where the cells are built (default: the default device)."""
+    (cells.threshold); device: where the cells are built (default: the default device);
+    samples (pixels x spp) sets the automatic cell edge's budget (cells.cell_budget)."""
     centers = np.asarray(cloud.centers, np.float64)
     n = len(centers)
     radii = sphere_radii(cloud, settings) if n else np.zeros(0)
@@ -222,7 +224,7 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None) -> GlassSc
     if accel == "grid":
         grid, note = _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale,
                                   settings, None if eye is None else np.asarray(eye) - centre,
-                                  device)
+                                  device, samples)
         if grid is None:
             accel = "tree"
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
@@ -230,13 +232,13 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None) -> GlassSc
 
 
 def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings, eye,
-                 device):
+                 device, samples=None):
     """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
     if device is None:
         from .render import get_device
         device = get_device(None)
     cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
-    budget = None if settings.cell_size else cells_mod.cell_budget(device)
+    budget = None if settings.cell_size else cells_mod.cell_budget(device, samples)
     tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
                               len(spheres))
     force = []
@@ -301,7 +303,9 @@ def plan(scene, device, variant=None):
     compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
     from .render import Plan
     cloud, settings = scene.content.cloud, scene.content.settings
-    packed = pack_scene(cloud, settings, eye=scene.camera.origin, device=device)
+    cam = scene.camera
+    packed = pack_scene(cloud, settings, eye=cam.origin, device=device,
+                        samples=cam.width * cam.height * settings.spp)
     dispatch = dispatch_for(settings, device)
     features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
     n_suns, n_points = lights_mod.counts(scene.lights)
