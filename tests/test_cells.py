@@ -323,3 +323,23 @@ def test_cell_boxes_and_the_tree_command(cl_device, tmp_path, capsys):
     assert cli.main(["tree", "blob:150", "--cells", "--export", str(vtk), "--screenshot", str(png),
                      "--window-size", "160x120"]) == 0
     assert vtk.stat().st_size > 0 and png.stat().st_size > 0
+
+
+def test_host_lists_agree_with_the_device(cl_device, rng):
+    """The vectorised numpy builder on the tree (cells.host_lists, the measured alternative
+    to the device build) finds the same lists, up to the device's rounding pad."""
+    from volrender import tree as tree_mod
+    cloud = points.blob(400, seed=6)
+    p = packed(cl_device, cloud, blend=0.12, cell_skip=False, cell_size=0.05)
+    g = p.cells
+    t = tree_mod.build(cloud.centers, cloud.radii, 16, 0.0)
+    q = rng.integers(0, g.dims, size=(200, 3))
+    lo, hi = g.box(q)
+    args = (p.spheres, t.lo - p.centre, t.hi - p.centre, t.start, t.count, t.depth)
+    off, idx = cells.host_lists(*args, p.blend, lo, hi)
+    off2, idx2 = cells.host_lists(*args, p.blend + 4 * g.pad, lo - g.pad, hi + g.pad)
+    _, _, lists = g.lookup(q)
+    for j in range(len(q)):
+        dev, host, wide = (set(lists[j].tolist()), set(idx[off[j]:off[j + 1]].tolist()),
+                           set(idx2[off2[j]:off2[j + 1]].tolist()))
+        assert host <= dev <= wide

@@ -462,3 +462,47 @@ def support(x, centres, radii, blend):
                        axis=2) - np.asarray(radii, np.float64)[None]
     m = d.min(axis=1, keepdims=True)
     return d < m + blend if blend > 1e-20 else d <= m
+
+
+def host_lists(spheres, tree_lo, tree_hi, start, count, depth, blend, lo, hi):
+    """The lists of boxes [lo, hi] (M, 3) on the host: the device builder's sets, by
+    vectorised numpy queries on the partition tree (frontiers of (box, node) pairs level by
+    level, no Python loop per box or sphere). spheres: (N, 4) in tree order; tree_lo,
+    tree_hi, start, count: the tree's node arrays in that frame. Returns (offsets (M + 1,),
+    sphere indices) with each box's list ascending; U is exact (the minimum of hi_i over a
+    first, looser list whose threshold is the nearest centre's hi)."""
+    from scipy.spatial import cKDTree
+    c = np.asarray(spheres[:, :3], np.float64)
+    r = np.asarray(spheres[:, 3], np.float64)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    k = float(blend) if blend > 1e-20 else 0.0
+    near = cKDTree(c).query(0.5 * (lo + hi))[1]
+    u0 = np.linalg.norm(np.maximum(np.abs(c[near] - lo), np.abs(c[near] - hi)), axis=1) - r[near]
+
+    def query(thr):
+        b = np.arange(len(lo))
+        node = np.ones(len(lo), np.int64)
+        for d in range(depth + 1):
+            g = np.maximum(np.maximum(tree_lo[node] - hi[b], lo[b] - tree_hi[node]), 0.0)
+            keep = (np.linalg.norm(g, axis=1) <= thr[b]) & (count[node] > 0)
+            b, node = b[keep], node[keep]
+            if d < depth:
+                b, node = np.repeat(b, 2), np.stack([2 * node, 2 * node + 1], 1).ravel()
+        n = count[node]
+        first = np.repeat(np.cumsum(n) - n, n)
+        idx = np.repeat(start[node], n) + np.arange(int(n.sum())) - first
+        bb = np.repeat(b, n)
+        dlo, dhi = (np.linalg.norm(v, axis=1) - r[idx] for v in (
+            np.maximum(np.maximum(lo[bb] - c[idx], c[idx] - hi[bb]), 0.0),
+            np.maximum(np.abs(c[idx] - lo[bb]), np.abs(c[idx] - hi[bb]))))
+        return bb, idx, dlo, dhi
+
+    bb, idx, dlo, dhi = query(u0 + k)
+    keep = dlo <= u0[bb] + k
+    u = np.full(len(lo), np.inf)
+    np.minimum.at(u, bb[keep], dhi[keep])
+    keep &= dlo <= u[bb] + k
+    bb, idx = bb[keep], idx[keep]
+    o = np.lexsort((idx, bb))
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(bb, minlength=len(lo)))])
+    return offsets, idx[o]
