@@ -9,9 +9,11 @@ them without evaluating anything. Bounds and lists are derived in cl/build_cells
 banner and docs/DESIGN.md; `oracle` below is the same construction in numpy (float64,
 brute force over all spheres) for tests.
 
-The build runs on the render device, walking the partition tree (volrender/tree.py):
-classify every brick, then every cell of the bricks that are not uniform, then fill the
-lists of the cells that need one (two passes: count, prefix sum on the host, write).
+The build runs on the render device (cl/build_cells.cl), walking the partition tree
+(volrender/tree.py) for boxes of up to 16 bricks, then classifying the octants of the boxes
+left unclassified from their parent's list, down to cells; each level's lists are counted,
+prefix-summed here and written by a second pass. `host_lists` is the numpy alternative
+(vectorised tree queries; x10 slower per cell, measured in docs/DESIGN.md).
 """
 from __future__ import annotations
 
@@ -33,10 +35,13 @@ MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk 
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
-CPU_CELLS = 1 << 20           # automatic cell edge: cells in the surface's bricks (CPUs),
-CPU_CELLS_PER_SAMPLE = 32     # per pixel sample on CPUs (PoCL: build ~ render at 320x240),
+# automatic cell edge: at most this many cells in the bricks the surface passes through
+# (build's max_cells, cell_budget): on CPUs 32 per pixel sample within [2^18, 2^24] (a
+# cell's build costs about what a few pixels do on PoCL), CPU_CELLS without a sample count
+CPU_CELLS = 1 << 20
+CPU_CELLS_PER_SAMPLE = 32
 CPU_CELLS_MIN = 1 << 18
-GPU_CELLS = 1 << 24           # and on GPUs (build_cells' max_cells)
+GPU_CELLS = 1 << 24
 
 
 class TooLarge(Exception):
@@ -86,7 +91,8 @@ class Cells:
                 "list_mean": float(n.mean()) if len(n) else 0.0,
                 "list_max": int(n.max()) if len(n) else 0,
                 "core_mean": float(nc.mean()) if len(nc) else 0.0,
-                "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)), "bytes": int(self.nbytes), "build_ms": self.build_ms}
+                "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)),
+                "bytes": int(self.nbytes), "build_ms": self.build_ms}
 
     def box(self, q):
         """(lo, hi) float64 of the cells with integer coordinates q (..., 3)."""
@@ -197,7 +203,8 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     force: render-frame points whose cells get a list whatever their class (the eye: its
     first sample reads the colour there). classify=False lists every cell (tests).
     max_cells: when the bricks the surface passes through hold more cells than this, the
-    cell edge grows (by (cells / max_cells)^0.4, the brick pass redone) until they fit."""
+    cell edge grows (first from an estimate by occupied bricks, then by (cells /
+    max_cells)^0.5 with the brick pass redone) until they fit."""
     import pyopencl as cl
 
     t0 = time.perf_counter()
