@@ -30,8 +30,9 @@ B3 = B ** 3
 OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
 MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
 MAX_ITEMS = 1 << 27           # list runs (8 bytes each, 1 GiB); beyond: the tree walk
-MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk (lists of
-                              # coincident points or a blend dwarfing the cloud)
+MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk
+MAX_BRICK_SPHERES = 1 << 16   # sphere centres in one brick; beyond (coincident points): the
+                              # tree walk, since every cell near them would scan them all
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
@@ -295,6 +296,10 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
 
     if max_cells is not None:
         cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
+    cell = grid_shape(box_lo, box_hi, cell)[0]
+    crowd = int(_occupancy(np.asarray(spheres[:, :3], np.float64) - lo, B * cell).max())
+    if crowd > MAX_BRICK_SPHERES:
+        raise TooLarge(f"{crowd} sphere centres in one brick")
     while True:
         cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
         params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
@@ -403,6 +408,15 @@ def _bricks(classify, fill, force_open, buf, bdims):
         force_open(origins, size, out, cand, d_lists)
 
 
+def _occupancy(c, edge):
+    """Sphere centres per occupied box of edge `edge` (c relative to the grid's corner)."""
+    q = np.floor(c / edge).astype(np.int64)
+    q -= q.min(axis=0)
+    span = q.max(axis=0) + 1
+    key = (q[:, 2] * span[1] + q[:, 1]) * span[0] + q[:, 0]
+    return np.unique(key, return_counts=True)[1]
+
+
 def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
     """The cell edge, grown until the bricks that hold a sphere centre, with their
     neighbours within the blend, hold at most max_cells cells (a cheap estimate of the
@@ -411,7 +425,7 @@ def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
     r = float(np.max(spheres[:, 3])) if len(spheres) else 0.0
     for _ in range(60):
         edge = B * max(cell, 1e-30)
-        occupied = len(np.unique(np.floor(c / edge).astype(np.int64), axis=0))
+        occupied = len(_occupancy(c, edge))
         grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
         if occupied * min(grow, 3.0) ** 2 * B3 <= max_cells:
             return cell
