@@ -4,7 +4,8 @@
 # render takes under 1.5 s), the opaque sweep (fragment), and the two scans (the bunny at
 # the look-good settings and at the defaults, frag_115 at the defaults).
 # Writes bench/results/spheres_gpu-nvidiah200-cells.json, -cells-opaque.json and
-# -cells-scans.json (+ .png), and a log under $OUT.
+# -cells-scans.json (+ .png), and a log; with $OUT set (the device machine), copies of
+# them under $OUT.
 #
 # Needs: .whl/ with pyopencl and its pure-Python dependencies (/work/shared/GPU.md), and
 # bench/data/bun_zipper.ply, bench/data/frag_115.ply (copies of ../shared/data/points/;
@@ -46,3 +47,6 @@ start=$(date +%s)
         --tag "$TAG-scans"
     echo "scans done after $(( $(date +%s) - start )) s"
 } 2>&1 | tee "$LOG"
+if [ -n "${OUT:-}" ]; then           # the device machine returns only what is under $OUT
+    cp bench/results/spheres_"$TAG"*.json bench/results/spheres_"$TAG"*.png "$OUT"/ 2>/dev/null || true
+fi
