@@ -90,7 +90,10 @@ class GlassFeatures:
         tiling = dict(tiled=tiled, tile_w=dispatch.tile[0] if tiled else 0,
                       tile_h=dispatch.tile[1] if tiled else 0,
                       tile_cap=GLASS_TILE_CAP if tiled else 0,
-                      tree_stack=max(2, int(packed.first_leaf).bit_length()),
+                      # the stack serves the tree walks (the field's, or the tile lists'):
+                      # elsewhere a constant, so one program serves every sphere count
+                      tree_stack=max(2, int(packed.first_leaf).bit_length())
+                      if tree or (tiled and grid) else 2,
                       stats=variant == "stats")
         if variant == "uber":
             return cls(tree=tree, grid=grid, shadows=True, refraction=True, absorption=True, glow=True,
