@@ -597,8 +597,9 @@ def generate(name: str, n: int, seed: int = 0) -> PointCloud:
 
 
 def nn_distances(centers) -> np.ndarray:
-    """Distance from each point to its nearest distinct neighbour (exact: a k-d tree,
-    scipy.spatial.cKDTree). Coincident points say nothing of the spacing and are left out."""
+    """Distance from each point to its nearest neighbour (exact: a k-d tree,
+    scipy.spatial.cKDTree). Points that coincide with another say nothing of the spacing
+    and are left out."""
     from scipy.spatial import cKDTree
     centers = np.asarray(centers, np.float64)
     if len(centers) < 2:
