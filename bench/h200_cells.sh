@@ -1,7 +1,7 @@
 #!/bin/bash
 # The support-cell measurements on the lent H200, in one unattended call (about 6-7 minutes):
-# 1080p glass sweep 10^3..10^6 (lit/unlit, fragment/tiled, cells/tree, brute force while one
-# render takes under 1.5 s), the opaque sweep (fragment), and the two scans (the bunny at
+# 1080p glass sweep 10^3..10^6 (lit/unlit, fragment/tiled, cells/tree, brute force up to the
+# first count where one render takes over 0.5 s), the opaque sweep (fragment), the two scans (the bunny at
 # the look-good settings and at the defaults, frag_115 at the defaults).
 # Writes bench/results/spheres_gpu-nvidiah200-cells.json, -cells-opaque.json and
 # -cells-scans.json (+ .png), and a log; with $OUT set (the device machine), copies of
@@ -36,11 +36,11 @@ start=$(date +%s)
 {
     $PY bench/spheres.py --device "$DEVICE" --size "$SIZE" --repeat "$REPEAT" \
         --counts "$COUNTS" --accel grid,tree,none --dispatch fragment,tiled \
-        --tiled-accel grid,tree --brute-limit 1.5 --uber-count 3000 --tag "$TAG"
+        --tiled-accel grid,tree --brute-limit 0.5 --uber-count 3000 --tag "$TAG"
     echo "glass sweep done after $(( $(date +%s) - start )) s"
     $PY bench/spheres.py --device "$DEVICE" --size "$SIZE" --repeat "$REPEAT" --opaque \
         --counts "$COUNTS" --accel grid,tree,none --dispatch fragment \
-        --brute-limit 1.0 --uber-count 0 --tag "$TAG"
+        --brute-limit 0.3 --uber-count 0 --tag "$TAG"
     echo "opaque sweep done after $(( $(date +%s) - start )) s"
     $PY bench/spheres.py --device "$DEVICE" --size "$SIZE" --repeat "$REPEAT" --no-sweep \
         --scans bunny,bunny-default,frag --accel grid,tree --dispatch fragment,tiled \
