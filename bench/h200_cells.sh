@@ -1,8 +1,9 @@
 #!/bin/bash
 # The support-cell measurements on the lent H200, in one unattended call (about 6-7 minutes):
-# 1080p glass sweep 10^3..10^6 (lit/unlit, fragment/tiled, cells/tree, brute force up to the
-# first count where one render takes over 0.5 s), the opaque sweep (fragment), the two scans (the bunny at
-# the look-good settings and at the defaults, frag_115 at the defaults).
+# 1080p glass sweep 10^3..10^6 (lit/unlit, fragment/tiled, cells/tree, brute force up to
+# the first count where one render takes over 0.5 s), the opaque sweep (fragment), and the
+# two scans (the bunny at the look-good settings and at the defaults, frag_115 at
+# the defaults).
 # Writes bench/results/spheres_gpu-nvidiah200-cells.json, -cells-opaque.json and
 # -cells-scans.json (+ .png), and a log; with $OUT set (the device machine), copies of
 # them under $OUT.
