@@ -224,7 +224,8 @@ def main(argv=None):
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat,
                                      [SUN] if lit == "lit" else [], cache)
-                    if accel == "none" and (time.perf_counter() - t0) / (args.repeat + 2) > args.brute_limit:
+                    per_render = (time.perf_counter() - t0) / (args.repeat + 2)
+                    if accel == "none" and per_render > args.brute_limit:
                         brute_ok[(disp, lit)] = False
                     row = {"n": n, "dispatch": disp, "accel": accel, "lit": lit == "lit",
                            "opaque": args.opaque, **t}
@@ -329,7 +330,8 @@ def table(rows, uber_rows, scan_rows, width, height, name):
                 lines.append(f"| {uber_rows[0]['n']} spheres, {'lit' if lit else 'unlit'} | "
                              f"{a:.1f} | {b:.1f} | {b / a:.2f} |")
     if scan_rows:
-        lines += ["", "| scan | variant | kernel ms | build ms | bytes / sphere |", "|---|---|---|---|---|"]
+        lines += ["", "| scan | variant | kernel ms | build ms | bytes / sphere |",
+                  "|---|---|---|---|---|"]
         for r in scan_rows:
             lines.append(f"| {r['scan']} | {r['dispatch']}, {r['accel']} | "
                          f"{r['kernel_ms']['median']:.1f} | {r['build']['total_ms']:.0f} | "

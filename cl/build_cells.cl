@@ -381,9 +381,11 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
    cand[cand_lists[parent[j]]] */
 __kernel void build_fill(__constant CellBuild* cb, __global const float4* restrict sp,
                          __global const TreeNode* restrict nodes,
-                         __global const int2* restrict cand, __global const int4* restrict cand_lists,
+                         __global const int2* restrict cand,
+                         __global const int4* restrict cand_lists,
                          __global const int* restrict parent,
-                         __global const int4* restrict origins, __global const float* restrict upper,
+                         __global const int4* restrict origins,
+                         __global const float* restrict upper,
                          __global const int4* restrict lists, __global int2* runs, int n_boxes,
                          int from_tree)
 {

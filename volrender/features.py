@@ -96,7 +96,8 @@ class GlassFeatures:
                       if tree or (tiled and grid) else 2,
                       stats=variant == "stats")
         if variant == "uber":
-            return cls(tree=tree, grid=grid, shadows=True, refraction=True, absorption=True, glow=True,
+            return cls(tree=tree, grid=grid, shadows=True, refraction=True, absorption=True,
+                       glow=True,
                        env_map=True, colors=True, uber=True, **tiling)
         return cls(tree=tree, grid=grid, n_suns=n_suns, n_points=n_points,
                    shadows=s.shadows and n_suns + n_points > 0, refraction=refr,

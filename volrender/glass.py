@@ -42,7 +42,8 @@ class GlassSettings(CommonSettings):
     blend: float | None = knob(None, "smooth-union width k; 0 = plain union (default: twice "
                                "the median radius; for points without radii, three times "
                                "the 90th percentile of the nearest-neighbour spacings, so a "
-                               "scan melts into one surface)", check=in_range(0, MAX_EXTENT, allow_none=True),
+                               "scan melts into one surface)",
+                               check=in_range(0, MAX_EXTENT, allow_none=True),
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))
