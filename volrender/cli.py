@@ -127,7 +127,12 @@ def build_parser():
                         "(tone-mapped 8-bit sRGB)")
     before = {a.dest for a in r._actions}
     add_render_options(r)
-    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before]
+    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before] + ["camera"]
+    cg = [g for g in r._action_groups if g.title == "image and camera"][0]
+    cg.add_argument("--camera", default=None, metavar="CAM.toml",
+                    help="reuse a camera written by --camera-out (options given beside it win)")
+    cg.add_argument("--camera-out", default=None, metavar="CAM.toml",
+                    help="also write the camera used (origin, target, up, fov, size) as TOML")
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
@@ -229,6 +234,27 @@ def describe(scene) -> str:
             f"{'tree' if s.use_tree else 'no tree'}")
 
 
+def look_problems(img, scene) -> list[str]:
+    """Warnings for an image that came out empty or saturated, with the fix."""
+    import numpy as np
+    alpha = img.rgba[..., 3]
+    what = "volume" if scene.kind == "volume" else "point cloud"
+    if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
+        fix = ("raise --density-scale (`volrender info FILE` suggests one) or check the camera"
+               if scene.kind == "volume" else "check the camera (--origin, --target, --fov)")
+        return [f"the image is empty: the {what} covers no pixel (alpha < 0.001 everywhere); {fix}"]
+    out = []
+    covered = alpha > 0.01
+    if scene.kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
+        out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
+                   "covers); lower --density-scale (`volrender info FILE` suggests one)")
+    rgb = img.rgba[..., :3][covered]
+    if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
+        out.append("the image is overexposed (half the covered pixels are above 4); lower the "
+                   "lights' irradiance or --exposure")
+    return out
+
+
 def cmd_render(args):
     from . import image
     from .render import check_image_memory, get_device, render
@@ -247,7 +273,12 @@ def cmd_render(args):
         print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
               f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
+    for problem in look_problems(img, scene):
+        warnings.warn(problem)
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap)
+    if args.camera_out:
+        from .camera import write_camera_file
+        write_camera_file(scene.camera, args.camera_out)
     print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0

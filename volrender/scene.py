@@ -144,6 +144,7 @@ def _options() -> dict[str, Option]:
 
 
 LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
+EXTRA_KEYS = LIGHT_KEYS + ("camera",)     # override keys that are not settings fields
 
 
 def options() -> dict[str, Option]:
@@ -342,6 +343,12 @@ def generated_cloud(text: str, seed: int = 0):
     return points.generate(text.partition(":")[0], generated_cloud_count(text), seed)
 
 
+def _explicit(overrides) -> set:
+    """Option keys given as overrides (not from a file)."""
+    by_field = {o.field: o.key for o in options().values()}
+    return {by_field.get(k, k) for k, v in overrides.items() if v is not None}
+
+
 def _negates(opt) -> bool:
     """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
     return opt.meta["kind"] is bool and opt.key != opt.field
@@ -356,12 +363,12 @@ def _given_from_overrides(overrides) -> dict:
     for key, value in overrides.items():
         if value is None:
             continue
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             given[key] = (value, "--" + key.replace("_", "-"))
             continue
         opt = opts.get(key) or by_field.get(key)
         if opt is None:
-            known = ", ".join(sorted([*opts, *LIGHT_KEYS]))
+            known = ", ".join(sorted([*opts, *EXTRA_KEYS]))
             raise UserError(f"unknown option {key!r}", fix=f"known options: {known}")
         if isinstance(value, list):
             value = tuple(value)
@@ -389,7 +396,7 @@ def _given_from_file(doc, path) -> dict:
 
 def _check_kinds(given, kind, label):
     for key, (value, where) in given.items():
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             continue
         owner = options()[key].owner
         if owner in ("volume", "glass") and owner != kind:
@@ -402,7 +409,7 @@ def _field_values(given, owners):
     """Checked {field: value} of the given keys whose owner is in owners."""
     out = {}
     for key, (value, where) in given.items():
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             continue
         opt = options()[key]
         if opt.owner in owners:
@@ -430,7 +437,7 @@ def _lights(given, doc):
                      if l["type"] == "sun" else
                      PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
                      for l in doc["lights"])
-    return tuple(DEFAULT_LIGHTS)
+    return None                           # the defaults, turned to the up axis by load()
 
 
 def _environment(path, where):
@@ -450,9 +457,10 @@ class Request:
     origin: str                       # "volume", "points", "generator" or "scene"
     doc: dict                         # the parsed scene file ({} without one)
     view: View
-    lights: tuple
+    lights: tuple | None              # None: the default lights
     settings: object                  # VolumeSettings or GlassSettings
     given: dict                       # {option key: (value, where)}
+    camera_file: Path | None = None   # --camera FILE
 
     @property
     def inputs(self) -> tuple:
@@ -465,6 +473,8 @@ class Request:
                 out.append(Path(self.doc[section]["file"]))
         if self.kind == "glass" and self.settings.env is not None:
             out.append(Path(self.settings.env))
+        if self.camera_file is not None:
+            out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
     def load(self) -> Scene:
@@ -497,8 +507,20 @@ class Request:
             if settings.env is not None:
                 environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
-        return Scene(self.view.camera(lo, hi), self.lights, content, environment, self.source,
-                     self.inputs, tuple(notes))
+        hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
+            if self.kind == "volume" else (None, "")
+        if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
+            notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
+        camera = self.view.camera(lo, hi, hint)
+        lights = self.lights
+        if lights is None:                # the default sun, from above along the up axis
+            from .camera import up_frame
+            from .lights import DEFAULT_LIGHTS, Sun
+            frame = up_frame(self.view.axis(hint))
+            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)), l.irradiance, l.color)
+                           if frame is not None else l for l in DEFAULT_LIGHTS)
+        return Scene(camera, lights, content, environment, self.source, self.inputs,
+                     tuple(notes))
 
 
 def request(source, **overrides) -> Request:
@@ -512,6 +534,15 @@ def request(source, **overrides) -> Request:
         given = {**_given_from_file(doc, Path(source)), **given}
     if origin == "generator":
         generated_cloud_count(str(source))
+    camera_file = None
+    if "camera" in given:               # a camera file: above the scene file, below the options
+        from .camera import read_camera_file
+        camera_file = Path(given.pop("camera")[0])
+        by_field = {o.field: o.key for o in options().values() if o.owner == "view"}
+        explicit = _explicit(overrides)
+        for field, value in read_camera_file(camera_file).items():
+            if by_field[field] not in explicit:
+                given[by_field[field]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
     view = View(**_field_values(given, ("view",)))
@@ -526,7 +557,7 @@ def request(source, **overrides) -> Request:
         if settings.env is not None and not Path(settings.env).is_file():
             raise UserError(f"{given['env'][1]}: no such environment map", path=settings.env,
                             fix="check the path")
-    return Request(str(source), kind, origin, doc, view, lights, settings, given)
+    return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file)
 
 
 def load_scene(source, **overrides) -> Scene:

@@ -55,6 +55,8 @@ class GridInfo:
     value_type: str            # 'float', 'vec3s', 'int32', 'double', 'ptdataidx32', ...
     grid_class: str            # 'fog volume', 'level set', 'staggered' or 'unknown'
     active_voxels: int | None = None
+    creator: str = ""          # the file's 'creator' metadata (the writing application)
+    metadata_keys: tuple = ()  # names of the grid's metadata entries
 
     def describe(self) -> str:
         return f"{self.name} ({self.value_type}, {self.grid_class})"
@@ -98,6 +100,8 @@ def _read_metamap(r: _Reader) -> dict:
             meta[name] = raw.decode("utf-8", "replace")
         elif type_name in ("int32", "int64") and n in (4, 8):
             meta[name] = struct.unpack("<i" if n == 4 else "<q", raw)[0]
+        else:
+            meta[name] = None          # present, value not decoded
     return meta
 
 
@@ -122,7 +126,7 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
             r.unpack("II")                 # library major, minor
             has_offsets = r.read(1) != b"\0"
             r.read(36)                     # UUID as text
-            _read_metamap(r)               # file metadata
+            creator = _read_metamap(r).get("creator") or ""    # file metadata
             if not has_offsets:
                 return None
             count = r.unpack("i")
@@ -140,7 +144,7 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
                 r.unpack("I")              # per-grid compression flags
                 meta = _read_metamap(r)
                 grids.append(GridInfo(name, _value_type(tree), meta.get("class", "unknown"),
-                                      meta.get("file_voxel_count")))
+                                      meta.get("file_voxel_count"), str(creator), tuple(meta)))
                 f.seek(end_pos)
             return grids
         except (_Corrupt, struct.error, UnicodeError) as e:
@@ -170,6 +174,18 @@ def list_grids(path) -> list[GridInfo]:
     except Exception as e:
         raise UserError(f"cannot list its grids ({_one_line(e)})", path=p,
                         fix="re-save it with a current OpenVDB") from None
+
+
+def up_axis_hint(grids) -> tuple[str | None, str]:
+    """(axis, reason): 'z' for files that Blender wrote (Blender is Z-up; its Mantaflow
+    caches carry no 'creator' but a 'file_base_resolution' grid metadata entry), None when
+    the file does not say."""
+    creator = next((g.creator for g in grids if g.creator), "")
+    if "blender" in creator.lower():
+        return "z", f"written by {creator!r}"
+    if any("file_base_resolution" in g.metadata_keys for g in grids):
+        return "z", "a Blender (Mantaflow) cache: its grids carry 'file_base_resolution'"
+    return None, ""
 
 
 def _one_line(e: Exception) -> str:
@@ -431,6 +447,8 @@ class Bricks:
     background: float = 0.0
     value_range: tuple = (0.0, 0.0)   # density min/max over the active box, sanitised
     active_voxels: int = 0
+    up_axis: str | None = None        # the up axis the file suggests (vdb.up_axis_hint)
+    up_axis_reason: str = ""
 
     @property
     def n_slots(self) -> int:
@@ -523,7 +541,8 @@ class Bricks:
                       grid_name=np.array(self.grid_name), source=np.array(self.source),
                       background=np.array(self.background, np.float64),
                       value_range=np.array(self.value_range, np.float64),
-                      active_voxels=np.array(self.active_voxels, np.int64))
+                      active_voxels=np.array(self.active_voxels, np.int64),
+                      up_axis=np.array(self.up_axis or ""), up_axis_reason=np.array(self.up_axis_reason))
         if self.emission is not None:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
@@ -564,6 +583,9 @@ def load_npz(path) -> Bricks:
                        background=float(z["background"]),
                        value_range=tuple(float(v) for v in z["value_range"]),
                        active_voxels=int(z["active_voxels"]))
+            if "up_axis" in z.files:                     # optional: older caches lack it
+                b.up_axis = str(z["up_axis"]) or None
+                b.up_axis_reason = str(z["up_axis_reason"])
             if "emission" in z.files:
                 b.emission, b.emission_max = z["emission"], z["emission_max"]
                 b.emission_grid_name = str(z["emission_grid_name"])
@@ -636,9 +658,10 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16)
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
                       stacklevel=2)
+    axis, why = up_axis_hint(grids)
     b = Bricks(origin, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=info.name,
                source=str(p), background=float(g.background), value_range=vrange,
-               active_voxels=int(g.activeVoxelCount()))
+               active_voxels=int(g.activeVoxelCount()), up_axis=axis, up_axis_reason=why)
     if einfo is not None:
         _warn_sanitised(p, einfo.name, stats[1])
         b.emission, b.emission_max = out[1], _max_per_slot(out[1])
