@@ -320,16 +320,9 @@ def cmd_tree(args):
 def cmd_info(args):
     from . import device as device_mod
     if args.input:
-        from . import vdb
-        src = Path(args.input)
-        if src.suffix.lower() == ".vdb":
-            for g in vdb.list_grids(src):
-                print(f"{g.name:24s} {g.value_type:8s} {g.grid_class}")
-            return 0
-        b = vdb.load_volume(src)
-        lo, hi = b.world_bounds()
-        print(f"grid {b.grid_name!r}: {len(b.majorant)} bricks, dims {tuple(b.dims)}, "
-              f"voxel size {b.voxel_size:.6g}, world bounds {tuple(lo)} .. {tuple(hi)}")
+        from .info import describe
+        for line in describe(args.input, args.device):
+            print(line)
         return 0
     import numpy
     import pyopencl

@@ -449,6 +449,7 @@ class Bricks:
     active_voxels: int = 0
     up_axis: str | None = None        # the up axis the file suggests (vdb.up_axis_hint)
     up_axis_reason: str = ""
+    index_box: tuple | None = None    # inclusive VDB index box of the active voxels (lo, hi)
 
     @property
     def n_slots(self) -> int:
@@ -543,6 +544,8 @@ class Bricks:
                       value_range=np.array(self.value_range, np.float64),
                       active_voxels=np.array(self.active_voxels, np.int64),
                       up_axis=np.array(self.up_axis or ""), up_axis_reason=np.array(self.up_axis_reason))
+        if self.index_box is not None:
+            arrays["index_box"] = np.array(self.index_box, np.int64)
         if self.emission is not None:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
@@ -586,6 +589,8 @@ def load_npz(path) -> Bricks:
             if "up_axis" in z.files:                     # optional: older caches lack it
                 b.up_axis = str(z["up_axis"]) or None
                 b.up_axis_reason = str(z["up_axis_reason"])
+            if "index_box" in z.files and z["index_box"].shape == (2, 3):
+                b.index_box = tuple(tuple(int(v) for v in row) for row in z["index_box"])
             if "emission" in z.files:
                 b.emission, b.emission_max = z["emission"], z["emission_max"]
                 b.emission_grid_name = str(z["emission_grid_name"])
@@ -661,7 +666,8 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16)
     axis, why = up_axis_hint(grids)
     b = Bricks(origin, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=info.name,
                source=str(p), background=float(g.background), value_range=vrange,
-               active_voxels=int(g.activeVoxelCount()), up_axis=axis, up_axis_reason=why)
+               active_voxels=int(g.activeVoxelCount()), up_axis=axis, up_axis_reason=why,
+               index_box=(tuple(int(v) for v in box[0]), tuple(int(v) for v in box[1])))
     if einfo is not None:
         _warn_sanitised(p, einfo.name, stats[1])
         b.emission, b.emission_max = out[1], _max_per_slot(out[1])
