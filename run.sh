@@ -45,7 +45,7 @@ venv() {
   if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "run.sh: installing Python packages into $VENV" >&2
     "$VENV/bin/pip" install -q --upgrade pip >/dev/null
-    "$VENV/bin/pip" install -q -e ".[test]"
+    "$VENV/bin/pip" install -q -e ".[vdb,inspect,bench,test]"
     echo "$want" > "$stamp"
   fi
   "$VENV/bin/python" -c 'import volrender.vdb as v; v.import_openvdb()' \

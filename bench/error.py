@@ -48,13 +48,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "data" / "vdb"
 GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
 GLASS_REF = dict(epsilon=1e-6, max_steps=4096, bounces=12, relax=1.0, use_tree=False)
 
@@ -139,10 +139,10 @@ def volume_scenes(width, height):
     out.append(("demo_cloud", b, camera.frame_bounds(*b.world_bounds(), width, height, fov=28.0),
                 [Sun((-0.6, -1.0, -0.5), 10.0)],
                 VolumeSettings(density_scale=6.0, background=(0.32, 0.42, 0.58)), 2048))
-    smoke = next((p for p in (SHARED / "smoke.vdb", ROOT / "bench" / "data" / "smoke.npz")
-                  if p.exists() and (p.suffix == ".npz" or _has_openvdb())), None)
+    smoke = find_volume("smoke", _has_openvdb)
     if smoke is None:
-        print(f"bench/error.py: {SHARED / 'smoke.vdb'} not found; skipping the real file", flush=True)
+        print(f"bench/error.py: {missing_data('smoke.vdb')}; measuring the demo cloud only",
+              flush=True)
     else:
         b = vdb.load_volume(smoke)                                 # bench/volume.py's settings
         out.append(("smoke", b, camera.frame_bounds(*b.world_bounds(), width, height),
@@ -392,7 +392,7 @@ def main(argv=None):
                          "launches / compute units (median), for a CPU device on a shared host")
     ap.add_argument("--no-volume", action="store_true", help="skip the volume scenes")
     ap.add_argument("--no-glass", action="store_true", help="skip the glass scenes")
-    ap.add_argument("--out", default=None, help="results tag: error_<tag>.json/.png (default: device)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: error_<device>-<tag>.json")
     args = ap.parse_args(argv)
     if args.quick and args.size == ap.get_default("size"):
         args.size = "48x36"
@@ -406,8 +406,7 @@ def main(argv=None):
     dev = device.get(args.device)
     cores = int(dev.device.max_compute_units)
     args.basis = (args.time, cores)
-    tag = args.out or (device_tag(dev) + ("-quick" if args.quick else ""))
-    path = RESULTS / f"error_{tag}.json"
+    path = result_path("error", dev, "-".join(t for t in (args.tag, "quick" if args.quick else None) if t))
     record = {"benchmark": "error", "size": [width, height], "repeat": args.repeat,
               "quick": args.quick, **device_info(dev),
               "reference_volume": f"tracking, {args.ref_batches} batches (spp per scene below)",

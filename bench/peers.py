@@ -43,13 +43,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import camera as camera_mod, device, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_FILE = ROOT.parent / "shared" / "data" / "vdb" / "smoke.vdb"
+DEFAULT_FILE = shared_data() / "vdb" / "smoke.vdb"
 LIBLLVM16 = "/usr/lib/x86_64-linux-gnu/libLLVM-16.so.1"
 # per-file scene: density scale (sigma_t per world unit per grid value), vertical fov,
 # sun irradiance. smoke: as bench/volume.py; demo_cloud: as `bash run.sh demo`.
@@ -678,11 +679,11 @@ def main(argv=None):
     ap.add_argument("--mitsuba-variant", default="auto", help="auto = llvm_ad_rgb, else scalar_rgb")
     ap.add_argument("--mi-spp", type=ints, default=None, help="Mitsuba spp list (default 1,4,16,64,256)")
     ap.add_argument("--vr-spp", type=ints, default=None, help="volrender spp list (default 1,2,4,8,16)")
-    ap.add_argument("--no-vdb-render", action="store_true")
-    ap.add_argument("--no-mitsuba", action="store_true")
+    ap.add_argument("--no-vdb-render", action="store_true", help="leave out OpenVDB's vdb_render")
+    ap.add_argument("--no-mitsuba", action="store_true", help="leave out Mitsuba 3")
     ap.add_argument("--time", choices=["wall", "cpu"], default="wall",
                     help="time axis of the plot: wall seconds, or CPU seconds / cores (both are recorded)")
-    ap.add_argument("--tag", default=None, help="results file suffix (default: from the device)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: peers_<device>-<tag>.json")
     ap.add_argument("--table", type=Path, default=None, metavar="RESULTS.json",
                     help="only print the Markdown tables of an earlier run")
     args = ap.parse_args(argv)
@@ -691,9 +692,9 @@ def main(argv=None):
         print(tables(json.loads(args.table.read_text())))
         return 0
     if not args.file.exists():
-        log(f"bench/peers.py: {args.file} not found; skipping the peer comparison "
-            f"(give --file scenes/demo_cloud.vdb to run it on the bundled cloud)")
-        return 0
+        log(f"bench/peers.py: {missing_data(str(args.file))}; or give --file "
+            f"scenes/demo_cloud.vdb to compare on the bundled cloud")
+        return 2
     size = args.size or ("160x120" if args.quick else "320x240")
     width, height = (int(v) for v in size.lower().split("x"))
     args.mi_spp = args.mi_spp or [1, 4, 16, 64, 256]
@@ -752,8 +753,7 @@ def main(argv=None):
 
     payload["loadavg_after"] = loadavg()
     payload["total_s"] = time.perf_counter() - t_start
-    tag = args.tag or (device_tag(dev) + ("-quick" if args.quick else ""))
-    out = write_json(RESULTS / f"peers_{tag}.json", payload)
+    out = write_json(result_path("peers", dev, "-".join(t for t in (args.tag, "quick" if args.quick else None) if t)), payload)
     ran = {k: (v if v and "skipped" not in v else None) for k, v in payload.items()
            if k in ("mitsuba_scene", "vdb_scene")}
     if any(ran.values()):

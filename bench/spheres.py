@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import device, glass, points  # noqa: E402
 from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
@@ -81,13 +82,15 @@ def variant_name(v):
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench spheres", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--size", default="640x480")
-    ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS))
-    ap.add_argument("--counts", type=ints, default=COUNTS)
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--bounces", type=int, default=2)
-    ap.add_argument("--tile", type=parse_tile, default=(8, 8))
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--size", default="640x480", help="image size WxH (default: 640x480)")
+    ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS),
+                    help="point generator (default: blob)")
+    ap.add_argument("--counts", type=ints, default=COUNTS,
+                    help="sphere counts, comma-separated (default: 1000 ... 1000000)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed renders per variant (default: 3)")
+    ap.add_argument("--bounces", type=int, default=2, help="glass surface events per path (default: 2)")
+    ap.add_argument("--tile", type=parse_tile, default=(8, 8), help="work-group WxH (default: 8x8)")
     ap.add_argument("--brute-limit", type=float, default=60.0,
                     help="seconds: stop brute force once one render takes longer")
     ap.add_argument("--dispatch", default="fragment,tiled",
@@ -96,12 +99,11 @@ def main(argv=None):
                     help="sphere count of the uber-kernel comparison (0: skip)")
     ap.add_argument("--opaque", action="store_true",
                     help="opaque spheres (no refraction): one surface hit per primary ray, as in the paper")
-    ap.add_argument("--tag", default=None)
+    ap.add_argument("--tag", default=None, help="added to the results' name: spheres_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
     dev = device.get(args.device)
-    tag = (args.tag or device_tag(dev)) + ("-opaque" if args.opaque else "")
-    path = RESULTS / f"spheres_{tag}.json"
+    path = result_path("spheres", dev, "-".join(t for t in (args.tag, "opaque" if args.opaque else None) if t))
     rows, uber_rows = [], []
     dispatches = [d for d in args.dispatch.split(",") if d]
 

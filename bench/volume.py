@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, occupied_bricks, render_volume, volume_params  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "data" / "vdb"
 # density scale per file, chosen so optical depths are cloud-like (see README)
 SCALES = {"smoke": 1.0, "wdas_cloud_sixteenth": 0.05, "dragon_with_xform": 1.0,
           "fluid_data_0190": 1.0}
@@ -43,12 +43,7 @@ SCALES = {"smoke": 1.0, "wdas_cloud_sixteenth": 0.05, "dragon_with_xform": 1.0,
 def default_files():
     names = ["smoke", "wdas_cloud_sixteenth", "dragon_with_xform"]
     found = []
-    for n in names:
-        for cand in (SHARED / f"{n}.vdb", ROOT / "bench" / "data" / f"{n}.npz"):
-            if cand.exists():
-                found.append(cand)
-                break
-    return found
+    return [p for p in (find_volume(n) for n in names) if p is not None]
 
 
 def sparse_pair():
@@ -114,12 +109,13 @@ def timed(b, cam, lights, s, dev, cpu: bool):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("files", nargs="*", type=Path)
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--size", default="640x480")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("files", nargs="*", type=Path,
+                    help="volume files (default: smoke, wdas_cloud_sixteenth, dragon_with_xform from the shared data)")
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--size", default="640x480", help="image size WxH (default: 640x480)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed renders per variant (default: 3)")
     ap.add_argument("--tiles", default="8x8,16x16", help="tile sizes for the tiled dispatch")
-    ap.add_argument("--tag", default=None, help="results file suffix (default: from the device)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: volume_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.split("x"))
     tiles = [parse_tile(t) for t in args.tiles.split(",") if t]
@@ -127,7 +123,7 @@ def main(argv=None):
     cpu = not is_gpu(dev)
     files = args.files or default_files()
     if not files:
-        sys.exit("bench/volume.py: no input files (../shared/data/vdb not found)")
+        sys.exit(f"bench/volume.py: {missing_data('smoke.vdb, wdas_cloud_sixteenth.vdb, dragon_with_xform.vdb')}")
     sun = Sun((-0.6, -1.0, -0.5), 6.0)
     rows = []
     load_start = os.getloadavg()
@@ -188,8 +184,7 @@ def main(argv=None):
                   f"{d['lists']['bricks_per_list_max']}  overflowed {d['lists']['tiles_overflowed']}"
                   f"/{d['lists']['tiles']}", flush=True)
         rows.append(row)
-    tag = args.tag or device_tag(dev)
-    out = write_json(RESULTS / f"volume_{tag}.json",
+    out = write_json(result_path("volume", dev, args.tag),
                      {"benchmark": "volume", "size": [width, height], "spp": 1, "step_voxels": 0.5,
                       "shadow_step_voxels": 1.0, "lights": "1 sun, shadows on", "repeat": args.repeat,
                       "tiles": [list(t) for t in tiles], "tile_capacity": features.VOLUME_TILE_CAP,

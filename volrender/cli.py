@@ -365,12 +365,18 @@ def bench_dir() -> Path:
 
 def cmd_bench(args):
     root = bench_dir()
+    try:
+        import matplotlib  # noqa: F401  (every benchmark plots its results)
+    except ImportError as exc:
+        raise UserError(f"matplotlib is not installed ({exc})",
+                        fix="pip install 'volrender[bench]' (bash run.sh setup installs it)") from None
     sys.path.insert(0, str(root))
     import importlib
     module = importlib.import_module(f"bench.{args.name}")
     extra = list(args.args)
     if args.device and "--device" not in extra:
         extra = ["--device", args.device, *extra]
+    sys.argv[0] = f"volrender bench {args.name}"      # the benchmark's usage line
     return module.main(extra) or 0
 
 

@@ -43,7 +43,11 @@ _CORNER_BITS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dt
 
 
 def _pv():
-    import pyvista
+    try:
+        import pyvista
+    except ImportError as exc:
+        raise UserError(f"pyvista is not installed ({exc})",
+                        fix="pip install 'volrender[inspect]' (bash run.sh setup installs it)") from None
     return pyvista
 
 
