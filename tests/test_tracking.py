@@ -219,12 +219,14 @@ def test_cli_renders_with_tracking(tmp_path, capsys):
 def test_error_bench_quick_run(tmp_path, monkeypatch):
     """bench/error.py --quick end to end (volumes only), writing into tmp_path."""
     import json
-    from bench import error
-    monkeypatch.setattr(error, "RESULTS", tmp_path)
+    from bench import common, error
+    monkeypatch.setattr(common, "RESULTS", tmp_path)
     assert error.main(["--quick", "--no-glass", "--size", "24x18", "--ref-spp", "16",
-                       "--out", "t"]) == 0
-    rec = json.loads((tmp_path / "error_t.json").read_text())
-    assert (tmp_path / "error_t.png").stat().st_size > 0
+                       "--tag", "t"]) == 0
+    (path,) = tmp_path.glob("error_*-t-quick.json")     # the device's tag, then ours
+    rec = json.loads(path.read_text())
+    assert path.with_suffix(".png").stat().st_size > 0
+    assert rec["commit"] and rec["argv"] and rec["timing"] == "warm"
     demo = rec["volume"][0]
     assert demo["scene"] == "demo_cloud" and demo["reference"]["spp"] == 64
     rows = demo["rows"]
