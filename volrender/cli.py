@@ -133,6 +133,23 @@ def build_parser():
                     help="reuse a camera written by --camera-out (options given beside it win)")
     cg.add_argument("--camera-out", default=None, metavar="CAM.toml",
                     help="also write the camera used (origin, target, up, fov, size) as TOML")
+    sq = r.add_argument_group(
+        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #), smoke_%04d.vdb, "
+                     "or a quoted glob 'smoke_*.vdb' (input only); one camera for every frame")
+    sq.add_argument("--frames", default=None, metavar="A-B[:STEP]",
+                    help="frames to render (also N, or a comma-separated list); default: every "
+                         "file a glob matches")
+    sq.add_argument("--workers", type=_int("--workers"), default=None, metavar="N",
+                    help="Dask workers of a LocalCluster on this machine; 0 renders in this "
+                         "process (default: one per GPU, else one per 8 CPU cores)")
+    sq.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                    help="submit to an existing Dask cluster (`dask scheduler`, `dask worker`; "
+                         "inputs and outputs on a shared filesystem)")
+    sq.add_argument("--chunk", type=_int("--chunk"), default=None, metavar="K",
+                    help="frames per task (default: enough tasks to keep every worker busy, "
+                         "at most 8 frames each)")
+    sq.add_argument("--skip-existing", action="store_true",
+                    help="keep frames whose output exists (resume an interrupted run)")
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
@@ -255,7 +272,39 @@ def look_problems(img, scene) -> list[str]:
     return out
 
 
+SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
+
+
+def cmd_sequence(args):
+    from .sequence import render_sequence
+    r = render_sequence(args.input, args.output, args.frames, workers=args.workers,
+                        scheduler=args.scheduler, chunk=args.chunk,
+                        skip_existing=args.skip_existing, device=args.device,
+                        progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
+                        **render_overrides(args))
+    for rec in r.failed:
+        print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
+              file=sys.stderr)
+    done = sum(rec["status"] == "ok" for rec in r.records)
+    skipped = sum(rec["status"] == "skipped" for rec in r.records)
+    print(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
+          f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}",
+          file=sys.stderr)
+    if r.failed:
+        print(f"volrender: error: {len(r.failed)} frames failed: "
+              f"{', '.join(str(rec['frame']) for rec in r.failed)}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def cmd_render(args):
+    from .sequence import is_pattern
+    if args.frames is not None or is_pattern(args.input):
+        return cmd_sequence(args)
+    given = [o for o in SEQUENCE_OPTIONS if getattr(args, o) not in (None, False)]
+    if given:
+        raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
+                        f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
     from . import image
     from .render import check_image_memory, get_device, render
     from .scene import request
@@ -351,7 +400,8 @@ def cmd_info(args):
 BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lighting, uber-kernel",
               "volume": "volume files: skipping, fragment vs tiled dispatch",
               "error": "error against run time for every speed knob",
-              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)"}
+              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
+              "sequence": "frame sequences on Dask: frames per second against worker count"}
 
 
 def bench_dir() -> Path:

@@ -106,6 +106,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = get_device(device)
     cam = scene.camera
+    t_plan = time.perf_counter()
     plan = _planner(scene.kind)(scene, dev, variant)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags())
@@ -116,6 +117,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     args += list(outs.values())
     args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.extra]
     t0, c0 = time.perf_counter(), time.process_time()
+    setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     kernel_ms = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
                          dispatch=plan.dispatch)
     host = {}
@@ -130,7 +132,8 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     for name in plan.aovs:
         aovs[name] = host[name] if name in host else _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
-                 device=dev.name, flags=plan.features.flags(), camera=cam, info=plan.info)
+                 device=dev.name, flags=plan.features.flags(), camera=cam,
+                 info={**plan.info, "setup_ms": setup_ms})
 
 
 def _derived_aov(name, rgba):

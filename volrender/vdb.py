@@ -698,3 +698,58 @@ def load_volume(path, grid=None, emission_grid=None) -> Bricks:
         return b
     raise UserError(f"unsupported volume file type {suffix or '(no suffix)'!r}", path=p,
                     fix="give an OpenVDB .vdb file or a .npz brick cache")
+
+
+# --------------------------------------------------------------------------- bounds only
+
+def _layout_world_bounds(origin, dims, index_to_world):
+    ext = np.asarray(dims, np.float64) * BRICK
+    corners = np.array([[x, y, z, 1.0] for x in (0, ext[0]) for y in (0, ext[1]) for z in (0, ext[2])])
+    t = np.eye(4)
+    t[:3, 3] = origin
+    w = (np.asarray(index_to_world, np.float64) @ t @ corners.T)[:3].T
+    return w.min(axis=0), w.max(axis=0)
+
+
+def world_bounds(path, grid=None, emission_grid=None):
+    """(lo, hi, up-axis hint) of the brick layout a file would load into, read from grid
+    metadata (a .vdb's active boxes and transforms, a .npz's small arrays) without
+    loading any voxels: the same box Bricks.world_bounds() gives after loading."""
+    p = _check_file(path)
+    if p.suffix.lower() == ".npz":
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                origin, dims, m = z["origin"], z["dims"], z["index_to_world"]
+                axis = str(z["up_axis"]) or None if "up_axis" in z.files else None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+            raise UserError(f"not a readable brick cache ({_one_line(e)})", path=p,
+                            fix="convert the .vdb again (volrender convert)") from None
+        lo, hi = _layout_world_bounds(origin, dims, m)
+        return lo, hi, axis
+    grids = list_grids(p)
+    names = [_pick(p, grids, grid, default=True)]
+    if emission_grid is not None:
+        names.append(_pick(p, grids, emission_grid))
+    ov = import_openvdb()
+    box_lo, box_hi, m = None, None, None
+    for info in names:
+        try:
+            g = ov.readGridMetadata(str(p), info.name)
+        except Exception as e:
+            raise UserError(f"cannot read grid {info.name!r} ({_one_line(e)})", path=p,
+                            fix="the file may be truncated or corrupt; re-export it") from None
+        meta = g.metadata
+        if "file_bbox_min" not in meta:
+            continue
+        lo, hi = (np.array(meta[k], np.int64) for k in ("file_bbox_min", "file_bbox_max"))
+        if np.any(lo > hi):
+            continue
+        m = _index_to_world(g.transform) if m is None else m
+        box_lo = lo if box_lo is None else np.minimum(box_lo, lo)
+        box_hi = hi if box_hi is None else np.maximum(box_hi, hi)
+    if box_lo is None:
+        raise UserError(f"grid {names[0].name!r} is empty (0 active voxels)", path=p,
+                        fix="nothing to render; choose another grid or frame")
+    origin, dims = _layout(box_lo, box_hi)
+    lo, hi = _layout_world_bounds(origin, dims, m)
+    return lo, hi, up_axis_hint(grids)[0]
