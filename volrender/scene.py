@@ -34,6 +34,7 @@ ranges and kinds, naming the file and `[section].key`. Paths resolve relative to
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 from dataclasses import dataclass
@@ -147,15 +148,10 @@ LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
 EXTRA_KEYS = LIGHT_KEYS + ("camera",)     # override keys that are not settings fields
 
 
+@functools.lru_cache(maxsize=None)
 def options() -> dict[str, Option]:
     """Every override key -> Option (the CLI builds its render options from these)."""
-    global _OPTIONS
-    if _OPTIONS is None:
-        _OPTIONS = _options()
-    return _OPTIONS
-
-
-_OPTIONS = None
+    return _options()
 
 
 # --------------------------------------------------------------------------- scene files

@@ -183,5 +183,5 @@ def render_volume(bricks, camera, lights, settings: VolumeSettings, device, prog
     benchmarks: render.render of the equivalent Scene). Returns render.Image.as_dict()."""
     from .render import render
     from .scene import Scene, VolumeContent
-    scene = Scene(camera, tuple(lights), VolumeContent(bricks, settings))
+    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
     return render(scene, device, progress=progress).as_dict()
