@@ -12,8 +12,8 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
-from .errors import UserError
+from . import __version__, atomic
+from .errors import UserError, printable
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -123,8 +123,9 @@ def build_parser():
     r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
                                  "GENERATOR:COUNT, or SCENE.toml")
     r.add_argument("-o", "--output", required=True,
-                   help="OUT.exr (linear RGBA + layers), OUT.npy (float32 HxWx4) or OUT.png "
-                        "(tone-mapped 8-bit sRGB)")
+                   help="OUT.exr (linear premultiplied RGBA + layers), OUT.npy (float32 HxWx4) "
+                        "or OUT.png (tone-mapped sRGB RGBA, straight alpha); never one of the "
+                        "inputs; a symlink is written through")
     before = {a.dest for a in r._actions}
     add_render_options(r)
     RENDER_DEST = [a.dest for a in r._actions if a.dest not in before]
@@ -133,6 +134,9 @@ def build_parser():
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
     o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
                    help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
+    o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
+                   help="PNG only: bits per channel of the sRGB RGBA (straight alpha) "
+                        "file (default: 8)")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")
     add_common(r)
@@ -231,15 +235,21 @@ def describe(scene) -> str:
 
 def cmd_render(args):
     from . import image
+    from .files import refuse_overwrite
     from .render import check_image_memory, get_device, render
     from .scene import request
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
+    refuse_overwrite(out_path, req.inputs)
     dev = get_device(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
-    scene = req.load()
+    try:
+        scene = req.load()
+    except MemoryError:
+        raise UserError("out of host memory while reading it", path=args.input,
+                        fix="render a smaller volume or cloud, or free memory") from None
     for note in scene.notes:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
@@ -247,7 +257,7 @@ def cmd_render(args):
         print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
               f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
-    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap)
+    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
@@ -255,14 +265,18 @@ def cmd_render(args):
 
 def cmd_convert(args):
     from . import vdb
+    from .files import check_input, refuse_overwrite
     src, dst = Path(args.input), Path(args.output)
     if src.suffix.lower() != ".vdb":
         raise UserError("convert reads OpenVDB files", path=src, fix="give a .vdb input")
     if dst.suffix.lower() != ".npz":
         raise UserError("convert writes .npz brick files", path=dst, fix="name the output OUT.npz")
-    if not dst.parent.resolve().is_dir() or not os.access(dst.parent.resolve(), os.W_OK):
+    check_input(src, "volume file", fix="give a .vdb file")
+    real = atomic.destination(dst, "brick cache")
+    if not real.parent.is_dir() or not os.access(real.parent, os.W_OK | os.X_OK):
         raise UserError("output directory does not exist or is not writable", path=dst,
                         fix="choose a writable directory")
+    refuse_overwrite(real, [src], "convert")
     t0 = time.perf_counter()
     bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid)
     bricks.save_npz(dst)
@@ -293,11 +307,12 @@ def cmd_info(args):
         src = Path(args.input)
         if src.suffix.lower() == ".vdb":
             for g in vdb.list_grids(src):
-                print(f"{g.name:24s} {g.value_type:8s} {g.grid_class}")
+                print(f"{printable(g.name):24s} {printable(g.value_type):8s} "
+                      f"{printable(g.grid_class)}")
             return 0
         b = vdb.load_volume(src)
         lo, hi = b.world_bounds()
-        print(f"grid {b.grid_name!r}: {len(b.majorant)} bricks, dims {tuple(b.dims)}, "
+        print(f"grid {printable(repr(b.grid_name))}: {len(b.majorant)} bricks, dims {tuple(b.dims)}, "
               f"voxel size {b.voxel_size:.6g}, world bounds {tuple(lo)} .. {tuple(hi)}")
         return 0
     import numpy
@@ -355,7 +370,7 @@ COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "inf
 
 
 def _warn_one_line(message, category, filename, lineno, file=None, line=None):
-    print(f"volrender: warning: {message}", file=sys.stderr)
+    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
 
 
 _NUMBER = re.compile(r"^-[0-9.]")
@@ -375,15 +390,69 @@ def join_negative_values(argv):
     return out
 
 
+def handle_signals():
+    """SIGTERM and SIGHUP raise atomic.Interrupted, as SIGINT raises KeyboardInterrupt, so
+    every one of them unwinds (temporary files removed) and exits with 128 + the signal.
+    A signal ignored when the process started (nohup, a background job's SIGINT) stays
+    ignored, and so does a call from a thread other than the main one. Returns the
+    previous handlers (for restore_signals)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def interrupted(signum, frame):
+        raise atomic.Interrupted(signum)
+    old = {}
+    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
+                          ("SIGHUP", interrupted)):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
+def restore_signals(old):
+    import signal
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def _interrupted(exc) -> int:
+    """One line saying what really happened (after the rename, the output was written)."""
+    import signal
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):       # a second signal: no traceback
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
+    what = f"{done} was written before that" if done else "no output written"
+    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
+    return 128 + signum
+
+
+_written_from = 0          # atomic.WRITTEN's length when this command started
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="volrender: %(message)s")
-    with warnings.catch_warnings():
-        if not args.debug:
-            warnings.showwarning = _warn_one_line
-        return _run(args)
+    global _written_from
+    _written_from = len(atomic.WRITTEN)
+    old = handle_signals()
+    try:
+        parser = build_parser()
+        args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="volrender: %(message)s")
+        with warnings.catch_warnings():
+            if not args.debug:
+                warnings.showwarning = _warn_one_line
+            return _run(args)
+    except KeyboardInterrupt as exc:        # start-up, option parsing, or --debug
+        if argv is not None and "--debug" in argv:
+            raise
+        return _interrupted(exc)
+    finally:
+        restore_signals(old)
 
 
 _CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
@@ -428,9 +497,8 @@ def _run(args) -> int:
             raise
         print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("volrender: interrupted; no output written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
     except MemoryError:
         if args.debug:
             raise

@@ -71,6 +71,7 @@ def choose(spec: str | None = None):
 
 class BuildError(UserError):
     """An OpenCL program failed to build; carries the compiler log."""
+    multiline = True
 
 
 @contextlib.contextmanager

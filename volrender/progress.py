@@ -1,32 +1,38 @@
-"""A small progress bar on stderr, shown only for renders that take more than a moment."""
+"""The progress bar of a render: tqdm (tqdm.auto, so a notebook gets its widget), counting
+pixel-samples, with the rows finished as its postfix. Shown only for renders that take
+more than half a second, and by default only when stderr is a terminal or in a notebook;
+dispatch.run_rows updates it after every launch, i.e. at least every second (its launches
+aim at TARGET_S)."""
 from __future__ import annotations
 
 import sys
-import time
+
+
+def _interactive() -> bool:
+    try:
+        if sys.stderr.isatty():
+            return True
+    except (AttributeError, ValueError):
+        return False
+    return "ipykernel" in sys.modules
 
 
 class Progress:
-    def __init__(self, total: int, label: str = "render", enabled: bool | None = None,
-                 delay: float = 0.5, stream=None):
-        self.total, self.label, self.done = max(1, total), label, 0
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.delay, self.start, self.shown = delay, time.perf_counter(), False
-
-    def update(self, n: int = 1):
-        self.done = min(self.total, self.done + n)
-        elapsed = time.perf_counter() - self.start
-        if not self.enabled or (elapsed < self.delay and not self.shown):
+    def __init__(self, total: int, rows: int, label: str = "render", enabled: bool | None = None,
+                 delay: float = 0.5):
+        self.rows = rows
+        self.bar = None
+        if not (_interactive() if enabled is None else enabled):
             return
-        self.shown = True
-        frac = self.done / self.total
-        eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} {100 * frac:5.1f}% [{bar:<30}] "
-                          f"{elapsed:6.1f} s, eta {eta:5.1f} s")
-        self.stream.flush()
+        from tqdm.auto import tqdm
+        self.bar = tqdm(total=total, desc=label, unit="sample", unit_scale=True, delay=delay,
+                        file=sys.stderr, dynamic_ncols=True, mininterval=0.2, leave=True)
+
+    def update(self, samples: int, rows_done: int):
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"rows {rows_done}/{self.rows}", refresh=False)
+            self.bar.update(samples)
 
     def close(self):
-        if self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
+        if self.bar is not None:
+            self.bar.close()

@@ -207,9 +207,9 @@ def _check_type(value, kind, where, base: Path):
         if not isinstance(value, str) or not value:
             bad("a file path")
         try:        # a NUL byte or an over-long name raise ValueError / OSError here
-            path = (base / value).resolve()
+            path = (base / value).resolve()        # a loop raises RuntimeError on 3.11
             exists, is_dir = path.exists(), path.is_dir()
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
                             fix="give the path of an existing file") from None
@@ -219,6 +219,11 @@ def _check_type(value, kind, where, base: Path):
         if is_dir:
             raise UserError(f"{where} names {value!r}, which is a directory",
                             fix="give the path of a file")
+        from .files import check_input
+        try:
+            check_input(path, "file")
+        except UserError as exc:             # a FIFO, a device, an unreadable file
+            raise UserError(f"{where} names {value!r}: {str(exc).split(': ', 1)[-1]}") from None
         return path
     raise AssertionError(kind)
 
@@ -239,9 +244,8 @@ def _section(table, name, where, base):
 def read(path) -> dict:
     """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
     resolved relative to the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise UserError("no such scene file", path=path)
+    from .files import check_input
+    path = check_input(path, "scene file")
     try:
         raw = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -434,10 +438,12 @@ def _lights(given, doc):
 
 
 def _environment(path, where):
+    from .files import check_input
     from .glass import load_environment
-    p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{where}: no such environment map", path=p, fix="check the path")
+    try:
+        p = check_input(path, "environment map")
+    except UserError as exc:
+        raise UserError(f"{where}: {exc}") from None
     return Environment(load_environment(p), str(p))
 
 
@@ -523,9 +529,12 @@ def request(source, **overrides) -> Request:
     else:
         from .glass import GlassSettings
         settings = GlassSettings(**values)
-        if settings.env is not None and not Path(settings.env).is_file():
-            raise UserError(f"{given['env'][1]}: no such environment map", path=settings.env,
-                            fix="check the path")
+        if settings.env is not None:
+            from .files import check_input
+            try:
+                check_input(settings.env, "environment map")
+            except UserError as exc:
+                raise UserError(f"{given['env'][1]}: {exc}") from None
     return Request(str(source), kind, origin, doc, view, lights, settings, given)
 
 

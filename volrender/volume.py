@@ -173,9 +173,12 @@ def plan(scene, device, variant=None):
             else np.zeros((0, 4), np.int32)
         extra = [occ, np.int32(len(occ))]
     W, H = scene.camera.width, scene.camera.height
-    outputs = [("rgba", (H, W, 4)), ("depth", (H, W) if settings.depth else (1,))]
+    # depth: (sum, weight) per pixel while samples are split across launches, then
+    # (depth, weight); the layer is [..., 0]
+    outputs = [("rgba", (H, W, 4)), ("depth", (H, W, 2) if settings.depth else (1,))]
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
-                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs)
+                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
+                info={"background": tuple(settings.background)})
 
 
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
