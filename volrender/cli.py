@@ -242,7 +242,7 @@ def cmd_render(args):
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
-    refuse_overwrite(out_path, req.inputs)
+    refuse_overwrite(out_path, req.inputs, shown=args.output)
     dev = get_device(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
     try:
@@ -258,7 +258,7 @@ def cmd_render(args):
               f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
-    print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
+    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
 
@@ -276,12 +276,12 @@ def cmd_convert(args):
     if not real.parent.is_dir() or not os.access(real.parent, os.W_OK | os.X_OK):
         raise UserError("output directory does not exist or is not writable", path=dst,
                         fix="choose a writable directory")
-    refuse_overwrite(real, [src], "convert")
+    refuse_overwrite(real, [src], "convert", shown=args.output)
     t0 = time.perf_counter()
     bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid)
     bricks.save_npz(dst)
     n = len(bricks.majorant)
-    print(f"wrote {dst}: grid {bricks.grid_name!r}, {n} bricks of 8^3 "
+    print(f"wrote {printable(dst)}: grid {printable(repr(bricks.grid_name))}, {n} bricks of 8^3 "
           f"(of {int(bricks.dims.prod())}), voxel size {bricks.voxel_size:.6g}, "
           f"in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     return 0
@@ -342,7 +342,8 @@ def cmd_info(args):
 BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lighting, uber-kernel",
               "volume": "volume files: skipping, fragment vs tiled dispatch",
               "error": "error against run time for every speed knob",
-              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)"}
+              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
+              "launch": "launch granularity: adaptive launch overhead, time to stop on signals"}
 
 
 def bench_dir() -> Path:

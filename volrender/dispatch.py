@@ -37,6 +37,7 @@ KINDS = CHOICES + ("fragment-driver",)   # fragment with the driver's local size
 GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
 TARGET_S = 0.25                # launch length aimed at on CPUs (PoCL)
 GPU_TARGET_S = 0.5             # on GPUs
+FIXED_LAUNCH = None            # (rows, samples) per launch instead (benchmarks, tests)
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,10 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     y0 = 0
     try:
         while y0 < height:
-            if gpu:
+            if FIXED_LAUNCH is not None:
+                rows = min(height - y0, max(th, FIXED_LAUNCH[0] // th * th))
+                work = width * rows * FIXED_LAUNCH[1]
+            elif gpu:
                 rows = min(height - y0, gpu_rows)
             elif work >= width * spp * th:                   # whole samples, several rows
                 rows = min(height - y0, max(th, work // (width * spp) // th * th))
@@ -157,7 +161,8 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 took = time.perf_counter() - start
                 kernel_ns += ev.profile.end - ev.profile.start
                 done = width * rows * (s1 - s0)
-                work = int(min(max(done * target / max(took, 1e-6), done / 8), done * 8))
+                if FIXED_LAUNCH is None:
+                    work = int(min(max(done * target / max(took, 1e-6), done / 8), done * 8))
                 bar.update(done, y0 + rows if s1 == spp else y0)
                 s0 = s1
             y0 += rows

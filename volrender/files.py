@@ -54,14 +54,23 @@ def _identity(path):
     return st.st_dev, st.st_ino
 
 
-def refuse_overwrite(output, inputs, command: str = "render"):
-    """Refuse an output that is the same file as one of `inputs`."""
+def _shown(path) -> str:
+    try:
+        rel = os.path.relpath(path)
+    except (ValueError, OSError):
+        return str(path)
+    return str(path) if rel.startswith("..") else rel
+
+
+def refuse_overwrite(output, inputs, command: str = "render", shown=None):
+    """Refuse an output that is the same file as one of `inputs` (`shown`: the output as
+    the user spelt it, for the message)."""
     out = _identity(output)
     if out is None:
         return
     for p in inputs:
         if _identity(p) == out:
-            same = "" if Path(p).name == Path(output).name else f" (the output {output})"
-            raise UserError(f"the output is the same file as the input {str(p)!r}{same}; "
-                            f"{command} would overwrite its own input", path=output,
+            raise UserError(f"the output is the same file as the input {_shown(p)!r}; "
+                            f"{command} would overwrite its own input",
+                            path=shown if shown is not None else _shown(output),
                             fix="write to another file name")

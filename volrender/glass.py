@@ -198,13 +198,23 @@ def uber_bits(features: GlassFeatures) -> int:
 
 
 def load_environment(path):
-    """float32 (H, W, 3) texels of an equirectangular .exr/.npy (NaN/Inf become 0)."""
+    """float32 (H, W, 3) texels of an equirectangular .exr/.npy: NaN/Inf and negative
+    texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
+    them), so every radiance the kernel reads is finite."""
+    import warnings
     from .image import read_image
     img = np.asarray(read_image(path))
-    if img.dtype == np.uint8 or img.ndim != 3 or img.shape[2] < 3:
+    if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
         raise UserError("the environment must be a float image (.exr or .npy)", path=path,
                         fix="convert it to an equirectangular .exr")
-    return np.nan_to_num(img[..., :3], nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+    rgb = img[..., :3].astype(np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(rgb) | (rgb < 0) | (rgb > MAX_VALUE)))
+    if bad:
+        warnings.warn(f"{path}: {bad} environment texel values are NaN/Inf, negative or above "
+                      f"{MAX_VALUE:g}; read as 0 (NaN/Inf, negative) or {MAX_VALUE:g}",
+                      stacklevel=2)
+    rgb = np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0), 0.0, MAX_VALUE)
+    return rgb.astype(np.float32)
 
 
 def _env_texels(environment):

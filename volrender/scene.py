@@ -415,7 +415,25 @@ def _field_values(given, owners):
     return out
 
 
-def _lights(given, doc):
+def _check_light(kind, vec, power, color, where):
+    """Ranges of one light (settings.MAX_VALUE bounds radiance-like values, so the packed
+    float32 radiance, colour x power, stays finite)."""
+    from .settings import MAX_VALUE
+    name = ("irradiance", "direction") if kind == "sun" else ("intensity", "position")
+    if not 0.0 <= power <= MAX_VALUE:
+        raise UserError(f"{where}: {name[0]} must be in [0, {MAX_VALUE:g}], got {power:g}")
+    if not all(0.0 <= c <= MAX_VALUE for c in color) or max(color) * power > MAX_VALUE:
+        raise UserError(f"{where}: color x {name[0]} must be in [0, {MAX_VALUE:g}], got "
+                        f"{', '.join(f'{c:g}' for c in color)} x {power:g}")
+    if kind == "sun":
+        top = max(abs(v) for v in vec)
+        if top == 0.0:
+            raise UserError(f"{where}: the direction must not be zero")
+    elif max(abs(v) for v in vec) > MAX_VALUE:
+        raise UserError(f"{where}: position coordinates must be within +-{MAX_VALUE:g}")
+
+
+def _lights(given, doc, path=None):
     from .lights import DEFAULT_LIGHTS, PointLight, Sun
     no_lights = given.get("no_lights", (False, ""))[0]
     explicit = [k for k in ("lights", "sun", "point_light") if k in given]
@@ -426,14 +444,26 @@ def _lights(given, doc):
     if "lights" in given:
         return tuple(given["lights"][0])
     if "sun" in given or "point_light" in given:
+        for key, kind in (("sun", "sun"), ("point_light", "point")):
+            for v in given.get(key, ((),))[0]:
+                if v:
+                    _check_light(kind, v[:3], v[3], (1.0, 1.0, 1.0),
+                                 f"--{key.replace('_', '-')} {','.join(f'{x:g}' for x in v)}")
         out = [Sun(tuple(s[:3]), s[3]) for s in given.get("sun", ((),))[0] if s]
         out += [PointLight(tuple(p[:3]), p[3]) for p in given.get("point_light", ((),))[0] if p]
         return tuple(out)
     if doc.get("lights"):
-        return tuple(Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     if l["type"] == "sun" else
-                     PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     for l in doc["lights"])
+        out = []
+        for i, l in enumerate(doc["lights"]):
+            where = f"{path}: [[lights]] #{i + 1}" if path else f"[[lights]] #{i + 1}"
+            color = l.get("color", (1.0, 1.0, 1.0))
+            if l["type"] == "sun":
+                _check_light("sun", l["direction"], l.get("irradiance", 1.0), color, where)
+                out.append(Sun(l["direction"], l.get("irradiance", 1.0), color))
+            else:
+                _check_light("point", l["position"], l.get("intensity", 1.0), color, where)
+                out.append(PointLight(l["position"], l.get("intensity", 1.0), color))
+        return tuple(out)
     return tuple(DEFAULT_LIGHTS)
 
 
@@ -521,7 +551,7 @@ def request(source, **overrides) -> Request:
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
     view = View(**_field_values(given, ("view",)))
-    lights = _lights(given, doc)
+    lights = _lights(given, doc, Path(source) if origin == "scene" else None)
     values = _field_values(given, ("common", kind))
     if kind == "volume":
         from .volume import VolumeSettings

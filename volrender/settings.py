@@ -197,6 +197,13 @@ def boolean(v):
 
 # ---------------------------------------------------------------------- shared settings
 
+def tile_size(v):
+    """A work-group tile WxH: 1..64 per side, at most 1024 work-items."""
+    ok = (isinstance(v, tuple) and len(v) == 2 and all(_int(c) and 1 <= c <= 64 for c in v)
+          and v[0] * v[1] <= 1024)
+    return None if ok else "must be WxH with 1..64 per side and W*H <= 1024"
+
+
 # Largest radiance-like value accepted anywhere (lights, background, emission, glow...):
 # far below float32's 3.4e38, so sums over samples and lights stay finite.
 MAX_VALUE = 1e30
@@ -217,7 +224,8 @@ class CommonSettings:
                          "into local memory first; auto: fragment (measured faster on PoCL and "
                          "the H200)", check=one_of(("auto", "fragment", "tiled", "fragment-driver")),
                          choices=("auto", "fragment", "tiled"), toml=("render", "dispatch"))
-    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles",
+    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles "
+                       "(1..64 per side, W*H <= 1024)", check=tile_size,
                        metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
                        kind=SIZE)
 
