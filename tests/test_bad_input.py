@@ -10,6 +10,7 @@ The same table writes docs/bad_input.md from real runs:
 from __future__ import annotations
 
 import contextlib
+import tempfile
 import io
 import os
 import shutil
@@ -654,3 +655,150 @@ def write_doc(path=ROOT / "docs" / "bad_input.md"):
 if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
     print(write_doc())
+
+
+# ------------------------------------------------------------------ signals
+
+LONG = ["render", "blob:3000", "--size", "320x240", "--spp", "256", "--no-progress"]
+
+
+def _spawn(argv, cwd):
+    """A real volrender process with SIGINT at its default (a job started in the
+    background with & would ignore it), in its own process group."""
+    import signal
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, "-m", "volrender", *argv], cwd=cwd, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: (signal.signal(signal.SIGINT, signal.SIG_DFL),
+                                                os.setpgrp()))
+
+
+def _finish(p, timeout):
+    """(exit status, stderr, seconds until it exited); kills it when it will not stop."""
+    import time
+    t = time.perf_counter()
+    try:
+        err = p.communicate(timeout=timeout)[1]
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, 9)
+        p.communicate()
+        raise AssertionError(f"still running {timeout} s after the signal")
+    return p.returncode, err, time.perf_counter() - t
+
+
+@pytest.mark.parametrize("name,status", [("SIGINT", 130), ("SIGTERM", 143), ("SIGHUP", 129)])
+def test_a_signal_stops_a_long_render_cleanly(tmp_path, name, status):
+    """A render that would take minutes, signalled after 1.5 s: it exits within a few
+    seconds (launches take about dispatch.TARGET_S) with 128 + the signal and one line,
+    leaves no temporary file and the earlier output byte-identical."""
+    import signal
+    import time
+    (tmp_path / "o.png").write_bytes(PRECIOUS)
+    p = _spawn([*LONG, "-o", "o.png"], tmp_path)
+    time.sleep(1.5)
+    p.send_signal(getattr(signal, name))
+    code, err, took = _finish(p, 30)
+    assert code == status, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"interrupted ({name})" in err and "no output written" in err
+    assert took < 5.0, f"{took:.1f} s to stop"
+    assert sorted(os.listdir(tmp_path)) == ["o.png"]
+    assert (tmp_path / "o.png").read_bytes() == PRECIOUS
+
+
+@pytest.mark.parametrize("name,status", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_a_signal_during_start_up_is_one_line(tmp_path, name, status):
+    """While the modules import (before cli.main): one line, 128 + the signal."""
+    import signal
+    import time
+    p = _spawn([*LONG, "-o", "o.png"], tmp_path)
+    time.sleep(0.15)
+    p.send_signal(getattr(signal, name))
+    code, err, _ = _finish(p, 30)
+    assert code == status, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_interrupt_after_the_rename_says_the_output_was_written(tmp_path, monkeypatch):
+    from volrender import cli
+    from volrender.render import Image
+    real = Image.save
+
+    def save_then_interrupt(self, *a, **kw):
+        real(self, *a, **kw)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(Image, "save", save_then_interrupt)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = cli.main(["render", "blob:30", "-o", str(tmp_path / "o.png"), *SMALL])
+    assert code == 130
+    assert "o.png was written" in err.getvalue() and "no output" not in err.getvalue()
+
+
+def test_no_signal_falls_between_creating_and_guarding_the_temporary_file(tmp_path, monkeypatch):
+    """Ctrl-C right after the temporary file is created: held back until the file is
+    guarded, then raised; the file is removed."""
+    import signal
+    from volrender import atomic
+    real_open = os.open
+
+    def open_then_ctrl_c(path, flags, *a):
+        fd = real_open(path, flags, *a)
+        if flags & os.O_EXCL:
+            os.kill(os.getpid(), signal.SIGINT)       # pending: signals are held here
+        return fd
+    monkeypatch.setattr(atomic.os, "open", open_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        atomic.write_bytes(tmp_path / "x.npy", b"data")
+    assert os.listdir(tmp_path) == []
+
+
+def test_unreadable_files_as_a_user(tmp_path):
+    """Mode 000 for real: as root, the command runs as nobody (root reads anything)."""
+    if os.geteuid() != 0:
+        uid = None
+    else:
+        import pwd
+        try:
+            uid = pwd.getpwnam("nobody").pw_uid
+        except KeyError:
+            pytest.skip("no user 'nobody'")
+    work = Path(tempfile.mkdtemp(dir="/tmp"))
+    try:
+        work.chmod(0o777)
+        (work / "p.xyz").write_text("0 0 0\n1 1 1\n")
+        (work / "p.xyz").chmod(0)
+        env = dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(work))
+        proc = subprocess.run([sys.executable, "-m", "volrender", "render", "p.xyz", "-o", "o.png",
+                               *SMALL], cwd=work, env=env, capture_output=True, text=True,
+                              timeout=120, user=uid)
+        assert proc.returncode == 2, proc.stderr
+        assert "p.xyz: cannot read the point-cloud file (permission denied)" in proc.stderr
+        assert "Traceback" not in proc.stderr and not (work / "o.png").exists()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def test_relative_output_after_the_working_directory_is_gone(tmp_path):
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    script = ("import os, sys; os.chdir(sys.argv[1]); os.rmdir(sys.argv[1]); "
+              "from volrender import cli; sys.exit(cli.main(['render', 'blob:30', '-o', 'o.png', "
+              "'--size', '8x8', '--no-progress']))")
+    proc = subprocess.run([sys.executable, "-c", script, str(gone)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "working directory no longer exists" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_read_only_home_still_finds_the_device(tmp_path):
+    """PoCL and pyopencl cache under ~/.cache; with a HOME where nothing can be created
+    volrender points them at a private folder under the temporary directory."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XDG_CACHE_HOME", "POCL_CACHE_DIR")}
+    env.update(PYTHONPATH=str(ROOT), HOME="/proc/self/no-such-home")
+    proc = subprocess.run([sys.executable, "-m", "volrender", "render", "blob:30", "-o", "o.png",
+                           "--size", "8x8", "--no-progress"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "o.png").is_file()

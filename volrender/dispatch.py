@@ -149,7 +149,9 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 rows = min(height - y0, th)
             s0 = 0
             while s0 < spp:
-                s1 = min(spp, s0 + max(1, work // (width * rows)))
+                chunk = max(1, work // (width * rows))
+                chunk = -(-(spp - s0) // -(-(spp - s0) // chunk))    # even chunks, no stub
+                s1 = min(spp, s0 + chunk)
                 kernel.set_args(*args, np.int32(y0), np.int32(s0), np.int32(s1))
                 start = time.perf_counter()
                 if driver:
