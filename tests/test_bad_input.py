@@ -5,7 +5,7 @@ byte-identical.
 
 The same table writes docs/bad_input.md from real runs:
 
-    .venv/bin/python tests/test_bad_input.py      # rewrites docs/bad_input.md
+    .venv/bin/python tests/test_bad_input.py      # rewrites docs/bad_input.md and README's table
 """
 from __future__ import annotations
 
@@ -341,7 +341,7 @@ CASES = [
     Case("size_huge", "`--size 1000000x1000000`",
          ["render", "blob:50", "-o", "{out}", "--size", "1000000x1000000"], ("--size", "32768")),
     Case("size_memory", "`--size 32768x32768` (within the per-side limit, too big for the device)",
-         ["render", "demo.vdb", "-o", "{out}", "--size", "32768x32768"], ("32768x32768", "smaller --size"),
+         ["render", "demo.vdb", "-o", "{out}", "--size", "32768x32768"], ("32768x32768", "smaller size (--size"),
          files={"demo.vdb": lambda p: shutil.copy(DEMO, p)}, patches=_nothing_allocated),
     Case("no_platform", "no OpenCL platform (`clGetPlatformIDs` fails)",
          ["render", "blob:50", "-o", "{out}"], ("OpenCL", "PoCL"), patches=_no_platform),
@@ -629,8 +629,9 @@ def write_doc(path=ROOT / "docs" / "bad_input.md"):
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for case in CASES:
-            code, err, _ = run_case(case, Path(d) / case.id)
-            line = err.strip().replace("|", "\\|")
+            work = Path(d) / case.id
+            code, err, _ = run_case(case, work)
+            line = err.strip().replace(f"{os.path.realpath(work)}/", "").replace("|", "\\|")
             args = " ".join(_shown(a.replace("{out}", case.out)) for a in case.argv)
             rows.append(f"| {case.label} <br> `volrender {args}` | `` {line} `` | {code} |")
     from volrender import device
@@ -641,15 +642,27 @@ def write_doc(path=ROOT / "docs" / "bad_input.md"):
         "relative to the directory the command ran in; images are 16x12 unless the size is\n"
         "the point. In every case stderr is that one line (no traceback), no output file is\n"
         "written and an existing one is left byte-identical. `--debug` shows the traceback\n"
-        "(and a build failure's compiler log). Conditions that cannot be produced on demand\n"
-        "(no OpenCL platform, a kernel that does not compile, memory exhaustion) are\n"
-        "simulated: pyopencl's `get_platforms`, `Buffer` or `enqueue_nd_range_kernel` raise the\n"
-        "error a real runtime raises, or the kernel source is replaced by a broken copy.\n\n"
+        "(and a build failure's compiler log). Where the output is one of the inputs, that\n"
+        "input is left byte-identical. Conditions that cannot be produced on demand (no\n"
+        "OpenCL platform, a kernel that does not compile, memory exhaustion, a full disk, an\n"
+        "unreadable file when the tests run as root) are simulated: pyopencl's\n"
+        "`get_platforms`, `Buffer` or `enqueue_nd_range_kernel` raise the error a real runtime\n"
+        "raises, the kernel source is replaced by a broken copy, the temporary file's writes\n"
+        "go to `/dev/full`, or `os.access` says no. Signals, a read-only `$HOME`, a vanished\n"
+        "working directory and mode-000 files (run as `nobody`) are tested on real processes\n"
+        "by the tests after the table.\n\n"
         f"Device: {device.get().name}.\n\n"
-        "| input | what the user sees (stderr) | exit code |\n|---|---|---|\n"
-        + "\n".join(rows) + "\n")
+        + TABLE_HEAD + "\n".join(rows) + "\n")
     path.write_text(text)
+    readme = ROOT / "README.md"
+    doc = readme.read_text()
+    start = doc.index(TABLE_HEAD, doc.index("## Bad input"))
+    end = doc.index("\n\n", start)
+    readme.write_text(doc[:start] + TABLE_HEAD + "\n".join(rows) + doc[end:])
     return text
+
+
+TABLE_HEAD = "| input | what the user sees (stderr) | exit code |\n|---|---|---|\n"
 
 
 if __name__ == "__main__":
@@ -708,11 +721,13 @@ def test_a_signal_stops_a_long_render_cleanly(tmp_path, name, status):
 
 @pytest.mark.parametrize("name,status", [("SIGINT", 130), ("SIGTERM", 143)])
 def test_a_signal_during_start_up_is_one_line(tmp_path, name, status):
-    """While the modules import (before cli.main): one line, 128 + the signal."""
+    """While the modules import (volrender/__init__.py exits at once) or while cli.main
+    parses and loads: one line, 128 + the signal. (The interpreter's own start, the first
+    ~50 ms before volrender is imported, is not covered.)"""
     import signal
     import time
     p = _spawn([*LONG, "-o", "o.png"], tmp_path)
-    time.sleep(0.15)
+    time.sleep(0.3)
     p.send_signal(getattr(signal, name))
     code, err, _ = _finish(p, 30)
     assert code == status, err

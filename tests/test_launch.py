@@ -89,7 +89,7 @@ def test_launches_adapt_to_the_target(cl_device, monkeypatch):
     sizes = []
     real = dispatch.Progress.update
 
-    def spy(self, samples, rows):
+    def spy(self, samples, rows=None):
         sizes.append(samples)
         return real(self, samples, rows)
     monkeypatch.setattr(dispatch.Progress, "update", spy)

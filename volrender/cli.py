@@ -51,8 +51,11 @@ def add_option(group, opt, default):
     from .settings import number
     meta = opt.meta
     text = meta["help"]
+    bounds = getattr(meta["check"], "range", None)
     if meta["show_default"] and default is not None and meta["kind"] is not bool:
-        text += f" (default: {_show(default)})"
+        text += f" (default: {_show(default)}{f'; range {bounds}' if bounds else ''})"
+    elif bounds:
+        text += f" (range {bounds})"
     kw = dict(dest=opt.key, default=None, help=text)
     if meta["kind"] is bool:
         group.add_argument(opt.flag, action="store_true", **kw)
@@ -86,10 +89,12 @@ def add_render_options(r):
     lg = groups["lights"]
     lg.description = "default: one sun, direction -0.6,-1,-0.5, E=6"
     lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=None,
-                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
+                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance, E in "
+                                               "0..1e30 (repeatable)")
     lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
                     default=None, metavar="X,Y,Z,I",
-                    help="point light: position and intensity, irradiance I/r^2 (repeatable)")
+                    help="point light: position and intensity, irradiance I/r^2; I in 0..1e30 "
+                         "(repeatable)")
     lg.add_argument("--no-lights", action="store_true", default=None,
                     help="no lights: absorption and emission only")
     for opt in options().values():

@@ -132,7 +132,7 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     target = GPU_TARGET_S if gpu else TARGET_S
     gpu_rows = row_bands(width, height, GPU_BAND_PIXELS, th)[0][1]
     work = gpu_rows * width if gpu else max(1, pixels)        # pixel-samples per launch
-    bar = Progress(width * height * spp, height, "render", progress)
+    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height)
     kernel_ns = 0
     gx = -(-width // tw) * tw
     y0 = 0

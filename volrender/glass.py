@@ -100,7 +100,7 @@ def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
         return np.full(n, float(settings.radius))
     if cloud.radii is None:
         raise UserError(f"the point cloud {cloud.source or ''} has no radii".replace("  ", " "),
-                        fix="give a radius (--radius)")
+                        fix="give a radius (--radius, or [points].radius)")
     r = np.asarray(cloud.radii, np.float64)
     if not (np.isfinite(r).all() and (r >= 0).all()):
         raise UserError("point radii must be finite and >= 0", fix="repair the radius column")
@@ -150,7 +150,7 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
         tree_ms = 1e3 * (time.perf_counter() - t0)
         if tree.depth > MAX_TREE_DEPTH:
             raise UserError(f"tree depth {tree.depth} exceeds {MAX_TREE_DEPTH}",
-                            fix="raise --leaf-size")
+                            fix="raise the leaf size (--leaf-size, or [render].leaf_size)")
         order, first_leaf = tree.order, tree.first_leaf
         nodes = layout.record("TreeNode", tree.n_nodes)
         # float32 sphere centres round by up to half an ulp of their magnitude: widen the
@@ -178,7 +178,7 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     if not scale + bulge <= MAX_EXTENT:
         raise UserError(f"the point cloud spans {scale + bulge:.3g} units (radius plus blend), "
                         f"beyond float32's reach ({MAX_EXTENT:.0e})",
-                        fix="rescale the points (or lower --blend)")
+                        fix="rescale the points (or lower the blend: --blend, or [render].blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,

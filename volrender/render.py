@@ -166,4 +166,4 @@ def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
         hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
         raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
                         f"fits {where} ({limit / gib:.1f} GiB)",
-                        fix=f"render a smaller --size ({hint} at most)")
+                        fix=f"render a smaller size (--size, or [render].size; {hint} at most)")

@@ -171,6 +171,7 @@ def in_range(lo, hi, *, integer=False, allow_none=False):
             kind = "an integer" if integer else "a finite number"
             return f"must be {kind} in [{lo:g}, {hi:g}]"
         return None
+    check.range = f"{lo}..{hi}" if integer else f"{lo:g}..{hi:g}"
     return check
 
 
@@ -182,6 +183,7 @@ def rgb(lo=0.0, hi=math.inf, n=(3,)):
             count = " or ".join(map(str, n))
             return f"takes {count} finite values {bound}"
         return None
+    check.range = f">= {lo:g} each" if hi == math.inf else f"{lo:g}..{hi:g} each"
     return check
 
 
@@ -201,7 +203,11 @@ def tile_size(v):
     """A work-group tile WxH: 1..64 per side, at most 1024 work-items."""
     ok = (isinstance(v, tuple) and len(v) == 2 and all(_int(c) and 1 <= c <= 64 for c in v)
           and v[0] * v[1] <= 1024)
-    return None if ok else "must be WxH with 1..64 per side and W*H <= 1024"
+    return None if ok else "is out of range (WxH with 1..64 per side and W*H <= 1024)"
+
+
+_SEED = in_range(-2 ** 63, 2 ** 64 - 1, integer=True)
+_SEED.range = "any 64-bit integer"
 
 
 # Largest radiance-like value accepted anywhere (lights, background, emission, glow...):
@@ -215,7 +221,7 @@ class CommonSettings:
     spp: int = knob(1, "samples per pixel (box filter, stratified)",
                     check=in_range(1, 65536, integer=True), toml=("render", "spp"),
                     parse=number("--spp", int))
-    seed: int = knob(0, "random seed", check=in_range(-2 ** 63, 2 ** 64 - 1, integer=True),
+    seed: int = knob(0, "random seed", check=_SEED,
                      toml=("render", "seed"), parse=number("--seed", int))
     shadows: bool = knob(True, "lights are not attenuated on their way (unshadowed lights)",
                          check=boolean, flag="--no-shadows", toml=("render", "shadows"))

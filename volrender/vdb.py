@@ -563,7 +563,14 @@ class Bricks:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
         with atomic.replace(path, "brick cache") as f:
-            np.savez(f, **arrays)
+            # np.savez's layout, with the archive closed on failure too (numpy leaves it
+            # to the garbage collector, which then prints a traceback of its own)
+            with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_STORED,
+                                 allowZip64=True) as zf:
+                for key, value in arrays.items():
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array(member, np.asanyarray(value),
+                                                  allow_pickle=False)
 
 
 def _check_npz_members(z, size):

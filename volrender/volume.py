@@ -66,9 +66,9 @@ class VolumeSettings(CommonSettings):
     emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin",
                                        check=in_range(100, 1e5),
                                        toml=("volume", "emission_temperature"))
-    step: float = knob(0.5, "primary march step, voxels, in [0.01, 1e4]",
+    step: float = knob(0.5, "primary march step, voxels",
                        check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
-    shadow_step: float = knob(1.0, "shadow-ray march step, voxels, in [0.01, 1e4]",
+    shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
                               check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
     estimator: str = knob("march", "march: ray marching with --step/--shadow-step (biased by the "
                           "step, low noise); track: delta/ratio tracking on the brick majorants "
