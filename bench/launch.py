@@ -2,12 +2,15 @@
 fast a render stops on SIGINT, SIGTERM and SIGHUP.
 
     .venv/bin/python bench/launch.py [--device SPEC] [--size 320x240] [--spp 4] [--repeat 3]
+        [--after 3] [--signal-render "blob:3000 --size 320x240 --spp 256"] [--no-signals]
 
-1. Overhead. Each scene (scenes/demo_cloud.vdb, blob:2000) renders, interleaved, one
+1. Overhead. Each scene (scenes/demo_cloud.vdb, or its conversion
+   bench/data/demo_cloud.npz where present, and blob:2000) renders, interleaved, one
    round per repeat: "adaptive" (the default: launches sized to take about
    dispatch.TARGET_S), "bands" (what volrender did before: one launch per band of the
    plan's pixels with all samples) and "minimal" (one tile row, one sample per launch:
-   the worst case). Wall-time and process-CPU-time medians (PoCL's threads count in the
+   the worst case). On a GPU "bands" are whole frames (dispatch.GPU_BAND_PIXELS) with
+   all samples, as before. Wall-time and process-CPU-time medians (PoCL's threads count in the
    latter, which a loaded machine disturbs less) and their ratios to "bands", the number
    of launches, and whether every image is bit-identical to it.
 2. Interrupts. A real `volrender render` subprocess (a render that takes far longer than
@@ -41,9 +44,11 @@ from volrender.scene import load_scene  # noqa: E402
 
 def overhead(dev, size, spp, repeat):
     out = []
-    for source in (ROOT / "scenes" / "demo_cloud.vdb", "blob:2000"):
+    npz = ROOT / "bench" / "data" / "demo_cloud.npz"        # where OpenVDB is missing (GPU)
+    for source in (npz if npz.is_file() else ROOT / "scenes" / "demo_cloud.vdb", "blob:2000"):
         scene = load_scene(str(source), size=size, spp=spp)
-        band = (volume if scene.kind == "volume" else glass).PIXELS_PER_LAUNCH
+        band = dispatch.GPU_BAND_PIXELS if dispatch.is_gpu(dev) else \
+            (volume if scene.kind == "volume" else glass).PIXELS_PER_LAUNCH
         modes = {"adaptive": None, "bands": (max(1, band // size[0]), 1 << 30), "minimal": (1, 1)}
         render(scene, dev)                                    # build the program
         times = {k: [] for k in modes}
@@ -87,15 +92,15 @@ def overhead(dev, size, spp, repeat):
     return out
 
 
-def interrupts(after, device_spec):
+def interrupts(after, device_spec, render_args):
     out = []
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         with tempfile.TemporaryDirectory() as d:
-            old = Path(d) / "o.png"
+            old = Path(d) / "o.npy"
             old.write_bytes(b"an earlier render\n")
-            argv = [sys.executable, "-m", "volrender", "render", "blob:3000", "--size", "320x240",
-                    "--spp", "256", "-o", str(old), "--no-progress"]
+            argv = [sys.executable, "-m", "volrender", "render", *render_args.split(),
+                    "-o", str(old), "--no-progress"]
             if device_spec:
                 argv += ["--device", device_spec]
             p = subprocess.Popen(argv, env=env, stderr=subprocess.PIPE, text=True,
@@ -110,7 +115,7 @@ def interrupts(after, device_spec):
                 err = p.communicate()[1]
             took = time.perf_counter() - t
             row = {"signal": name, "exit_status": p.returncode, "seconds_to_exit": took,
-                   "stderr": err.strip(), "temp_left": sorted(n for n in os.listdir(d) if n != "o.png"),
+                   "stderr": err.strip(), "temp_left": sorted(n for n in os.listdir(d) if n != "o.npy"),
                    "old_output_intact": old.read_bytes() == b"an earlier render\n"}
             out.append(row)
             print(name, p.returncode, f"{took:.2f} s", row["temp_left"], row["old_output_intact"])
@@ -125,6 +130,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--after", type=float, default=3.0, help="seconds before the signal")
     ap.add_argument("--no-signals", action="store_true", help="skip the interrupt part")
+    ap.add_argument("--signal-render", default="blob:3000 --size 320x240 --spp 256",
+                    help="the render that gets the signals (it must outlast --after)")
     args = ap.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     dev = device.get(args.device)
@@ -132,7 +139,7 @@ def main(argv=None):
                "target_s": dispatch.TARGET_S, "gpu_target_s": dispatch.GPU_TARGET_S,
                "overhead": overhead(dev, size, args.spp, args.repeat)}
     if not args.no_signals:
-        payload["interrupts"] = interrupts(args.after, args.device)
+        payload["interrupts"] = interrupts(args.after, args.device, args.signal_render)
     payload["load_end"] = os.getloadavg()
     path = write_json(RESULTS / f"launch_{device_tag(dev)}.json", payload)
     print(f"wrote {path}")

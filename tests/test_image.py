@@ -267,6 +267,7 @@ def test_temporary_files_are_ours_and_stale_ones_are_swept(tmp_path):
     other = tmp_path / '.o.png.tmp1234'
     for p in (stale, alive, other):
         p.write_bytes(b'x')
+    atomic._SWEPT.discard(tmp_path)
     write_image(tmp_path / 'o.png', np.zeros((2, 2, 4), np.float32))
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(['o.png', alive.name, other.name])
     assert atomic.TEMP_RE.match(alive.name) and not atomic.TEMP_RE.match(other.name)

@@ -12,8 +12,8 @@ turns the last two into `Interrupted`) the temporary file is removed and an exis
 destination is untouched. SIGINT/SIGTERM/SIGHUP are held back (pthread_sigmask) while the
 temporary file is created and while it is renamed, so no signal can fall between creating
 the file and guarding it, or between the rename and recording it in `WRITTEN`. Only SIGKILL
-(or a crash) can leave a temporary file behind: the next write into the same directory
-removes ours whose process is gone (`sweep`).
+(or a crash) can leave a temporary file behind: the first write of a later process into
+the same directory removes ours whose process is gone (`sweep`).
 
 Decisions (README, "Outputs"): a destination that is a symlink is written through (its
 target is replaced, the link stays); an existing destination that is read-only, or that
@@ -35,6 +35,7 @@ from .errors import UserError
 PREFIX = ".volrender-"
 TEMP_RE = re.compile(r"^\.volrender-(\d+)-[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]{1,8})?$")
 WRITTEN: list = []                 # destinations completed by this process, in order
+_SWEPT: set = set()                # directories swept by this process (once each)
 _SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP"))
                  if s is not None)
 
@@ -157,12 +158,6 @@ def _kind(mode) -> str:
                                                                            "not a file")
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _fsync_dir(directory):
     with contextlib.suppress(OSError):
         fd = os.open(directory, os.O_RDONLY)
@@ -188,7 +183,9 @@ def _temporary(path, what, by_name):
     if not directory.is_dir():
         raise UserError(f"{what} directory {_short(directory)!r} does not exist",
                         path=_short(dest), fix=f"create it first (mkdir -p {_short(directory)})")
-    sweep(directory)
+    if directory not in _SWEPT:
+        _SWEPT.add(directory)
+        sweep(directory)
     keep_mode = None
     with contextlib.suppress(OSError):
         keep_mode = stat.S_IMODE(os.stat(dest).st_mode)
