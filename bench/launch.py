@@ -18,7 +18,7 @@ fast a render stops on SIGINT, SIGTERM and SIGHUP.
    from the signal to the exit, the stderr line, whether a temporary file was left and
    whether the existing output is byte-identical.
 
-Writes bench/results/launch_<device>.json.
+Writes bench/results/launch_<device>.json (or launch_<--tag>.json).
 """
 from __future__ import annotations
 
@@ -130,6 +130,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--after", type=float, default=3.0, help="seconds before the signal")
     ap.add_argument("--no-signals", action="store_true", help="skip the interrupt part")
+    ap.add_argument("--tag", default=None, help="results file suffix (default: from the device)")
     ap.add_argument("--signal-render", default="blob:3000 --size 320x240 --spp 256",
                     help="the render that gets the signals (it must outlast --after)")
     args = ap.parse_args(argv)
@@ -141,7 +142,7 @@ def main(argv=None):
     if not args.no_signals:
         payload["interrupts"] = interrupts(args.after, args.device, args.signal_render)
     payload["load_end"] = os.getloadavg()
-    path = write_json(RESULTS / f"launch_{device_tag(dev)}.json", payload)
+    path = write_json(RESULTS / f"launch_{args.tag or device_tag(dev)}.json", payload)
     print(f"wrote {path}")
 
 
