@@ -76,10 +76,11 @@ def stats(values) -> dict:
 
 
 def write_json(path: Path, payload: dict) -> Path:
+    """Write results atomically (volrender.atomic: an interrupted benchmark leaves the
+    previous results whole and no temporary file)."""
+    from volrender import atomic
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(payload, indent=1))
-    tmp.replace(path)
+    atomic.write_bytes(path, json.dumps(payload, indent=1).encode(), "results")
     return path
 
 

@@ -39,7 +39,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                             __global const int* table, __global const float* data,
                             __global const float* emission,
                             __global float4* out, __global float* depth,
-                            __global const int4* occ, int n_occ, int y0)
+                            __global const int4* occ, int n_occ, int y0, int s0, int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
     float3 o = cam->origin.xyz;
@@ -62,9 +62,18 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
     VrGrid g = { vp->dims, table, data };
     float dt = vp->step;
 
+    /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
     float3 acc = (float3)(0.0f);
     float acc_alpha = 0.0f, acc_depth = 0.0f, acc_depth_w = 0.0f;
-    for (int s = 0; s < cam->spp; ++s) {
+    if (s0 > 0) {
+        acc = out[pixel].xyz;
+        acc_alpha = out[pixel].w;
+#if VR_DEPTH
+        acc_depth = depth[2 * pixel];
+        acc_depth_w = depth[2 * pixel + 1];
+#endif
+    }
+    for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 dir = vr_camera_dir(cam, x, y, j.x, j.y);    /* world */
         float3 d = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, dir);
@@ -88,7 +97,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
 
         float3 L = (float3)(0.0f);
         float T = 1.0f, dsum = 0.0f, dw = 0.0f;
-        for (int k = k0; t0 < t_end; ++k) {
+        for (int k = k0; t0 < t_end && k < VR_MAX_RAY_SAMPLES; ++k) {
             float t = t0 + ((float)k + u) * dt;
             if (t >= t_end || T < VR_T_CUTOFF)
                 break;
@@ -128,14 +137,24 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             }
         }
         L += T * vp->background.xyz;
-        acc += L;
+        acc += vr_safe_sample(L);
         acc_alpha += 1.0f - T;
         acc_depth += dsum;
         acc_depth_w += dw;
     }
+#if VR_DEPTH
+    depth[2 * pixel + 1] = acc_depth_w;
+#endif
+    if (s1 < cam->spp) {               /* more samples follow in a later launch */
+        out[pixel] = (float4)(acc, acc_alpha);
+#if VR_DEPTH
+        depth[2 * pixel] = acc_depth;
+#endif
+        return;
+    }
     float inv = 1.0f / (float)cam->spp;
     out[pixel] = (float4)(acc * inv, acc_alpha * inv);
 #if VR_DEPTH
-    depth[pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
+    depth[2 * pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
 #endif
 }

@@ -50,7 +50,8 @@ __kernel void track_volume(__constant Camera* cam, __constant VolumeParams* vp,
                            __constant Light* lights,
                            __global const int* table, __global const float* data,
                            __global const float* emission, __global const float* majorant,
-                           __global float4* out, __global float* depth, int y0)
+                           __global float4* out, __global float* depth, int y0, int s0,
+                           int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
     if (x >= cam->width || y >= cam->height)
@@ -59,9 +60,18 @@ __kernel void track_volume(__constant Camera* cam, __constant VolumeParams* vp,
     VrGrid g = { vp->dims, table, data };
     float3 o = cam->origin.xyz;
 
+    /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
     float3 acc = (float3)(0.0f);
     float acc_alpha = 0.0f, acc_depth = 0.0f, acc_depth_w = 0.0f;
-    for (int s = 0; s < cam->spp; ++s) {
+    if (s0 > 0) {
+        acc = out[pixel].xyz;
+        acc_alpha = out[pixel].w;
+#if VR_DEPTH
+        acc_depth = depth[2 * pixel];
+        acc_depth_w = depth[2 * pixel + 1];
+#endif
+    }
+    for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 dir = vr_camera_dir(cam, x, y, j.x, j.y);
         float3 d = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, dir);
@@ -127,12 +137,22 @@ __kernel void track_volume(__constant Camera* cam, __constant VolumeParams* vp,
             }
         }
         L += w * vp->background.xyz;
-        acc += L;
+        acc += vr_safe_sample(L);
         acc_alpha += 1.0f - w;
+    }
+#if VR_DEPTH
+    depth[2 * pixel + 1] = acc_depth_w;
+#endif
+    if (s1 < cam->spp) {               /* more samples follow in a later launch */
+        out[pixel] = (float4)(acc, acc_alpha);
+#if VR_DEPTH
+        depth[2 * pixel] = acc_depth;
+#endif
+        return;
     }
     float inv = 1.0f / (float)cam->spp;
     out[pixel] = (float4)(acc * inv, acc_alpha * inv);
 #if VR_DEPTH
-    depth[pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
+    depth[2 * pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
 #endif
 }

@@ -55,7 +55,7 @@ inline float vr_optical_depth(const VrGrid* g, float3 o, float3 d, float t0, flo
 {
     float3 inv_d = 1.0f / d;
     float tau = 0.0f;
-    for (int k = 0;; ++k) {
+    for (int k = 0; k < VR_MAX_RAY_SAMPLES; ++k) {
         float t = t0 + ((float)k + u) * dt;
         if (t >= t1 || tau > tau_stop)
             break;

@@ -11,6 +11,15 @@ AOVs, timings and the device name.
 """
 __version__ = "0.1.0"
 
+import sys as _sys  # noqa: E402
+
+# The command line (`volrender ...`, `python -m volrender ...`): a Ctrl-C while the
+# modules below import ends it with one line, not a traceback (cli.main takes over).
+if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
+                  or list(getattr(_sys, "orig_argv", ()))[1:3] == ["-m", "volrender"]):
+    from .atomic import exit_on_signals_during_startup as _startup
+    _startup()
+
 from .errors import UserError  # noqa: E402
 from .lights import PointLight, Sun  # noqa: E402
 from .render import Image, render  # noqa: E402

@@ -215,24 +215,10 @@ def read_camera_file(path) -> dict:
 
 def write_camera_file(camera: "Camera", path) -> Path:
     """Write a camera as TOML (floats exact), atomically; `--camera` reads it back."""
-    import os
-    import tempfile
     p = Path(path)
     text = ("# volrender camera: volrender render IN --camera " + p.name + "\n[camera]\n"
             + "".join(f"{k} = [{', '.join(repr(float(v)) for v in getattr(camera, k))}]\n"
                       for k in ("origin", "target", "up"))
             + f"fov = {float(camera.fov)!r}\n\n[render]\nsize = [{camera.width}, {camera.height}]\n")
-    try:
-        fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    except OSError as e:
-        raise UserError(f"cannot write the camera file ({e.strerror})", path=p,
-                        fix="check that the folder exists and is writable") from None
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
+    from .atomic import write_bytes
+    return write_bytes(p, text.encode(), "camera file")

@@ -12,8 +12,8 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
-from .errors import UserError
+from . import __version__, atomic
+from .errors import UserError, printable
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -51,8 +51,11 @@ def add_option(group, opt, default):
     from .settings import number
     meta = opt.meta
     text = meta["help"]
+    bounds = getattr(meta["check"], "range", None)
     if meta["show_default"] and default is not None and meta["kind"] is not bool:
-        text += f" (default: {_show(default)})"
+        text += f" (default: {_show(default)}{f'; range {bounds}' if bounds else ''})"
+    elif bounds:
+        text += f" (range {bounds})"
     kw = dict(dest=opt.key, default=None, help=text)
     if meta["kind"] is bool:
         group.add_argument(opt.flag, action="store_true", **kw)
@@ -86,10 +89,12 @@ def add_render_options(r):
     lg = groups["lights"]
     lg.description = "default: one sun, direction -0.6,-1,-0.5, E=6"
     lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=None,
-                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
+                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance, E in "
+                                               "0..1e30 (repeatable)")
     lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
                     default=None, metavar="X,Y,Z,I",
-                    help="point light: position and intensity, irradiance I/r^2 (repeatable)")
+                    help="point light: position and intensity, irradiance I/r^2; I in 0..1e30 "
+                         "(repeatable)")
     lg.add_argument("--no-lights", action="store_true", default=None,
                     help="no lights: absorption and emission only")
     for opt in options().values():
@@ -123,8 +128,9 @@ def build_parser():
     r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
                                  "GENERATOR:COUNT, or SCENE.toml")
     r.add_argument("-o", "--output", required=True,
-                   help="OUT.exr (linear RGBA + layers), OUT.npy (float32 HxWx4) or OUT.png "
-                        "(tone-mapped 8-bit sRGB)")
+                   help="OUT.exr (linear premultiplied RGBA + layers), OUT.npy (float32 HxWx4) "
+                        "or OUT.png (tone-mapped sRGB RGBA, straight alpha); never one of the "
+                        "inputs; a symlink is written through")
     before = {a.dest for a in r._actions}
     add_render_options(r)
     RENDER_DEST = [a.dest for a in r._actions if a.dest not in before] + ["camera"]
@@ -155,6 +161,9 @@ def build_parser():
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
     o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
                    help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
+    o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
+                   help="PNG only: bits per channel of the sRGB RGBA (straight alpha) "
+                        "file (default: 8)")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")
     add_common(r)
@@ -306,15 +315,21 @@ def cmd_render(args):
         raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
     from . import image
+    from .files import refuse_overwrite
     from .render import check_image_memory, get_device, render
     from .scene import request
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
+    refuse_overwrite(out_path, req.inputs, shown=args.output)
     dev = get_device(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
-    scene = req.load()
+    try:
+        scene = req.load()
+    except MemoryError:
+        raise UserError("out of host memory while reading it", path=args.input,
+                        fix="render a smaller volume or cloud, or free memory") from None
     for note in scene.notes:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
@@ -324,30 +339,34 @@ def cmd_render(args):
     img = render(scene, dev, progress=args.progress)
     for problem in look_problems(img, scene):
         warnings.warn(problem)
-    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap)
+    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.camera_out:
         from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)
-    print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
+    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
 
 
 def cmd_convert(args):
     from . import vdb
+    from .files import check_input, refuse_overwrite
     src, dst = Path(args.input), Path(args.output)
     if src.suffix.lower() != ".vdb":
         raise UserError("convert reads OpenVDB files", path=src, fix="give a .vdb input")
     if dst.suffix.lower() != ".npz":
         raise UserError("convert writes .npz brick files", path=dst, fix="name the output OUT.npz")
-    if not dst.parent.resolve().is_dir() or not os.access(dst.parent.resolve(), os.W_OK):
+    check_input(src, "volume file", fix="give a .vdb file")
+    real = atomic.destination(dst, "brick cache")
+    if not real.parent.is_dir() or not os.access(real.parent, os.W_OK | os.X_OK):
         raise UserError("output directory does not exist or is not writable", path=dst,
                         fix="choose a writable directory")
+    refuse_overwrite(real, [src], "convert", shown=args.output)
     t0 = time.perf_counter()
     bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid)
     bricks.save_npz(dst)
     n = len(bricks.majorant)
-    print(f"wrote {dst}: grid {bricks.grid_name!r}, {n} bricks of 8^3 "
+    print(f"wrote {printable(dst)}: grid {printable(repr(bricks.grid_name))}, {n} bricks of 8^3 "
           f"(of {int(bricks.dims.prod())}), voxel size {bricks.voxel_size:.6g}, "
           f"in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     return 0
@@ -401,7 +420,8 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "volume": "volume files: skipping, fragment vs tiled dispatch",
               "error": "error against run time for every speed knob",
               "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
-              "sequence": "frame sequences on Dask: frames per second against worker count"}
+              "sequence": "frame sequences on Dask: frames per second against worker count",
+              "launch": "launch granularity: adaptive launch overhead, time to stop on signals"}
 
 
 def bench_dir() -> Path:
@@ -435,7 +455,7 @@ COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "inf
 
 
 def _warn_one_line(message, category, filename, lineno, file=None, line=None):
-    print(f"volrender: warning: {message}", file=sys.stderr)
+    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
 
 
 _NUMBER = re.compile(r"^-[0-9.]")
@@ -455,15 +475,69 @@ def join_negative_values(argv):
     return out
 
 
+def handle_signals():
+    """SIGTERM and SIGHUP raise atomic.Interrupted, as SIGINT raises KeyboardInterrupt, so
+    every one of them unwinds (temporary files removed) and exits with 128 + the signal.
+    A signal ignored when the process started (nohup, a background job's SIGINT) stays
+    ignored, and so does a call from a thread other than the main one. Returns the
+    previous handlers (for restore_signals)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def interrupted(signum, frame):
+        raise atomic.Interrupted(signum)
+    old = {}
+    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
+                          ("SIGHUP", interrupted)):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
+def restore_signals(old):
+    import signal
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def _interrupted(exc) -> int:
+    """One line saying what really happened (after the rename, the output was written)."""
+    import signal
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):       # a second signal: no traceback
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
+    what = f"{done} was written before that" if done else "no output written"
+    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
+    return 128 + signum
+
+
+_written_from = 0          # atomic.WRITTEN's length when this command started
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="volrender: %(message)s")
-    with warnings.catch_warnings():
-        if not args.debug:
-            warnings.showwarning = _warn_one_line
-        return _run(args)
+    global _written_from
+    _written_from = len(atomic.WRITTEN)
+    old = handle_signals()
+    try:
+        parser = build_parser()
+        args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="volrender: %(message)s")
+        with warnings.catch_warnings():
+            if not args.debug:
+                warnings.showwarning = _warn_one_line
+            return _run(args)
+    except KeyboardInterrupt as exc:        # start-up, option parsing, or --debug
+        if argv is not None and "--debug" in argv:
+            raise
+        return _interrupted(exc)
+    finally:
+        restore_signals(old)
 
 
 _CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
@@ -508,9 +582,8 @@ def _run(args) -> int:
             raise
         print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("volrender: interrupted; no output written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
     except MemoryError:
         if args.debug:
             raise

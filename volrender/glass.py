@@ -100,7 +100,7 @@ def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
         return np.full(n, float(settings.radius))
     if cloud.radii is None:
         raise UserError(f"the point cloud {cloud.source or ''} has no radii".replace("  ", " "),
-                        fix="give a radius (--radius)")
+                        fix="give a radius (--radius, or [points].radius)")
     r = np.asarray(cloud.radii, np.float64)
     if not (np.isfinite(r).all() and (r >= 0).all()):
         raise UserError("point radii must be finite and >= 0", fix="repair the radius column")
@@ -150,7 +150,7 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
         tree_ms = 1e3 * (time.perf_counter() - t0)
         if tree.depth > MAX_TREE_DEPTH:
             raise UserError(f"tree depth {tree.depth} exceeds {MAX_TREE_DEPTH}",
-                            fix="raise --leaf-size")
+                            fix="raise the leaf size (--leaf-size, or [render].leaf_size)")
         order, first_leaf = tree.order, tree.first_leaf
         nodes = layout.record("TreeNode", tree.n_nodes)
         # float32 sphere centres round by up to half an ulp of their magnitude: widen the
@@ -178,7 +178,7 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     if not scale + bulge <= MAX_EXTENT:
         raise UserError(f"the point cloud spans {scale + bulge:.3g} units (radius plus blend), "
                         f"beyond float32's reach ({MAX_EXTENT:.0e})",
-                        fix="rescale the points (or lower --blend)")
+                        fix="rescale the points (or lower the blend: --blend, or [render].blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
@@ -198,13 +198,23 @@ def uber_bits(features: GlassFeatures) -> int:
 
 
 def load_environment(path):
-    """float32 (H, W, 3) texels of an equirectangular .exr/.npy (NaN/Inf become 0)."""
+    """float32 (H, W, 3) texels of an equirectangular .exr/.npy: NaN/Inf and negative
+    texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
+    them), so every radiance the kernel reads is finite."""
+    import warnings
     from .image import read_image
     img = np.asarray(read_image(path))
-    if img.dtype == np.uint8 or img.ndim != 3 or img.shape[2] < 3:
+    if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
         raise UserError("the environment must be a float image (.exr or .npy)", path=path,
                         fix="convert it to an equirectangular .exr")
-    return np.nan_to_num(img[..., :3], nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+    rgb = img[..., :3].astype(np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(rgb) | (rgb < 0) | (rgb > MAX_VALUE)))
+    if bad:
+        warnings.warn(f"{path}: {bad} environment texel values are NaN/Inf, negative or above "
+                      f"{MAX_VALUE:g}; read as 0 (NaN/Inf, negative) or {MAX_VALUE:g}",
+                      stacklevel=2)
+    rgb = np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0), 0.0, MAX_VALUE)
+    return rgb.astype(np.float32)
 
 
 def _env_texels(environment):

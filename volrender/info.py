@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from .errors import UserError, printable
 
 TARGET_DEPTH = 2.0      # suggested scale: median optical depth over the covered pixels
 
@@ -57,25 +57,26 @@ def describe(path, device=None) -> list[str]:
     lines = []
     if suffix == ".npz":
         grids = [None]
-        lines.append(f"{p}: volrender brick cache")
+        lines.append(f"{printable(p)}: volrender brick cache")
     else:
         grids = vdb.list_grids(p)
         creator = next((g.creator for g in grids if g.creator), "")
         axis, why = vdb.up_axis_hint(grids)
-        lines.append(f"{p}: OpenVDB, {len(grids)} grid(s)"
-                     + (f", written by {creator}" if creator else "")
+        lines.append(f"{printable(p)}: OpenVDB, {len(grids)} grid(s)"
+                     + (f", written by {printable(creator)}" if creator else "")
                      + f"; up axis {axis or 'y'}" + (f" ({why})" if why else " (the default)"))
     for g in grids:
         if g is not None and (g.value_type != "float" or g.grid_class == "level set"):
             why = "a level set" if g.grid_class == "level set" else f"{g.value_type} values"
             n = f", {g.active_voxels:,} active voxels" if g.active_voxels is not None else ""
-            lines.append(f"  {g.name}: {g.value_type}, {g.grid_class}{n} (not renderable as a "
-                         f"density: {why})")
+            lines.append(f"  {printable(g.name)}: {printable(g.value_type)}, "
+                         f"{printable(g.grid_class)}{n} (not renderable as a density: "
+                         f"{printable(why)})")
             continue
         b = vdb.load_volume(p, grid=None if g is None else g.name)
         lo, hi = b.world_bounds()
         st = voxel_stats(b)
-        name = b.grid_name
+        name = printable(b.grid_name)
         head = f"  {name}: float, fog volume, {b.active_voxels:,} active voxels, voxel size {b.voxel_size:.6g}"
         lines.append(head)
         if b.index_box is not None:

@@ -204,9 +204,9 @@ def _check_type(value, kind, where, base: Path):
         if not isinstance(value, str) or not value:
             bad("a file path")
         try:        # a NUL byte or an over-long name raise ValueError / OSError here
-            path = (base / value).resolve()
+            path = (base / value).resolve()        # a loop raises RuntimeError on 3.11
             exists, is_dir = path.exists(), path.is_dir()
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
                             fix="give the path of an existing file") from None
@@ -216,6 +216,11 @@ def _check_type(value, kind, where, base: Path):
         if is_dir:
             raise UserError(f"{where} names {value!r}, which is a directory",
                             fix="give the path of a file")
+        from .files import check_input
+        try:
+            check_input(path, "file")
+        except UserError as exc:             # a FIFO, a device, an unreadable file
+            raise UserError(f"{where} names {value!r}: {str(exc).split(': ', 1)[-1]}") from None
         return path
     raise AssertionError(kind)
 
@@ -236,9 +241,8 @@ def _section(table, name, where, base):
 def read(path) -> dict:
     """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
     resolved relative to the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise UserError("no such scene file", path=path)
+    from .files import check_input
+    path = check_input(path, "scene file")
     try:
         raw = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -414,8 +418,26 @@ def _field_values(given, owners):
     return out
 
 
-def _lights(given, doc):
-    from .lights import DEFAULT_LIGHTS, PointLight, Sun
+def _check_light(kind, vec, power, color, where):
+    """Ranges of one light (settings.MAX_VALUE bounds radiance-like values, so the packed
+    float32 radiance, colour x power, stays finite)."""
+    from .settings import MAX_VALUE
+    name = ("irradiance", "direction") if kind == "sun" else ("intensity", "position")
+    if not 0.0 <= power <= MAX_VALUE:
+        raise UserError(f"{where}: {name[0]} must be in [0, {MAX_VALUE:g}], got {power:g}")
+    if not all(0.0 <= c <= MAX_VALUE for c in color) or max(color) * power > MAX_VALUE:
+        raise UserError(f"{where}: color x {name[0]} must be in [0, {MAX_VALUE:g}], got "
+                        f"{', '.join(f'{c:g}' for c in color)} x {power:g}")
+    if kind == "sun":
+        top = max(abs(v) for v in vec)
+        if top == 0.0:
+            raise UserError(f"{where}: the direction must not be zero")
+    elif max(abs(v) for v in vec) > MAX_VALUE:
+        raise UserError(f"{where}: position coordinates must be within +-{MAX_VALUE:g}")
+
+
+def _lights(given, doc, path=None):
+    from .lights import PointLight, Sun
     no_lights = given.get("no_lights", (False, ""))[0]
     explicit = [k for k in ("lights", "sun", "point_light") if k in given]
     if no_lights and explicit:
@@ -425,22 +447,36 @@ def _lights(given, doc):
     if "lights" in given:
         return tuple(given["lights"][0])
     if "sun" in given or "point_light" in given:
+        for key, kind in (("sun", "sun"), ("point_light", "point")):
+            for v in given.get(key, ((),))[0]:
+                if v:
+                    _check_light(kind, v[:3], v[3], (1.0, 1.0, 1.0),
+                                 f"--{key.replace('_', '-')} {','.join(f'{x:g}' for x in v)}")
         out = [Sun(tuple(s[:3]), s[3]) for s in given.get("sun", ((),))[0] if s]
         out += [PointLight(tuple(p[:3]), p[3]) for p in given.get("point_light", ((),))[0] if p]
         return tuple(out)
     if doc.get("lights"):
-        return tuple(Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     if l["type"] == "sun" else
-                     PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     for l in doc["lights"])
+        out = []
+        for i, l in enumerate(doc["lights"]):
+            where = f"{path}: [[lights]] #{i + 1}" if path else f"[[lights]] #{i + 1}"
+            color = l.get("color", (1.0, 1.0, 1.0))
+            if l["type"] == "sun":
+                _check_light("sun", l["direction"], l.get("irradiance", 1.0), color, where)
+                out.append(Sun(l["direction"], l.get("irradiance", 1.0), color))
+            else:
+                _check_light("point", l["position"], l.get("intensity", 1.0), color, where)
+                out.append(PointLight(l["position"], l.get("intensity", 1.0), color))
+        return tuple(out)
     return None                           # the defaults, turned to the up axis by load()
 
 
 def _environment(path, where):
+    from .files import check_input
     from .glass import load_environment
-    p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{where}: no such environment map", path=p, fix="check the path")
+    try:
+        p = check_input(path, "environment map")
+    except UserError as exc:
+        raise UserError(f"{where}: {exc}") from None
     return Environment(load_environment(p), str(p))
 
 
@@ -542,7 +578,7 @@ def request(source, **overrides) -> Request:
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
     view = View(**_field_values(given, ("view",)))
-    lights = _lights(given, doc)
+    lights = _lights(given, doc, Path(source) if origin == "scene" else None)
     values = _field_values(given, ("common", kind))
     if kind == "volume":
         from .volume import VolumeSettings
@@ -550,9 +586,12 @@ def request(source, **overrides) -> Request:
     else:
         from .glass import GlassSettings
         settings = GlassSettings(**values)
-        if settings.env is not None and not Path(settings.env).is_file():
-            raise UserError(f"{given['env'][1]}: no such environment map", path=settings.env,
-                            fix="check the path")
+        if settings.env is not None:
+            from .files import check_input
+            try:
+                check_input(settings.env, "environment map")
+            except UserError as exc:
+                raise UserError(f"{given['env'][1]}: {exc}") from None
     return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file)
 
 

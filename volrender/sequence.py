@@ -444,22 +444,13 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
 
 
 def _write_record(dst, result, pattern, output):
-    import tempfile
+    from .atomic import write_bytes
     path = record_path(dst)
     payload = {"input": str(pattern), "output": str(output), "wall_s": result.wall_s,
                "workers": result.workers, "fps": result.fps,
                "failed": [r["frame"] for r in result.failed], "frames": result.records}
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as f:
-                json.dump(payload, f, indent=1)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as exc:
-        print(f"volrender: warning: cannot write the record {path} ({exc})", file=sys.stderr)
+        return write_bytes(path, json.dumps(payload, indent=1).encode(), "sequence record")
+    except UserError as exc:
+        print(f"volrender: warning: {exc}", file=sys.stderr)
         return None
-    return path

@@ -171,6 +171,7 @@ def in_range(lo, hi, *, integer=False, allow_none=False):
             kind = "an integer" if integer else "a finite number"
             return f"must be {kind} in [{lo:g}, {hi:g}]"
         return None
+    check.range = f"{lo}..{hi}" if integer else f"{lo:g}..{hi:g}"
     return check
 
 
@@ -182,6 +183,7 @@ def rgb(lo=0.0, hi=math.inf, n=(3,)):
             count = " or ".join(map(str, n))
             return f"takes {count} finite values {bound}"
         return None
+    check.range = f">= {lo:g} each" if hi == math.inf else f"{lo:g}..{hi:g} each"
     return check
 
 
@@ -197,6 +199,17 @@ def boolean(v):
 
 # ---------------------------------------------------------------------- shared settings
 
+def tile_size(v):
+    """A work-group tile WxH: 1..64 per side, at most 1024 work-items."""
+    ok = (isinstance(v, tuple) and len(v) == 2 and all(_int(c) and 1 <= c <= 64 for c in v)
+          and v[0] * v[1] <= 1024)
+    return None if ok else "is out of range (WxH with 1..64 per side and W*H <= 1024)"
+
+
+_SEED = in_range(-2 ** 63, 2 ** 64 - 1, integer=True)
+_SEED.range = "any 64-bit integer"
+
+
 # Largest radiance-like value accepted anywhere (lights, background, emission, glow...):
 # far below float32's 3.4e38, so sums over samples and lights stay finite.
 MAX_VALUE = 1e30
@@ -208,7 +221,7 @@ class CommonSettings:
     spp: int = knob(1, "samples per pixel (box filter, stratified)",
                     check=in_range(1, 65536, integer=True), toml=("render", "spp"),
                     parse=number("--spp", int))
-    seed: int = knob(0, "random seed", check=in_range(-2 ** 63, 2 ** 64 - 1, integer=True),
+    seed: int = knob(0, "random seed", check=_SEED,
                      toml=("render", "seed"), parse=number("--seed", int))
     shadows: bool = knob(True, "lights are not attenuated on their way (unshadowed lights)",
                          check=boolean, flag="--no-shadows", toml=("render", "shadows"))
@@ -217,7 +230,8 @@ class CommonSettings:
                          "into local memory first; auto: fragment (measured faster on PoCL and "
                          "the H200)", check=one_of(("auto", "fragment", "tiled", "fragment-driver")),
                          choices=("auto", "fragment", "tiled"), toml=("render", "dispatch"))
-    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles",
+    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles "
+                       "(1..64 per side, W*H <= 1024)", check=tile_size,
                        metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
                        kind=SIZE)
 

@@ -13,10 +13,9 @@ Layout (the volume kernel depends on it):
 from __future__ import annotations
 
 import importlib
-import os
+import math
 import re
 import struct
-import tempfile
 import warnings
 import zipfile
 from dataclasses import dataclass
@@ -24,13 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from . import atomic
+from .errors import UserError, printable
+from .files import check_input
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
 NPZ_VERSION = 1
 MAX_BRICKS = 1 << 27          # table entries (512 MB of int32); more is refused
+MAX_COND = 1e5                # largest condition number of a grid's linear transform
+SCALE_RANGE = (1e-20, 1e20)   # singular values of the transform (world units per voxel)
+MAX_ORIGIN = 1 << 31          # |VDB index| of a layout's origin (VDB coordinates are int32)
 VDB_MAGIC = 0x56444220
+_MIN_DESCRIPTOR = 3 * 4 + 3 * 8   # three empty strings and three offsets
 _NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
 
 
@@ -90,7 +95,10 @@ class _Reader:
 def _read_metamap(r: _Reader) -> dict:
     """MetaMap: count, then (name, type name, uint32 size, value bytes) each."""
     meta = {}
-    for _ in range(r.unpack("I")):
+    count = r.unpack("I")
+    if count * 12 > r.size - r.f.tell():
+        raise _Corrupt(f"{count} metadata entries cannot fit in the rest of the file")
+    for _ in range(count):
         name, type_name = r.string(), r.string()
         n = r.unpack("I")
         if n > r.size - r.f.tell():
@@ -132,13 +140,20 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
             count = r.unpack("i")
             if count < 0:
                 raise _Corrupt("negative grid count")
+            if count * _MIN_DESCRIPTOR > size - f.tell():
+                raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
             grids = []
             for _ in range(count):
                 name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
                 tree = r.string().removesuffix("_HalfFloat")
                 r.string()                 # instance parent
-                grid_pos, _block_pos, end_pos = r.unpack("qqq")
-                if not 0 < grid_pos <= end_pos <= size:
+                grid_pos, block_pos, end_pos = r.unpack("qqq")
+                # each grid lies after its descriptor, in order: never trust an offset
+                # that points backwards (it would make this loop read the same bytes forever)
+                if not f.tell() <= grid_pos <= block_pos <= end_pos:
+                    raise _Corrupt(f"grid {name!r} has offsets out of order "
+                                   f"({grid_pos}, {block_pos}, {end_pos})")
+                if end_pos > size:
                     raise _Corrupt(f"grid {name!r} ends past the end of the file")
                 f.seek(grid_pos)
                 r.unpack("I")              # per-grid compression flags
@@ -153,12 +168,7 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
 
 
 def _check_file(path) -> Path:
-    p = Path(path)
-    if not p.exists():
-        raise UserError("no such file", path=p, fix="check the path")
-    if p.is_dir():
-        raise UserError("is a directory, not a volume file", path=p, fix="give a .vdb or .npz file")
-    return p
+    return check_input(path, "volume file", fix="give a .vdb or .npz file")
 
 
 def list_grids(path) -> list[GridInfo]:
@@ -194,6 +204,27 @@ def _one_line(e: Exception) -> str:
 
 def _listing(grids) -> str:
     return "available grids: " + ", ".join(g.describe() for g in grids)
+
+
+def check_transform(m, where="") -> str | None:
+    """Problem with an index-to-world matrix, or None: finite, affine (last row 0 0 0 1),
+    singular values in SCALE_RANGE and a condition number at most MAX_COND, so that its
+    inverse in the kernels' float32 arithmetic keeps its digits."""
+    m = np.asarray(m, np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        return "index_to_world is not a finite 4x4 matrix"
+    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+        return "index_to_world is not affine (its last row is not 0 0 0 1)"
+    sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+    if sv[-1] < SCALE_RANGE[0] or sv[0] > SCALE_RANGE[1]:
+        return (f"index_to_world scales voxels by {sv[-1]:.3g}..{sv[0]:.3g}, outside "
+                f"[{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
+    if sv[0] > MAX_COND * sv[-1]:
+        return (f"index_to_world is nearly singular (condition number {sv[0] / sv[-1]:.3g} "
+                f"> {MAX_COND:g})")
+    if np.abs(m[:3, 3]).max() > SCALE_RANGE[1]:
+        return f"index_to_world translates by more than {SCALE_RANGE[1]:g}"
+    return None
 
 
 def _pick(path, grids, name, default=False) -> GridInfo:
@@ -271,7 +302,12 @@ def _read_grid(vdb, path: Path, info: GridInfo):
                       "active voxels is treated as 0", stacklevel=3)
     lo, hi = (np.array(v, np.int64) for v in grid.evalActiveVoxelBoundingBox())
     box = None if np.any(lo > hi) else (lo, hi)
-    return grid, _index_to_world(grid.transform), box
+    m = _index_to_world(grid.transform)
+    problem = check_transform(m)
+    if problem:
+        raise UserError(f"grid {info.name!r}: {problem}", path=path,
+                        fix="resample the grid onto a well-conditioned linear transform")
+    return grid, m, box
 
 
 def _vdb_source(grid, box):
@@ -534,8 +570,7 @@ class Bricks:
         return b
 
     def save_npz(self, path):
-        """Write a brick cache atomically (temporary file, then rename)."""
-        path = Path(path)
+        """Write a brick cache atomically (volrender.atomic)."""
         arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(NPZ_VERSION),
                       origin=self.origin, dims=self.dims, table=self.table, data=self.data,
                       majorant=self.majorant, index_to_world=self.index_to_world,
@@ -549,22 +584,45 @@ class Bricks:
         if self.emission is not None:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
-        try:
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        except OSError as e:
-            raise UserError(f"cannot write ({e.strerror})", path=path,
-                            fix="check that the folder exists and is writable") from None
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        with atomic.replace(path, "brick cache") as f:
+            # np.savez's layout, with the archive closed on failure too (numpy leaves it
+            # to the garbage collector, which then prints a traceback of its own)
+            with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_STORED,
+                                 allowZip64=True) as zf:
+                for key, value in arrays.items():
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array(member, np.asanyarray(value),
+                                                  allow_pickle=False)
+
+
+def _check_npz_members(z, size):
+    """Every member's .npy header must agree with the member's stored size (a lying
+    header would make numpy allocate what it claims before reading)."""
+    fmt = np.lib.format
+    for info in z.zip.infolist():
+        if info.file_size > (1 << 40) or info.compress_size > size:
+            return f"member {info.filename!r} claims {info.file_size} bytes"
+        with z.zip.open(info) as f:
+            version = fmt.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = fmt.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, _, dtype = fmt.read_array_header_2_0(f)
+            else:
+                shape, _, dtype = fmt._read_array_header(f, version)
+            start = f.tell()
+        need = math.prod(shape) * dtype.itemsize
+        if need != info.file_size - start:
+            return (f"member {info.filename!r}: its header says shape {shape} of {dtype}, "
+                    f"{need} bytes, but it holds {info.file_size - start}")
+    return None
 
 
 def load_npz(path) -> Bricks:
-    """Read a brick cache written by Bricks.save_npz, validating it."""
+    """Read a brick cache written by Bricks.save_npz, validating it fully: sizes against
+    the file, dims against the table, table against the data, majorants against the
+    data, a well-conditioned transform; NaN/Inf and negative voxels become 0 with a
+    warning, as in a .vdb."""
     p = _check_file(path)
     fix = "convert the .vdb again (volrender convert)"
     try:
@@ -575,12 +633,23 @@ def load_npz(path) -> Bricks:
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
     with z:
         try:
+            problem = _check_npz_members(z, p.stat().st_size)
+            if problem:
+                raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
             if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
                 raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
             if int(z["version"]) != NPZ_VERSION:
                 raise UserError(f"brick cache version {int(z['version'])} is not supported "
                                 f"(this volrender reads {NPZ_VERSION})", path=p, fix=fix)
-            b = Bricks(origin=z["origin"], dims=z["dims"], table=z["table"], data=z["data"],
+            dims = z["dims"]
+            if dims.shape != (3,) or dims.dtype.kind not in "iu":
+                raise UserError(f"corrupt brick cache (dims of shape {dims.shape}, dtype "
+                                f"{dims.dtype})", path=p, fix=fix)
+            n_table = math.prod(int(d) for d in dims)
+            if min(int(d) for d in dims) <= 0 or n_table > MAX_BRICKS:
+                raise UserError(f"corrupt brick cache (dims {tuple(int(d) for d in dims)}: "
+                                f"{n_table} bricks, allowed 1..{MAX_BRICKS})", path=p, fix=fix)
+            b = Bricks(origin=z["origin"], dims=dims, table=z["table"], data=z["data"],
                        majorant=z["majorant"], index_to_world=z["index_to_world"],
                        grid_name=str(z["grid_name"]), source=str(z["source"]),
                        background=float(z["background"]),
@@ -594,39 +663,60 @@ def load_npz(path) -> Bricks:
             if "emission" in z.files:
                 b.emission, b.emission_max = z["emission"], z["emission_max"]
                 b.emission_grid_name = str(z["emission_grid_name"])
-            problem = _validate(b)
-        except (KeyError, ValueError, TypeError, OSError, zipfile.BadZipFile) as e:
+            problem = _validate(b, p)
+        except (KeyError, ValueError, TypeError, OSError, EOFError, SyntaxError,
+                zipfile.BadZipFile) as e:
             raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
     if problem:
         raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
     return b
 
 
-def _validate(b: Bricks) -> str | None:
-    """Problem with a loaded cache, or None. Casts to the layout's dtypes."""
+def _validate(b: Bricks, label="<bricks>") -> str | None:
+    """Problem with a loaded cache, or None. Casts to the layout's dtypes, replaces
+    NaN/Inf and negative voxels by 0 (warning, as for a .vdb) and checks the majorants."""
     checks = [(b.origin, "iu", (3,)), (b.dims, "iu", (3,)), (b.index_to_world, "f", (4, 4)),
               (b.table, "iu", None), (b.data, "f", None), (b.majorant, "f", None)]
     for a, kinds, shape in checks:
         if a.dtype.kind not in kinds or (shape and a.shape != shape):
             return f"array of dtype {a.dtype} and shape {a.shape} where {kinds!r} {shape} expected"
     n = len(b.data)
-    if np.any(b.dims <= 0) or b.table.shape != (int(np.prod(b.dims.astype(np.int64))),):
+    n_table = math.prod(int(d) for d in b.dims)
+    if min(int(d) for d in b.dims) <= 0 or n_table > MAX_BRICKS or b.table.shape != (n_table,):
         return "table does not match dims"
+    if np.abs(b.origin.astype(np.float64)).max() > MAX_ORIGIN:
+        return f"origin {tuple(int(v) for v in b.origin)} is beyond VDB's int32 index range"
     if b.data.shape != (n, APRON, APRON, APRON) or b.majorant.shape != (n,):
         return f"data shape {b.data.shape} is not (n, {APRON}, {APRON}, {APRON})"
     if len(b.table) and (b.table.min() < -1 or b.table.max() >= n):
         return "table points past the data"
-    if not np.all(np.isfinite(b.index_to_world)) or np.linalg.det(b.index_to_world[:3, :3]) == 0:
-        return "index_to_world is not an invertible affine matrix"
+    if len(b.table) and np.count_nonzero(b.table >= 0) != len(np.unique(b.table[b.table >= 0])):
+        return "table points twice at the same brick"
+    problem = check_transform(b.index_to_world)
+    if problem:
+        return problem
     if b.emission is not None and (b.emission.shape != b.data.shape
                                    or b.emission_max.shape != (n,)):
         return "emission does not match data"
     b.origin, b.dims = b.origin.astype(np.int64), b.dims.astype(np.int32)
-    b.table, b.data = b.table.astype(np.int32), b.data.astype(np.float32)
+    b.table, b.data = b.table.astype(np.int32), np.array(b.data, np.float32)
     b.majorant = b.majorant.astype(np.float32)
+    arrays = [("density", b.data, b.majorant)]
     if b.emission is not None:
-        b.emission = b.emission.astype(np.float32)
+        b.emission = np.array(b.emission, np.float32)
         b.emission_max = b.emission_max.astype(np.float32)
+        arrays.append(("emission", b.emission, b.emission_max))
+    for name, data, top in arrays:
+        stats = [0, 0]
+        _sanitise(data, (slice(None),) * 4, stats)
+        _warn_sanitised(label, b.grid_name if name == "density" else (b.emission_grid_name or name),
+                        stats)
+        if any(stats):                  # the stored maxima saw the bad values: recompute
+            top[:] = _max_per_slot(data)
+        if not np.all(np.isfinite(top)) or (len(top) and top.min() < 0):
+            return f"{name} majorants are negative or not finite"
+        if np.any(top < _max_per_slot(data)):
+            return f"{name} majorants are below the largest value of their bricks"
     return None
 
 

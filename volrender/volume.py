@@ -22,6 +22,9 @@ PIXELS_PER_LAUNCH = 1 << 16
 # tracking on per-brick majorants (unbiased; step and shadow_step are unused).
 ESTIMATORS = ("march", "track")
 AOVS = ("depth", "transmittance")
+# The finest march step, voxels: 50x the default's samples (bench error: finer steps buy
+# nothing at 1 spp); a ray also never takes more than layout.MAX_RAY_SAMPLES (check_steps).
+MIN_STEP = 0.01
 
 
 def _phase_ok(v):
@@ -63,10 +66,10 @@ class VolumeSettings(CommonSettings):
     emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin",
                                        check=in_range(100, 1e5),
                                        toml=("volume", "emission_temperature"))
-    step: float = knob(0.5, "primary march step, voxels", check=in_range(1e-3, 1e4),
-                       toml=("volume", "step"))
-    shadow_step: float = knob(1.0, "shadow-ray march step, voxels", check=in_range(1e-3, 1e4),
-                              toml=("volume", "shadow_step"))
+    step: float = knob(0.5, "primary march step, voxels",
+                       check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
+    shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
+                              check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
     estimator: str = knob("march", "march: ray marching with --step/--shadow-step (biased by the "
                           "step, low noise); track: delta/ratio tracking on the brick majorants "
                           "(unbiased, noisier; the reference)", check=one_of(ESTIMATORS),
@@ -152,12 +155,28 @@ def volume_params(bricks, settings: VolumeSettings | None = None):
 ENTRIES = {"march": "render_volume", "track": "track_volume"}
 
 
+def check_steps(bricks, settings):
+    """Refuse steps that would give a ray through this volume's box more samples than the
+    kernels take (layout.MAX_RAY_SAMPLES, where float32 sample indices stop resolving)."""
+    if settings.estimator != "march":
+        return
+    diag = float(np.linalg.norm(np.asarray(bricks.dims, np.float64) * layout.BRICK))
+    for name, step in (("step", settings.step), ("shadow_step", settings.shadow_step)):
+        if diag / step > layout.MAX_RAY_SAMPLES:
+            raise UserError(f"a ray through this volume ({diag:.0f} voxels across) would take "
+                            f"{diag / step:.3g} samples at {name} {step:g} voxels, more than "
+                            f"{layout.MAX_RAY_SAMPLES}",
+                            fix=f"give a {name} of at least {diag / layout.MAX_RAY_SAMPLES:.3g} "
+                                f"(--{name.replace('_', '-')}, or [volume].{name})")
+
+
 def plan(scene, device, variant=None):
     """The launch of a volume scene (render.render runs it): the marcher or the tracker."""
     from .render import Plan
     if variant is not None:
         raise UserError(f"the {variant!r} variant exists for glass only")
     bricks, settings = scene.content.bricks, scene.content.settings
+    check_steps(bricks, settings)
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
     features = VolumeFeatures.from_scene(scene, dispatch)
     params, w2l = volume_params(bricks, settings)
@@ -173,9 +192,12 @@ def plan(scene, device, variant=None):
             else np.zeros((0, 4), np.int32)
         extra = [occ, np.int32(len(occ))]
     W, H = scene.camera.width, scene.camera.height
-    outputs = [("rgba", (H, W, 4)), ("depth", (H, W) if settings.depth else (1,))]
+    # depth: (sum, weight) per pixel while samples are split across launches, then
+    # (depth, weight); the layer is [..., 0]
+    outputs = [("rgba", (H, W, 4)), ("depth", (H, W, 2) if settings.depth else (1,))]
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
-                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs)
+                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
+                info={"background": tuple(settings.background)})
 
 
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
