@@ -1,9 +1,32 @@
-/* Sparse brick volume: trilinear density lookup, empty-brick skipping, shadow march.
+/* Sparse brick volume: trilinear density lookup, empty-brick skipping, shadow march,
+   spectral types and the emission colour (blackbody table, temperature grid).
    Everything here works in the layout's local index space (voxel centres at integer
    coordinates, box [0, dims*8]); ray parameters t are world distances.
-   Reads VR_SKIP_EMPTY, VR_EMISSION; VR_BRICK and VR_BRICK_VALUES come from structs.h. */
+   Reads VR_SKIP_EMPTY, VR_CHROMATIC, VR_TEMPERATURE; VR_BRICK and VR_BRICK_VALUES come
+   from structs.h. */
 #ifndef VR_VOLUME_H
 #define VR_VOLUME_H
+
+/* Per-channel quantities: one float for grey media, float3 with VR_CHROMATIC (an albedo
+   or a sigma_t scale that differs between channels). */
+#if defined(VR_CHROMATIC) && VR_CHROMATIC
+typedef float3 VrSpec;
+inline float vr_spec_max(float3 v) { return fmax(fmax(v.x, v.y), v.z); }
+inline float vr_spec_mean(float3 v) { return (v.x + v.y + v.z) * (1.0f / 3.0f); }
+inline float3 vr_spec_transmit(float3 tau)
+{
+    return (float3)(vr_transmit(tau.x), vr_transmit(tau.y), vr_transmit(tau.z));
+}
+#define VR_EXTINCTION(vp) ((vp)->extinction.xyz)
+#define VR_ALBEDO(vp) ((vp)->albedo_rgb.xyz)
+#else
+typedef float VrSpec;
+inline float vr_spec_max(float v) { return v; }
+inline float vr_spec_mean(float v) { return v; }
+inline float vr_spec_transmit(float tau) { return vr_transmit(tau); }
+#define VR_EXTINCTION(vp) 1.0f
+#define VR_ALBEDO(vp) ((vp)->albedo)
+#endif
 
 typedef struct {
     int4 dims;                        /* bricks per axis */
@@ -37,6 +60,30 @@ inline float vr_lookup(const VrGrid* g, __global const float* data, float3 p)
     int3 c = convert_int3(cf);
     int slot = vr_brick_slot(g, c);
     return slot < 0 ? 0.0f : vr_trilinear(data, slot, c, p - cf);
+}
+
+/* Blackbody colour at `kelvin` from the table (volrender/blackbody.py: entry
+   bb_a / T + bb_b, linear between entries, clamped to the table's range). */
+inline float3 vr_blackbody(__global const float4* bb, __constant VolumeParams* vp, float kelvin)
+{
+    float f = clamp(vp->bb_a / fmax(kelvin, 1.0f) + vp->bb_b, 0.0f, (float)(vp->bb_n - 1));
+    int i = min((int)f, vp->bb_n - 2);
+    return mix(bb[i].xyz, bb[i + 1].xyz, f - (float)i);
+}
+
+/* Emitted radiance per unit length per emission-grid value at cell c + f of brick
+   `slot`: the blackbody colour of the voxel's own temperature (VR_TEMPERATURE), else the
+   one colour of --emission-temperature. */
+inline float3 vr_emission_color(__constant VolumeParams* vp, __global const float* temperature,
+                                __global const float4* bb, int slot, int3 c, float3 f)
+{
+#if defined(VR_TEMPERATURE) && VR_TEMPERATURE
+    float kelvin = vp->temp_offset + vp->temp_scale * vr_trilinear(temperature, slot, c, f);
+    return vp->emission_scale * vr_blackbody(bb, vp, kelvin);
+#else
+    (void)temperature; (void)bb; (void)slot; (void)c; (void)f;
+    return vp->emission_color.xyz;
+#endif
 }
 
 /* World parameter where the ray leaves the brick containing point p. */
