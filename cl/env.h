@@ -23,8 +23,9 @@ inline float3 vr_env_map(__global const float4* env, int w, int h, float3 d)
 }
 
 /* Importance sampling of a map: texels are drawn with probability proportional to
-   their weight (volrender/volume.py env_distribution: luminance x sin(theta) at the
-   row centre, so per solid angle the density follows the luminance), then uniformly in
+   their weight (volrender/volume.py env_weights: the largest luminance of the texel and
+   its neighbours, which bounds the bilinear map over the cell, x sin(theta) at the row
+   centre, so per solid angle the density follows the luminance), then uniformly in
    (u, v) within the texel. cdf: H + 1 row CDF values, then H rows of W + 1 column CDF
    values (each from 0 to 1). The density per solid angle at a direction is
    p_texel W H / (2 pi^2 sin theta). Directions in texels of weight 0 have density 0:

@@ -151,8 +151,8 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
                                         vp->world_to_local2, we);
                     VrSpec tr = vr_shadow_ratio(&g, majorant, vp, xp, dl, INFINITY, seed, pixel,
                                                 us, &dim);
-                    float mis = pe * pe / (pe * pe + ph * ph);
-                    Lk += (mis * ph / pe) * tr * vr_path_env(vp, env, we);
+                    float r = ph / pe;              /* power heuristic, overflow-safe */
+                    Lk += (r / (1.0f + r * r)) * tr * vr_path_env(vp, env, we);
                 }
             }
 #endif
@@ -174,7 +174,8 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
 #if VR_ENV == 2
                 float ph = vr_phase(dot(wn, din), vp->phase);
                 float pe = vr_env_pdf(cdf, vp->env_width, vp->env_height, wn);
-                mis = ph * ph / (ph * ph + pe * pe);
+                float r = pe / ph;
+                mis = 1.0f / (1.0f + r * r);
 #endif
                 Lk += mis * sg.w * vr_path_env(vp, env, wn);
 #endif

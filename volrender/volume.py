@@ -190,15 +190,24 @@ def octave_tau_stop(settings: VolumeSettings) -> float:
     return float(min(stop, 1e30))
 
 
-def env_distribution(texels) -> np.ndarray:
-    """float32 CDFs for cl/env.h vr_env_sample: texel weights luminance x sin(theta) at
-    the row centre (the solid angle a texel covers); H + 1 row CDF values, then per row
-    W + 1 column CDF values. Rows without weight get a uniform column CDF."""
+def env_weights(texels) -> np.ndarray:
+    """Sampling weight per texel: the largest luminance among it and its 8 neighbours
+    (wrapping in u), which bounds the bilinear lookup over the texel's cell, so a small
+    bright spot is not under-sampled where it bleeds into its neighbours, times
+    sin(theta) at the row centre (the solid angle the texel covers)."""
     t = np.asarray(texels, np.float64)
-    h, w = t.shape[:2]
+    h = t.shape[0]
     lum = np.maximum(t[..., :3] @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
-    theta = np.pi * (np.arange(h) + 0.5) / h
-    wts = lum * np.sin(theta)[:, None]
+    m = np.maximum(lum, np.maximum(np.roll(lum, 1, axis=1), np.roll(lum, -1, axis=1)))
+    m = np.maximum(m, np.maximum(np.vstack([m[:1], m[:-1]]), np.vstack([m[1:], m[-1:]])))
+    return m * np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
+
+
+def env_distribution(texels) -> np.ndarray:
+    """float32 CDFs for cl/env.h vr_env_sample from env_weights: H + 1 row CDF values,
+    then per row W + 1 column CDF values. Rows without weight get a uniform column CDF."""
+    wts = env_weights(texels)
+    h, w = wts.shape
     rows = wts.sum(axis=1)
     total = rows.sum()
     row_cdf = np.concatenate([[0.0], np.cumsum(rows)]) / (total if total > 0 else 1.0)
