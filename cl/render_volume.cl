@@ -111,7 +111,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {
 #if VR_SKIP_EMPTY
-                float te = vr_brick_exit(o, inv_d, p);
+                float te = vr_empty_exit(&g, o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
                 continue;
@@ -165,7 +165,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {            /* empty brick: density and emission are zero */
 #if VR_SKIP_EMPTY
-                float te = vr_brick_exit(o, inv_d, p);
+                float te = vr_empty_exit(&g, o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
                 continue;
