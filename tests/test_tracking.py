@@ -232,3 +232,10 @@ def test_error_bench_quick_run(tmp_path, monkeypatch):
     assert any(r["pareto"] for r in rows)
     for r in rows:
         assert r["time_ms"] > 0 and np.isfinite(r["rmse"]) and r["max_abs"] >= r["rmse"] * 0.99
+    ms = rec["multiple_scattering"][0]            # path reference, path and octave rows
+    assert ms["scene"] == "demo_cloud" and ms["reference"]["estimator"] == "path"
+    assert {"path", "octaves"} <= {r["group"] for r in ms["rows"]}
+    assert set(ms["path_time_to_error"]) == {"0.05", "0.02", "0.01"}
+    # single scattering is darker than the multiply scattered reference
+    one = next(r for r in ms["rows"] if r["label"] == "march 1 octaves, 4 spp")
+    assert one["mean_ratio"] < 0.9 and ms["reference"]["single_over_multiple"] < 0.9

@@ -26,6 +26,9 @@ ESTIMATORS = ("march", "track", "path")
 MAX_DEPTH = 256        # path estimator's default depth: converged (< 0.1%) on the real files at albedo <= 0.99
 RR_DEPTH = 4           # path roulette from the 5th scattering event on
 MS_OCTAVES_MAX = 16
+# octave scales a, b, c: the best of bench error --fit-octaves (3 octaves; within 2% of the
+# best objective for 3..8 octaves), docs/error_time.md
+MS_SCALES = (0.2, 0.6, 0.5)
 # the shadow march of octave k stops once b^k exp(-a^k tau) < this (relative to the light)
 MS_CUTOFF = 1e-4
 AOVS = ("depth", "transmittance")
@@ -102,8 +105,9 @@ class VolumeSettings(CommonSettings):
     ms_octaves: int = knob(1, "march: multiple-scattering octaves (Wrenninge et al. 2013); "
                            "1 = single scattering", check=in_range(1, MS_OCTAVES_MAX, integer=True),
                            toml=("volume", "ms_octaves"))
-    ms_octave_scales: tuple = knob((0.5, 0.5, 0.5), "octave k scales sigma_t by A^k, its light by "
-                                   "B^k and g by C^k", metavar="A,B,C",
+    ms_octave_scales: tuple = knob(MS_SCALES, "octave k scales sigma_t by A^k, its light by B^k and "
+                                   "g by C^k (fitted by bench error to path-traced images)",
+                                   metavar="A,B,C",
                                    parse=floats(3, name="--ms-octave-scales"),
                                    check=rgb(0, 1, n=(3,)), toml=("volume", "ms_octave_scales"))
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
