@@ -521,8 +521,13 @@ def plot(record, path):
         for i, g in enumerate(groups):
             rows = [r for r in sc["rows"] if r["group"] == g]
             ax.loglog([r["time_ms"] for r in rows], [max(r[key], 1e-12) for r in rows],
-                      markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute") else "--" if g.startswith("alone") else "-",
+                      markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute", "octaves") else "--" if g.startswith("alone") else "-",
                       label=g, alpha=0.8)
+            if g == "octaves":        # label each point with its octave count (and spp)
+                for r in rows:
+                    ax.annotate(f"{r['settings']['ms_octaves']}" + ("" if r["spp"] == 4 else f"/{r['spp']}spp"),
+                                (r["time_ms"], max(r[key], 1e-12)), fontsize=6, xytext=(3, 2),
+                                textcoords="offset points")
         front = sorted((r for r in sc["rows"] if r["pareto"]), key=lambda r: r["time_ms"])
         ax.step([r["time_ms"] for r in front], [max(r[key], 1e-12) for r in front],
                 where="post", color="k", lw=1.2, alpha=0.6, label="Pareto front")

@@ -597,7 +597,10 @@ def path_section(args, dev, mi, variant):
     m_stats["cpu_s_per_spp"] = float(np.median(mi_cpu) / args.path_mi_spp)
     log(f"  mitsuba: {m_stats['total_spp']} spp, {m_stats['s_per_spp'] * 1e3:.1f} ms/spp, "
         f"noise at 1 spp {m_stats['rel_noise_1spp']:.1%}")
-    z = (m_mean - v_mean) / np.sqrt(np.maximum(m_var + v_var, 1e-30))
+    # the variance floor keeps pixels whose few batches happened to agree exactly (dim
+    # pixels, or the sky) from dividing by ~0
+    floor = (1e-4 * v_stats["value_rms"]) ** 2
+    z = (m_mean - v_mean) / np.sqrt(np.maximum(m_var + v_var, floor))
     lit = (v_mean + m_mean).max(axis=-1) > 1e-3 * max(float(v_mean.max()), 1e-30)
     se_ratio = float(np.sqrt(m_var.sum() / m_mean.sum() ** 2 + v_var.sum() / v_mean.sum() ** 2))
     agree = {"mean_ratio_mitsuba_over_volrender": float(m_mean.mean() / v_mean.mean()),
@@ -607,8 +610,9 @@ def path_section(args, dev, mi, variant):
              "frac_abs_z_over_4": float((np.abs(z[lit]) > 4).mean()),
              "pixels": int(lit.sum()),
              "note": ("z = (Mitsuba - volrender) / sqrt(se_M^2 + se_V^2) per pixel and channel "
-                      "(se from the batches); the same estimand gives z_rms ~ 1 and ~0.27% "
-                      "beyond 3")}
+                      "(se from K batches each); the same estimand gives z about t-distributed: "
+                      "rms ~ sqrt((K-1)/(K-3)) (1.18 for K = 8) and ~2% beyond 3 for K = 8 "
+                      "(0.27% for a normal)")}
     ratio = {basis: (m_stats[k] * m_stats["spp_to_target"]) / (v_stats[k] * v_stats["spp_to_target"])
              for basis, k in (("wall", "s_per_spp"), ("cpu", "cpu_s_per_spp"))}
     scale_px = 640 * 480 / (w * h)
@@ -636,6 +640,8 @@ def plot(payload, path):
     import matplotlib.pyplot as plt
     from matplotlib.ticker import NullFormatter
     ms, vs = payload.get("mitsuba_scene"), payload.get("vdb_scene")
+    ps = payload.get("path_scene")
+    ps = ps if ps and "volrender" in ps else None
     cores = payload["cpu_count"] or 1
     if payload["time_basis"] == "wall":
         xlabel = "render time (wall), s"
@@ -645,9 +651,25 @@ def plot(payload, path):
         xlabel = f"CPU time / {cores} cores, s"
         vr_t = lambda r: r["volrender"]["cpu_s"]["median"] / cores  # noqa: E731
         vdb_t = lambda r: r["vdb_render"]["process_cpu_s"]["median"] / cores  # noqa: E731
-    panels = [p for p in (ms, vs) if p]
+    panels = [p for p in (ms, vs, ps) if p]
     fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.4), squeeze=False)
     axes = list(axes[0])
+    if ps:
+        ax = axes.pop()
+        for name, st, col in (("volrender --estimator path", ps["volrender"], "C0"),
+                              (f"Mitsuba volpath ({ps['variant']})", ps["mitsuba"], "C1")):
+            per = st["s_per_spp"] if payload["time_basis"] == "wall" else st["cpu_s_per_spp"] / cores
+            spp = np.geomspace(1, 4 * st["spp_to_target"], 50)
+            ax.loglog(spp * per, st["rel_noise_1spp"] / np.sqrt(spp), "-", color=col, label=name)
+            ax.loglog([st["total_spp"] * per], [st["rel_noise_1spp"] / np.sqrt(st["total_spp"])], "o",
+                      color=col)
+        ax.axhline(ps["target_rel_rmse"], color="grey", lw=0.7, ls=":")
+        w, h = ps["size"]
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("relative RMSE (from the measured noise)")
+        ax.set_title(f"path tracing, {Path(ps['file']).name} {w}x{h}, depth {ps['volrender_max_depth']} "
+                     f"(dots: what was rendered)", fontsize=9)
+        ax.legend(fontsize=7)
     if ms:
         ax = axes.pop(0)
         vr = ms["volrender"]
@@ -699,7 +721,8 @@ def plot(payload, path):
     for ax in fig.axes:
         ax.xaxis.set_minor_formatter(NullFormatter())
     size = payload["size"]
-    fig.suptitle(f"{payload['file']} {size[0]}x{size[1]}, {payload['device']}", fontsize=9)
+    fig.suptitle((f"{payload['file']} {size[0]}x{size[1]}, " if ms or vs else "") + payload["device"],
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -905,11 +928,12 @@ def main(argv=None):
     tag = args.tag or (device_tag(dev) + ("-quick" if args.quick else ""))
     out = write_json(RESULTS / f"peers_{tag}.json", payload)
     ran = {k: (v if v and "skipped" not in v else None) for k, v in payload.items()
-           if k in ("mitsuba_scene", "vdb_scene")}
+           if k in ("mitsuba_scene", "vdb_scene", "path_scene")}
     if any(ran.values()):
         plot({**payload, **ran}, out.with_suffix(".png"))
     log(tables(payload))
-    log(f"wrote {out} and {out.with_suffix('.png').name} in {payload['total_s']:.0f} s")
+    log(f"wrote {out}" + (f" and {out.with_suffix('.png').name}" if any(ran.values()) else "")
+        + f" in {payload['total_s']:.0f} s")
     return 0
 
 

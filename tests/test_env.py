@@ -238,3 +238,33 @@ def test_volume_scene_files_take_an_environment(tmp_path):
     assert sc.settings.albedo == (0.95, 0.95, 0.95)
     sc = scene.load_scene(tmp_path / "v.npz", env=(0.7,))
     assert sc.environment.uniform == pytest.approx((0.7, 0.7, 0.7))
+
+
+def test_glass_takes_a_uniform_env_as_a_one_texel_map(cl_device):
+    """--env R,G,B for glass: a 1x1 map, so every ray that leaves the glass sees R,G,B
+    (here every pixel that misses the spheres)."""
+    from volrender import glass, points
+    cloud = points.generate("blob", 40, seed=1)
+    cam = glass.default_camera(cloud, 24, 18)
+    s = glass.GlassSettings(env=(0.2, 0.4, 0.6), refraction=False)
+    sc = Scene.of(cam, [], glass_content(cloud, s))
+    assert sc.environment.texels.shape == (1, 1, 3)
+    rgba = glass.render_points(cloud, cam, [], s, cl_device)["rgba"]
+    miss = rgba[..., 3] == 0
+    assert miss.sum() > 20
+    np.testing.assert_allclose(rgba[miss][:, :3], np.broadcast_to([0.2, 0.4, 0.6], (miss.sum(), 3)),
+                               rtol=1e-6)
+
+
+def glass_content(cloud, s):
+    from volrender.scene import GlassContent
+    return GlassContent(cloud, s)
+
+
+def test_a_missing_env_map_is_a_user_error(tmp_path):
+    from volrender import scene
+    thin_slab().save_npz(tmp_path / "v.npz")
+    with pytest.raises(UserError, match="no such environment map"):
+        scene.request(tmp_path / "v.npz", env=str(tmp_path / "nope.exr"))
+    with pytest.raises(UserError, match="env"):
+        scene.request(tmp_path / "v.npz", env=(1.0, 2.0))
