@@ -238,6 +238,12 @@ def test_volume_scene_files_take_an_environment(tmp_path):
     assert sc.settings.albedo == (0.95, 0.95, 0.95)
     sc = scene.load_scene(tmp_path / "v.npz", env=(0.7,))
     assert sc.environment.uniform == pytest.approx((0.7, 0.7, 0.7))
+    t = sky()
+    write_image(tmp_path / "sky.exr", np.concatenate([t, np.ones_like(t[..., :1])], -1))
+    (tmp_path / "m.toml").write_text('[volume]\nfile = "v.npz"\n[environment]\nmap = "sky.exr"\n')
+    sc = scene.load_scene(tmp_path / "m.toml")
+    assert sc.environment.texels.shape == t.shape and env_mode(sc.environment) == 2
+    assert (tmp_path / "sky.exr").resolve() in sc.inputs
 
 
 def test_glass_takes_a_uniform_env_as_a_one_texel_map(cl_device):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 
 from .errors import UserError
@@ -218,7 +219,7 @@ MAX_VALUE = 1e30
 
 def env_ok(v):
     """An environment: None, a file path, or 3 radiances >= 0 (1 value = grey)."""
-    if v is None or (isinstance(v, str) and v):
+    if v is None or (isinstance(v, str) and v) or isinstance(v, os.PathLike):
         return None
     return rgb(0, MAX_VALUE, n=(1, 3))(v) and \
         f"takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
