@@ -63,7 +63,8 @@ inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau)
     }
     return sum;
 }
-#define VR_TAU_STOP(vp) (VR_MS_OCTAVES > 1 ? (vp)->ms.w : VR_SHADOW_TAU_STOP)
+/* where the shadow march may stop: every octave's (and channel's) light below 1e-4 */
+#define VR_TAU_STOP(vp) ((vp)->ms.w)
 #endif
 
 #if VR_N_SUNS + VR_N_POINTS > 0

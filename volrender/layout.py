@@ -66,9 +66,9 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("emission_color", "float4"),    # rgb per unit emission-grid value
         ("phase", "float4"),             # g1, g2, w, unused
         ("dims", "int4"),                # bricks per axis
-        ("albedo_rgb", "float4"),        # per-channel albedo (VR_CHROMATIC), unused
-        ("extinction", "float4"),        # per-channel sigma_t scale s (VR_CHROMATIC), unused
-        ("env_radiance", "float4"),      # uniform environment radiance (VR_ENV 1), unused
+        ("albedo_rgb", "float4"),        # per-channel albedo (VR_CHROMATIC); w unused
+        ("extinction", "float4"),        # per-channel sigma_t scale s (VR_CHROMATIC); w unused
+        ("env_radiance", "float4"),      # uniform environment radiance (VR_ENV 1); w unused
         ("ms", "float4"),                # octave scales a, b, c; shadow tau stop (VR_MS_OCTAVES > 1)
         ("density_scale", "float"),      # sigma_t = density_scale * s * grid value
         ("albedo", "float"),             # grey albedo (VR_CHROMATIC 0)

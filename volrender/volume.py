@@ -183,14 +183,17 @@ def occupied_bricks(bricks) -> np.ndarray:
 
 
 def octave_tau_stop(settings: VolumeSettings) -> float:
-    """Shadow optical depth past which every octave's light is below MS_CUTOFF of the
-    light's (b^k exp(-a^k tau) < MS_CUTOFF for all k; at least the single-scattering 25)."""
+    """Grey shadow optical depth past which every octave's light is below MS_CUTOFF of
+    the light's (b^k exp(-a^k tau) < MS_CUTOFF for all k; at least the single-scattering
+    25), in every channel (divided by the smallest sigma_t scale)."""
     a, b, _ = settings.ms_octave_scales
     stop = 25.0
     for k in range(1, settings.ms_octaves):
         ak, bk = a ** k, b ** k
         if bk > 0:
             stop = max(stop, (math.log(bk) - math.log(MS_CUTOFF)) / max(ak, 1e-30))
+    if settings.chromatic:
+        stop /= max(min(settings.sigma_t_scale), 1e-30)
     return float(min(stop, 1e30))
 
 
