@@ -31,7 +31,7 @@ typedef struct {  /* 32 bytes */
     float4 radiance;
 } Light;
 
-typedef struct {  /* 208 bytes */
+typedef struct {  /* 304 bytes */
     float4 world_to_local0;
     float4 world_to_local1;
     float4 world_to_local2;
@@ -43,14 +43,26 @@ typedef struct {  /* 208 bytes */
     float4 emission_color;
     float4 phase;
     int4 dims;
+    float4 albedo_rgb;
+    float4 extinction;
+    float4 env_radiance;
+    float4 ms;
     float density_scale;
     float albedo;
     float step;
     float shadow_step;
     float point_r2_min;
-    float _pad0;
-    float _pad1;
-    float _pad2;
+    int env_width;
+    int env_height;
+    float env_visible;
+    float emission_scale;
+    float temp_scale;
+    float temp_offset;
+    float bb_a;
+    float bb_b;
+    int max_depth;
+    int rr_depth;
+    int bb_n;
 } VolumeParams;
 
 typedef struct {  /* 32 bytes */

@@ -73,7 +73,7 @@ def add_option(group, opt, default):
 # which help group each render option joins: by owner, with a few common ones moved
 GROUPS = [("image and camera", "view"), ("lights", "lights"), ("volumes (.vdb, .npz)", "volume"),
           ("molten glass (point clouds)", "glass"), ("sampling and dispatch", "common")]
-_GROUP_OF = {"shadows": "lights"}
+_GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
@@ -177,6 +177,8 @@ def build_parser():
     c.add_argument("--grid", default=None,
                    help="density grid (default: 'density', else the only float fog-volume grid)")
     c.add_argument("--emission-grid", default=None, help="also convert this emission grid")
+    c.add_argument("--temperature-grid", default=None,
+                   help="also convert this temperature grid (colours the emission)")
     c.add_argument("--debug", action="store_true", help="show tracebacks")
     c.add_argument("-v", "--verbose", action="store_true", help="log what is done")
 
@@ -363,7 +365,8 @@ def cmd_convert(args):
                         fix="choose a writable directory")
     refuse_overwrite(real, [src], "convert", shown=args.output)
     t0 = time.perf_counter()
-    bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid)
+    bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid,
+                             temperature_grid=args.temperature_grid)
     bricks.save_npz(dst)
     n = len(bricks.majorant)
     print(f"wrote {printable(dst)}: grid {printable(repr(bricks.grid_name))}, {n} bricks of 8^3 "

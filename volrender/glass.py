@@ -18,7 +18,7 @@ from .camera import DEFAULT_FOV, frame_bounds
 from .dispatch import Dispatch
 from .errors import UserError
 from .features import GlassFeatures
-from .settings import MAX_VALUE, NUM, PATH, CommonSettings, boolean, floats, in_range, knob, rgb
+from .settings import MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, rgb
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
@@ -72,9 +72,7 @@ class GlassSettings(CommonSettings):
     point_colors: bool = knob(True, "ignore the cloud's per-point colours (use --color everywhere)",
                               check=boolean, flag="--no-point-colors",
                               toml=("render", "point_colors"))
-    env: str | None = knob(None, "equirectangular environment map (.exr) (default: a "
-                           "procedural sky over a checker ground)", metavar="ENV.exr",
-                           toml=("environment", "map"), kind=PATH, show_default=False)
+    # env (the environment) is a CommonSettings knob: volumes read it too
 
 
 @dataclass(frozen=True)

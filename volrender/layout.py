@@ -73,14 +73,26 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("emission_color", "float4"),    # rgb per unit emission-grid value
         ("phase", "float4"),             # g1, g2, w, unused
         ("dims", "int4"),                # bricks per axis
-        ("density_scale", "float"),
-        ("albedo", "float"),
+        ("albedo_rgb", "float4"),        # per-channel albedo (VR_CHROMATIC); w unused
+        ("extinction", "float4"),        # per-channel sigma_t scale s (VR_CHROMATIC); w unused
+        ("env_radiance", "float4"),      # uniform environment radiance (VR_ENV 1); w unused
+        ("ms", "float4"),                # octave scales a, b, c; shadow tau stop (VR_MS_OCTAVES > 1)
+        ("density_scale", "float"),      # sigma_t = density_scale * s * grid value
+        ("albedo", "float"),             # grey albedo (VR_CHROMATIC 0)
         ("step", "float"),               # primary step, world units
         ("shadow_step", "float"),        # shadow step, world units
         ("point_r2_min", "float"),       # clamp for I / r^2 near point lights
-        ("_pad0", "float"),
-        ("_pad1", "float"),
-        ("_pad2", "float"),
+        ("env_width", "int"),            # environment map (VR_ENV 2), texels
+        ("env_height", "int"),
+        ("env_visible", "float"),        # 1: the camera sees the environment behind; 0: hidden
+        ("emission_scale", "float"),     # emission per grid value (VR_TEMPERATURE)
+        ("temp_scale", "float"),         # kelvin = temp_offset + temp_scale * temperature value
+        ("temp_offset", "float"),
+        ("bb_a", "float"),               # blackbody table entry = bb_a / kelvin + bb_b
+        ("bb_b", "float"),
+        ("max_depth", "int"),            # path estimator: scattering events per path
+        ("rr_depth", "int"),             # path estimator: Russian roulette from this event on
+        ("bb_n", "int"),                 # blackbody table entries
     ],
     # Partition tree node (heap index: root 1, children 2i, 2i+1). Bounds are the AABB of
     # the node's spheres (centre +- radius) in the render frame, rounded outwards; empty

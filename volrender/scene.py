@@ -28,7 +28,7 @@ ranges and kinds, naming the file and `[section].key`. Paths resolve relative to
     [material]               # molten glass: color, ior, absorption, reflectivity, glow, shininess
     [camera]                 # origin, target, up, fov (default framing fits the content)
     [[lights]]               # type = "sun" (direction, irradiance) or "point" (position, intensity)
-    [environment]            # map = "sky.exr" (glass)
+    [environment]            # map = "sky.exr" or map = [r, g, b] (uniform radiance)
     [render]                 # size, spp, seed, shadows, dispatch, tile, and glass's tracing keys
 """
 from __future__ import annotations
@@ -45,8 +45,8 @@ import numpy as np
 
 from .camera import View
 from .errors import UserError
-from .settings import (NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value, knobs,
-                       override_key)
+from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
+                       knobs, override_key)
 
 MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
@@ -80,9 +80,15 @@ class GlassContent:
 @dataclass(frozen=True, eq=False)
 class Environment:
     """An equirectangular environment: float32 (H, W, 3) radiance; row 0 looks up, the
-    image centre looks along -z (cl/glass.h)."""
+    image centre looks along -z (cl/env.h). A uniform radiance is a 1x1 map."""
     texels: np.ndarray
     source: str = ""
+
+    @property
+    def uniform(self):
+        """The radiance (3 floats) when every texel holds the same, else None."""
+        t = self.texels.reshape(-1, 3)
+        return tuple(float(v) for v in t[0]) if np.all(t == t[0]) else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,9 +111,9 @@ class Scene:
 
     @classmethod
     def of(cls, camera, lights, content, environment=None) -> "Scene":
-        """A Scene from parts already resolved (tests, benchmarks); a glass settings.env
-        path is read here."""
-        if environment is None and content.kind == "glass" and content.settings.env is not None:
+        """A Scene from parts already resolved (tests, benchmarks); settings.env is read
+        here."""
+        if environment is None and content.settings.env is not None:
             environment = _environment(content.settings.env, "env")
         return cls(camera, tuple(lights), content, environment)
 
@@ -185,6 +191,11 @@ def _check_type(value, kind, where, base: Path):
         return value if isinstance(value, str) else bad("a string")
     if kind == NUM:
         return float(value) if _finite(value) else bad("a finite number")
+    if kind == ENV:              # a uniform R,G,B or a map file
+        return _check_type(value, VEC if isinstance(value, (list, int, float)) else PATH,
+                           where, base)
+    if kind == VEC and _finite(value):
+        value = [value]          # one number = one value (e.g. albedo = 0.9)
     if kind in (VEC3, VEC):
         n = (3,) if kind == VEC3 else (1, 2, 3)
         if not (isinstance(value, list) and len(value) in n and all(map(_finite, value))):
@@ -274,7 +285,7 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
     if vol is not None:
         if "file" not in vol:
             raise UserError("[volume] needs file = ...")
-        for section in ("material", "environment"):
+        for section in ("material",):
             if section in scene:
                 raise UserError(f"[{section}] applies to point clouds (molten glass), not to "
                                 "a [volume]", fix=f"remove [{section}]")
@@ -471,6 +482,10 @@ def _lights(given, doc, path=None):
 
 
 def _environment(path, where):
+    """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
+    if isinstance(path, tuple):
+        rgb = np.asarray(path, np.float32).reshape(1, 1, 3)
+        return Environment(rgb, "uniform " + ",".join(f"{v:g}" for v in path))
     from .files import check_input
     from .glass import load_environment
     try:
@@ -503,7 +518,7 @@ class Request:
         for section in ("volume", "points"):
             if "file" in self.doc.get(section, {}):
                 out.append(Path(self.doc[section]["file"]))
-        if self.kind == "glass" and self.settings.env is not None:
+        if isinstance(self.settings.env, str):
             out.append(Path(self.settings.env))
         if self.camera_file is not None:
             out.append(self.camera_file)
@@ -516,7 +531,8 @@ class Request:
         if self.kind == "volume":
             from . import vdb
             path = self.doc["volume"]["file"] if self.doc else Path(self.source)
-            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid)
+            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid,
+                                     temperature_grid=settings.temperature_grid)
             content = VolumeContent(bricks, settings)
         else:
             from . import points
@@ -536,8 +552,8 @@ class Request:
                 notes.append(f"{len(cloud.centers)} points without radii: using radius "
                              f"{radius:.4g} (half the median neighbour spacing); set --radius")
             content = GlassContent(cloud, settings)
-            if settings.env is not None:
-                environment = _environment(settings.env, self.given["env"][1])
+        if settings.env is not None:
+            environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
         hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
             if self.kind == "volume" else (None, "")
@@ -586,12 +602,12 @@ def request(source, **overrides) -> Request:
     else:
         from .glass import GlassSettings
         settings = GlassSettings(**values)
-        if settings.env is not None:
-            from .files import check_input
-            try:
-                check_input(settings.env, "environment map")
-            except UserError as exc:
-                raise UserError(f"{given['env'][1]}: {exc}") from None
+    if isinstance(settings.env, str):
+        from .files import check_input
+        try:
+            check_input(settings.env, "environment map")
+        except UserError as exc:
+            raise UserError(f"{given['env'][1]}: {exc}") from None
     return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file)
 
 

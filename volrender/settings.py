@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 
 from .errors import UserError
@@ -24,6 +25,7 @@ from .errors import UserError
 
 # Value kinds of scene-file keys (scene.py checks them; the ranges are the knobs' checks).
 NUM, VEC3, VEC, SIZE, PATH, STRS = "number", "vec3", "vec", "size", "path", "strings"
+ENV = "environment"          # R,G,B (a list in scene files) or a file path
 
 
 def knob(default, help: str, *, check=None, flag: str | None = "", toml=None, kind=None,
@@ -150,6 +152,19 @@ def number(name: str, kind=float):
     return parse
 
 
+def env_value(text: str):
+    """--env: 1 or 3 comma-separated numbers (a uniform radiance), else a file path."""
+    try:
+        return floats(1, 3, "--env")(text)
+    except argparse.ArgumentTypeError:
+        if all(c in "0123456789.,+-eE " for c in text):
+            raise                 # numbers, but malformed: say so rather than "no such file"
+        return text
+
+
+env_value.__name__ = "--env"
+
+
 # ---------------------------------------------------------------------- the checks
 
 def _num(v) -> bool:
@@ -215,6 +230,14 @@ _SEED.range = "any 64-bit integer"
 MAX_VALUE = 1e30
 
 
+def env_ok(v):
+    """An environment: None, a file path, or 3 radiances >= 0 (1 value = grey)."""
+    if v is None or (isinstance(v, str) and v) or isinstance(v, os.PathLike):
+        return None
+    return rgb(0, MAX_VALUE, n=(1, 3))(v) and \
+        f"takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
+
+
 @dataclass(frozen=True)
 class CommonSettings:
     """Knobs both renderers read."""
@@ -234,8 +257,22 @@ class CommonSettings:
                        "(1..64 per side, W*H <= 1024)", check=tile_size,
                        metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
                        kind=SIZE)
+    env: str | tuple | None = knob(
+        None, "environment: R,G,B (a uniform radiance; one value = grey) or an "
+        "equirectangular map (.exr, .npy; centre looks along -z, top row up). Glass reflects "
+        "and refracts it (default: a procedural sky over a checker ground); a volume is lit by "
+        "it and shows it behind (default: none)", metavar="R,G,B|ENV.exr", parse=env_value,
+        check=env_ok, toml=("environment", "map"), kind=ENV, show_default=False)
 
     def __post_init__(self):
+        if isinstance(self.env, (int, float)) and not isinstance(self.env, bool):
+            object.__setattr__(self, "env", (self.env,))
+        if isinstance(self.env, tuple) and len(self.env) == 1:
+            object.__setattr__(self, "env", tuple(self.env) * 3)
+        if isinstance(self.env, tuple) and all(map(_num, self.env)):
+            object.__setattr__(self, "env", tuple(float(v) for v in self.env))
+        elif self.env is not None and not isinstance(self.env, (str, tuple)):
+            object.__setattr__(self, "env", str(self.env))      # a pathlib.Path
         check_fields(self)
         from .dispatch import Dispatch
         Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid

@@ -9,6 +9,8 @@ Layout (the volume kernel depends on it):
   * table[(bx*dims[1] + by)*dims[2] + bz] = slot, or -1 for an all-zero brick.
   * data[slot, i, j, k] = value of local voxel (bx*8+i, by*8+j, bz*8+k).
   * majorant[slot] = data[slot].max() (bounds the interpolated density in the brick).
+  * optional emission and temperature grids in the same slots; a brick is stored when
+    its density or emission is non-zero (the temperature only colours the emission).
 """
 from __future__ import annotations
 
@@ -29,7 +31,11 @@ from .files import check_input
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
-NPZ_VERSION = 1
+# 1: density (+ emission); 2: also a temperature grid. Caches are written as version 1
+# unless they hold a temperature grid, so older readers refuse only what they would
+# render without its colours; this reader takes both.
+NPZ_VERSION = 2
+NPZ_VERSIONS = (1, 2)
 MAX_BRICKS = 1 << 27          # table entries (512 MB of int32); more is refused
 MAX_COND = 1e5                # largest condition number of a grid's linear transform
 SCALE_RANGE = (1e-20, 1e20)   # singular values of the transform (world units per voxel)
@@ -377,23 +383,28 @@ def _brick_view(a, nb):
                                            strides=(*(s * BRICK), *s), writeable=False)
 
 
-def _sanitise(a, own, stats):
+def _sanitise(a, own, stats, negative_ok=False):
     """Non-finite and negative values -> 0, counted inside the chunk's own voxels."""
     bad = ~np.isfinite(a)
     if bad.any():
         stats[0] += int(bad[own].sum())
         a[bad] = 0
+    if negative_ok:
+        return
     neg = a < 0
     if neg.any():
         stats[1] += int(neg[own].sum())
         a[neg] = 0
 
 
-def _build(label, sources, lo, hi, chunk=16, progress=None):
-    """Bricks from (read, is_zero) sources (density, then emission) over box lo..hi.
+def _build(label, sources, lo, hi, chunk=16, progress=None, passive=0):
+    """Bricks from (read, is_zero) sources (density, then emission, then the `passive`
+    ones: temperature) over box lo..hi. Passive sources are stored in the bricks the
+    others make, and may be negative.
 
     Works chunk^3 bricks at a time, so memory holds one chunk plus the kept bricks.
     """
+    n_active = len(sources) - passive
     origin, dims = _layout(lo, hi)
     if int(np.prod(dims.astype(np.int64))) > MAX_BRICKS:
         raise UserError(f"the active region ({hi - lo + 1} voxels) needs more than {MAX_BRICKS} "
@@ -419,16 +430,17 @@ def _build(label, sources, lo, hi, chunk=16, progress=None):
         sub = tuple(slice(int(max(a - v, 0)), int(max(min(b - v, o.stop), 0)))
                     for a, b, v, o in zip(box_lo, box_hi, v0, own))
         in_box = all(s.stop > s.start for s in sub)
-        if all(zero):
+        if all(zero[:n_active]):
             if in_box:
                 vmin, vmax = min(vmin, 0.0), max(vmax, 0.0)
             continue
         arrays = [np.zeros(tuple(shape), np.float32) if z else read(start, shape)
                   for (read, _), z in zip(sources, zero)]
         mask = np.zeros(tuple(nb), bool)
-        for a, st in zip(arrays, stats):
-            _sanitise(a, own, st)
-            mask |= _brick_view(a, nb).any(axis=(3, 4, 5))
+        for i, (a, st) in enumerate(zip(arrays, stats)):
+            _sanitise(a, own, st, negative_ok=i >= n_active)
+            if i < n_active:
+                mask |= _brick_view(a, nb).any(axis=(3, 4, 5))
         if in_box:
             vmin = min(vmin, float(arrays[0][sub].min()))
             vmax = max(vmax, float(arrays[0][sub].max()))
@@ -479,6 +491,8 @@ class Bricks:
     emission_max: np.ndarray | None = None
     grid_name: str = "density"
     emission_grid_name: str | None = None
+    temperature: np.ndarray | None = None      # float32 (n, 9, 9, 9), raw grid values
+    temperature_grid_name: str | None = None
     source: str = ""
     background: float = 0.0
     value_range: tuple = (0.0, 0.0)   # density min/max over the active box, sanitised
@@ -508,9 +522,9 @@ class Bricks:
         w = (self.local_to_world @ corners.T)[:3].T
         return w.min(axis=0), w.max(axis=0)
 
-    def sample_local(self, p, emission=False) -> np.ndarray:
+    def sample_local(self, p, emission=False, temperature=False) -> np.ndarray:
         """Trilinear value at local index coordinates p (N, 3); 0 outside the layout."""
-        vals = self.emission if emission else self.data
+        vals = self.temperature if temperature else self.emission if emission else self.data
         p = np.asarray(p, np.float64).reshape(-1, 3)
         out = np.zeros(len(p))
         ext = self.dims * BRICK
@@ -535,15 +549,16 @@ class Bricks:
         out[inside] = res
         return out
 
-    def sample_world(self, x, emission=False) -> np.ndarray:
+    def sample_world(self, x, emission=False, temperature=False) -> np.ndarray:
         x = np.asarray(x, np.float64).reshape(-1, 3)
         m = np.linalg.inv(self.local_to_world)
-        return self.sample_local(x @ m[:3, :3].T + m[:3, 3], emission)
+        return self.sample_local(x @ m[:3, :3].T + m[:3, 3], emission, temperature)
 
     @classmethod
     def from_dense(cls, values, index_to_world=None, origin=(0, 0, 0), emission=None,
-                   name="density", chunk=16) -> "Bricks":
-        """Bricks from a dense array: values[i, j, k] is VDB index origin + (i, j, k)."""
+                   name="density", chunk=16, temperature=None) -> "Bricks":
+        """Bricks from a dense array: values[i, j, k] is VDB index origin + (i, j, k);
+        emission and temperature (optional) are arrays of the same shape."""
         values = np.asarray(values, np.float32)
         if values.ndim != 3 or values.size == 0:
             raise ValueError(f"from_dense needs a non-empty 3-D array, got shape {values.shape}")
@@ -554,8 +569,14 @@ class Bricks:
             if emission.shape != values.shape:
                 raise ValueError(f"emission shape {emission.shape} != density {values.shape}")
             sources.append(_dense_source(emission, origin))
+        if temperature is not None:
+            temperature = np.asarray(temperature, np.float32)
+            if temperature.shape != values.shape:
+                raise ValueError(f"temperature shape {temperature.shape} != density {values.shape}")
+            sources.append(_dense_source(temperature, origin))
         hi = origin + np.array(values.shape) - 1
-        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk)
+        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk,
+                                                      passive=int(temperature is not None))
         _warn_sanitised("<dense>", name, stats[0])
         m = np.eye(4) if index_to_world is None else np.asarray(index_to_world, np.float64)
         if m.shape != (4, 4):
@@ -567,11 +588,16 @@ class Bricks:
             _warn_sanitised("<dense>", "emission", stats[1])
             b.emission, b.emission_max = out[1], _max_per_slot(out[1])
             b.emission_grid_name = "emission"
+        if temperature is not None:
+            _warn_sanitised("<dense>", "temperature", stats[-1])
+            b.temperature, b.temperature_grid_name = out[-1], "temperature"
         return b
 
     def save_npz(self, path):
-        """Write a brick cache atomically (volrender.atomic)."""
-        arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(NPZ_VERSION),
+        """Write a brick cache atomically (volrender.atomic); version 2 only when it holds a
+        temperature grid, so older readers refuse what they would render in one colour."""
+        version = 2 if self.temperature is not None else 1
+        arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(version),
                       origin=self.origin, dims=self.dims, table=self.table, data=self.data,
                       majorant=self.majorant, index_to_world=self.index_to_world,
                       grid_name=np.array(self.grid_name), source=np.array(self.source),
@@ -584,6 +610,9 @@ class Bricks:
         if self.emission is not None:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
+        if self.temperature is not None:
+            arrays.update(temperature=self.temperature,
+                          temperature_grid_name=np.array(self.temperature_grid_name or ""))
         with atomic.replace(path, "brick cache") as f:
             # np.savez's layout, with the archive closed on failure too (numpy leaves it
             # to the garbage collector, which then prints a traceback of its own)
@@ -638,9 +667,10 @@ def load_npz(path) -> Bricks:
                 raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
             if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
                 raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
-            if int(z["version"]) != NPZ_VERSION:
+            if int(z["version"]) not in NPZ_VERSIONS:
                 raise UserError(f"brick cache version {int(z['version'])} is not supported "
-                                f"(this volrender reads {NPZ_VERSION})", path=p, fix=fix)
+                                f"(this volrender reads {', '.join(map(str, NPZ_VERSIONS))})",
+                                path=p, fix=fix)
             dims = z["dims"]
             if dims.shape != (3,) or dims.dtype.kind not in "iu":
                 raise UserError(f"corrupt brick cache (dims of shape {dims.shape}, dtype "
@@ -663,6 +693,9 @@ def load_npz(path) -> Bricks:
             if "emission" in z.files:
                 b.emission, b.emission_max = z["emission"], z["emission_max"]
                 b.emission_grid_name = str(z["emission_grid_name"])
+            if "temperature" in z.files:
+                b.temperature = z["temperature"]
+                b.temperature_grid_name = str(z["temperature_grid_name"])
             problem = _validate(b, p)
         except (KeyError, ValueError, TypeError, OSError, EOFError, SyntaxError,
                 zipfile.BadZipFile) as e:
@@ -698,6 +731,8 @@ def _validate(b: Bricks, label="<bricks>") -> str | None:
     if b.emission is not None and (b.emission.shape != b.data.shape
                                    or b.emission_max.shape != (n,)):
         return "emission does not match data"
+    if b.temperature is not None and b.temperature.shape != b.data.shape:
+        return "temperature does not match data"
     b.origin, b.dims = b.origin.astype(np.int64), b.dims.astype(np.int32)
     b.table, b.data = b.table.astype(np.int32), np.array(b.data, np.float32)
     b.majorant = b.majorant.astype(np.float32)
@@ -717,17 +752,21 @@ def _validate(b: Bricks, label="<bricks>") -> str | None:
             return f"{name} majorants are negative or not finite"
         if np.any(top < _max_per_slot(data)):
             return f"{name} majorants are below the largest value of their bricks"
+    if b.temperature is not None:
+        b.temperature = np.array(b.temperature, np.float32)
     return None
 
 
 # --------------------------------------------------------------------------- loading
 
-def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16) -> Bricks:
+def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
+                temperature_grid=None) -> Bricks:
     """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time."""
     p = _check_file(path)
     grids = list_grids(p)
     info = _pick(p, grids, grid, default=True)
     einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
+    tinfo = _pick(p, grids, temperature_grid) if temperature_grid is not None else None
     vdb = import_openvdb()
     g, m, box = _read_grid(vdb, p, info)
     if box is None:
@@ -748,7 +787,15 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16)
         else:
             lo, hi = np.minimum(lo, ebox[0]), np.maximum(hi, ebox[1])
             sources.append(_vdb_source(eg, ebox))
-    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress)
+    if tinfo is not None:
+        tg, tm, tbox = _read_grid(vdb, p, tinfo)
+        if not np.allclose(tm, m, rtol=1e-6, atol=1e-6 * _cbrt_det(m)):
+            raise UserError(f"temperature grid {tinfo.name!r} has a different transform from "
+                            f"{info.name!r}, which is unsupported", path=p,
+                            fix="resample it onto the density grid's transform")
+        sources.append(_zero_source() if tbox is None else _vdb_source(tg, tbox))
+    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
+                                                     passive=int(tinfo is not None))
     _warn_sanitised(p, info.name, stats[0])
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
@@ -762,6 +809,9 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16)
         _warn_sanitised(p, einfo.name, stats[1])
         b.emission, b.emission_max = out[1], _max_per_slot(out[1])
         b.emission_grid_name = einfo.name
+    if tinfo is not None:
+        _warn_sanitised(p, tinfo.name, stats[-1])
+        b.temperature, b.temperature_grid_name = out[-1], tinfo.name
     return b
 
 
@@ -769,12 +819,12 @@ def _cbrt_det(m):
     return float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
 
 
-def load_volume(path, grid=None, emission_grid=None) -> Bricks:
+def load_volume(path, grid=None, emission_grid=None, temperature_grid=None) -> Bricks:
     """A .vdb grid or a .npz brick cache, by file suffix."""
     p = _check_file(path)
     suffix = p.suffix.lower()
     if suffix == ".vdb":
-        return load_bricks(p, grid, emission_grid)
+        return load_bricks(p, grid, emission_grid, temperature_grid=temperature_grid)
     if suffix == ".npz":
         b = load_npz(p)
         if grid is not None and grid != b.grid_name:
@@ -785,6 +835,12 @@ def load_volume(path, grid=None, emission_grid=None) -> Bricks:
                 else "no emission grid"
             raise UserError(f"this brick cache has {have}, not {emission_grid!r}", path=p,
                             fix=f"convert the .vdb again with emission grid {emission_grid!r}")
+        if temperature_grid is not None and temperature_grid != b.temperature_grid_name:
+            have = f"temperature grid {b.temperature_grid_name!r}" if b.temperature is not None \
+                else "no temperature grid"
+            raise UserError(f"this brick cache has {have}, not {temperature_grid!r}", path=p,
+                            fix="convert the .vdb again with --temperature-grid "
+                                f"{temperature_grid}")
         return b
     raise UserError(f"unsupported volume file type {suffix or '(no suffix)'!r}", path=p,
                     fix="give an OpenVDB .vdb file or a .npz brick cache")
