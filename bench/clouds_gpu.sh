@@ -13,13 +13,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 DEVICE=${DEVICE:-nvidia}
-# smaller runs for a check elsewhere: SIZE=96x54 MS_SIZE=32x24 MS_REF=16 TAG=test
-SIZE=${SIZE:-1920x1080}; MS_SIZE=${MS_SIZE:-320x240}; MS_REF=${MS_REF:-2048}; TAG=${TAG:-gpu}
+# smaller runs for a check elsewhere: SIZE=96x54 MS_SIZE=32x24 MS_REF=16 TAG=test-
+SIZE=${SIZE:-1920x1080}; MS_SIZE=${MS_SIZE:-320x240}; MS_REF=${MS_REF:-2048}; TAG=${TAG:-}
 FILES=""
 for f in smoke wdas_cloud_sixteenth dragon_with_xform fluid_data_0190 fluid_data_0056; do
   FILES="$FILES bench/data/$f.npz"
 done
 $PY bench/volume.py --device "$DEVICE" --size "$SIZE" --repeat 3 --no-dispatch \
-  --octaves 3,4,8 --path-spp 16 --tag "$TAG-clouds-1080p" $FILES
+  --octaves 3,4,8 --path-spp 16 --tag "${TAG}clouds-1080p" $FILES
 $PY bench/error.py --device "$DEVICE" --no-glass --no-volume --ms-size "$MS_SIZE" \
-  --ms-ref-spp "$MS_REF" --repeat 3 --out "$TAG-ms"
+  --ms-ref-spp "$MS_REF" --repeat 3 --tag "${TAG}ms"
