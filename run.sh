@@ -45,7 +45,7 @@ venv() {
   if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "run.sh: installing Python packages into $VENV" >&2
     "$VENV/bin/pip" install -q --upgrade pip >/dev/null
-    "$VENV/bin/pip" install -q -e ".[test]"
+    "$VENV/bin/pip" install -q -e ".[vdb,inspect,bench,test]"
     echo "$want" > "$stamp"
   fi
   "$VENV/bin/python" -c 'import volrender.vdb as v; v.import_openvdb()' \
@@ -79,8 +79,12 @@ cmd=${1:-demo}
 case "$cmd" in
   setup) apt_deps; venv ;;
   demo)  apt_deps; venv
+         # a white cloud: albedo 0.98, lit by the sun and a blue sky (--env), multiple
+         # scattering by 3 octaves (docs/error_time.md: 16% from the path-traced image;
+         # `--estimator path --spp 256` renders that image, grainier, in ~1 minute)
          "$VENV/bin/volrender" render scenes/demo_cloud.vdb -o demo.png --size 640x480 --spp 4 \
-           --density-scale 6 --sun=-0.6,-1,-0.5,10 --fov 28 --background 0.32,0.42,0.58
+           --density-scale 6 --albedo 0.98 --sun=-0.6,-1,-0.5,10 --fov 28 --env 0.32,0.42,0.58 \
+           --ms-octaves 3
          echo "run.sh: wrote demo.png" >&2 ;;
   test)  apt_deps; venv; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;

@@ -2,6 +2,19 @@
 
     .venv/bin/python bench/error.py [--device SPEC] [--size 160x120] [--repeat 5]
         [--quick] [--out TAG] [--time kernel|cpu] [--no-glass] [--no-volume]
+        [--no-ms] [--ms-size 96x72] [--ms-ref-spp N] [--fit-octaves]
+
+Multiple scattering (issue #12; --no-ms leaves it out): on scenes/demo_cloud.vdb (the
+`run.sh demo` look: a white cloud, sun and blue sky), smoke.vdb and
+wdas_cloud_sixteenth.vdb, at --ms-size, against the path estimator (--estimator path,
+default depth) with --ms-ref-spp x 16 samples per pixel in 16 batches (unbiased, so its
+error is its noise; rmse_corrected removes it). Rows: the path estimator at 1..256 spp,
+with the time it takes to reach 5%, 2% and 1% relative RMSE (interpolated log-log
+between the measured points, or extrapolated as 1/sqrt(spp) past the last); the
+marcher's octave approximation (--ms-octaves 1..8, default scales, 4 spp) and its error
+against the path-traced image (1 octave: the error of single scattering itself). With
+--fit-octaves, a grid over the octave scales (a, b, c) and counts, on all three scenes at
+once (the sum of their relative mean squared errors), which chose the defaults.
 
 Volumes (scenes/demo_cloud.vdb with the `run.sh demo` look, and smoke.vdb from
 ../shared/data/vdb when present): marching step (2, 1, 0.5, 0.25 voxels), shadow step
@@ -48,14 +61,17 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "data" / "vdb"
 GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
+# the `run.sh demo` medium (its sky: DEMO_ENV; the single-scattering section keeps its
+# own background look, which it always had)
+DEMO_LOOK = dict(density_scale=6.0, albedo=0.98)
 GLASS_REF = dict(epsilon=1e-6, max_steps=4096, bounces=12, relax=1.0, use_tree=False)
 
 
@@ -139,10 +155,10 @@ def volume_scenes(width, height):
     out.append(("demo_cloud", b, camera.frame_bounds(*b.world_bounds(), width, height, fov=28.0),
                 [Sun((-0.6, -1.0, -0.5), 10.0)],
                 VolumeSettings(density_scale=6.0, background=(0.32, 0.42, 0.58)), 2048))
-    smoke = next((p for p in (SHARED / "smoke.vdb", ROOT / "bench" / "data" / "smoke.npz")
-                  if p.exists() and (p.suffix == ".npz" or _has_openvdb())), None)
+    smoke = find_volume("smoke", _has_openvdb)
     if smoke is None:
-        print(f"bench/error.py: {SHARED / 'smoke.vdb'} not found; skipping the real file", flush=True)
+        print(f"bench/error.py: {missing_data('smoke.vdb')}; measuring the demo cloud only",
+              flush=True)
     else:
         b = vdb.load_volume(smoke)                                 # bench/volume.py's settings
         out.append(("smoke", b, camera.frame_bounds(*b.world_bounds(), width, height),
@@ -245,6 +261,161 @@ def run_volume(dev, width, height, args, record):
         scene["load_average"] = os.getloadavg()
 
 
+# --------------------------------------------------------------------------- multiple scattering
+
+MS_TARGETS = (0.05, 0.02, 0.01)          # relative RMSE for time-to-error
+DEMO_ENV = (0.32, 0.42, 0.58)            # the demo's sky (run.sh)
+
+
+def _find(stem):
+    return find_volume(stem, _has_openvdb)
+
+
+def ms_scenes(width, height):
+    """[(name, bricks, camera, lights, base settings)] of the multiple-scattering section."""
+    out = []
+    demo = next(p for p in (ROOT / "scenes" / "demo_cloud.vdb", ROOT / "bench" / "data" / "demo_cloud.npz")
+                if p.exists() and (p.suffix == ".npz" or _has_openvdb()))
+    b = vdb.load_volume(demo)
+    out.append(("demo_cloud", b, camera.frame_bounds(*b.world_bounds(), width, height, fov=28.0),
+                [Sun((-0.6, -1.0, -0.5), 10.0)],
+                VolumeSettings(**DEMO_LOOK, env=DEMO_ENV)))
+    for stem, scale in (("smoke", 1.0), ("wdas_cloud_sixteenth", 0.05)):
+        p = _find(stem)
+        if p is None:
+            print(f"bench/error.py: {stem} not found; skipping it", flush=True)
+            continue
+        b = vdb.load_volume(p)
+        out.append((stem, b, camera.frame_bounds(*b.world_bounds(), width, height),
+                    [Sun((-0.6, -1.0, -0.5), 6.0)], VolumeSettings(density_scale=scale)))
+    return out
+
+
+def path_reference(dev, b, cam, lights, base, batches, spp):
+    """The path estimator with batches x spp samples: (mean, variance of the mean, summary)."""
+    imgs, ms = [], 0.0
+    for k in range(batches):
+        r = render_volume(b, cam, lights, replace(base, estimator="path", spp=spp, seed=20_000 + k), dev)
+        imgs.append(r["rgba"].astype(np.float64))
+        ms += r["kernel_ms"]
+    imgs = np.stack(imgs)
+    ref, var = imgs.mean(0), imgs.var(0, ddof=1) / batches
+    summary = {"estimator": "path", "max_depth": base.max_depth, "spp": batches * spp,
+               "batches": batches, "kernel_ms_total": ms,
+               "se_rms": float(np.sqrt(var[..., :3].mean())),
+               "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
+               "mean_rgb": ref[..., :3].mean(axis=(0, 1)).tolist()}
+    summary["se_rel"] = summary["se_rms"] / summary["value_rms"]
+    return ref, var, summary
+
+
+def time_to_error(points, target, key="rel_rmse"):
+    """Time to reach a relative RMSE from (spp, time_ms, error) points: log-log
+    interpolation between the bracketing points; at the first point, its time (an upper
+    bound); past the last, err ~ 1/sqrt(spp) from the last point (flagged)."""
+    pts = sorted(points, key=lambda p: p["time_ms"])
+    for i, p in enumerate(pts):
+        if p[key] <= target:
+            if i == 0:
+                return {"time_ms": p["time_ms"], "spp": p["spp"], "how": "first point: an upper bound"}
+            q = pts[i - 1]
+            f = (np.log(target) - np.log(q[key])) / (np.log(p[key]) - np.log(q[key]))
+            t = float(np.exp(np.log(q["time_ms"]) + f * (np.log(p["time_ms"]) - np.log(q["time_ms"]))))
+            sp = float(np.exp(np.log(q["spp"]) + f * (np.log(p["spp"]) - np.log(q["spp"]))))
+            return {"time_ms": t, "spp": sp, "how": f"interpolated between {q['spp']} and {p['spp']} spp"}
+    last = max(pts, key=lambda p: p["spp"])
+    spp = last["spp"] * (last[key] / target) ** 2
+    return {"time_ms": spp * last["time_ms"] / last["spp"], "spp": spp,
+            "how": f"extrapolated from {last['spp']} spp as 1/sqrt(spp)"}
+
+
+def octave_fit(dev, scenes, refs, args):
+    """A grid over the octave count and scales: (count, a, b) at c = 0.5, then c for the
+    best (a, b) of each count. The objective sums each scene's squared relative RMSE
+    against its path-traced reference (the march at 2 spp, default steps). Returns the
+    rows, best first."""
+    counts = (2, 4) if args.quick else (2, 3, 4, 6, 8)
+    grid_a = (0.3, 0.5) if args.quick else (0.2, 0.3, 0.4, 0.5, 0.6)
+    grid_b = (0.5, 0.7) if args.quick else (0.5, 0.6, 0.7, 0.8, 0.9)
+    grid_c = (0.3, 0.9) if args.quick else (0.2, 0.35, 0.65, 0.8, 1.0)
+    rows = []
+
+    def score(n, a, bb, c):
+        row = {"ms_octaves": n, "a": a, "b": bb, "c": c, "scenes": {}}
+        total = 0.0
+        for (name, b, cam, lights, base), (ref, var, summ) in zip(scenes, refs):
+            st = replace(base, ms_octaves=n, ms_octave_scales=(a, bb, c), spp=2, seed=3)
+            img = render_volume(b, cam, lights, st, dev)["rgba"]
+            e = errors(img, ref, var)
+            row["scenes"][name] = {"rel_rmse": e["rmse_corrected"] / summ["value_rms"],
+                                   "mean_ratio": float(img[..., :3].mean() / ref[..., :3].mean())}
+            total += row["scenes"][name]["rel_rmse"] ** 2
+        row["objective"] = total
+        rows.append(row)
+        return row
+
+    for n in counts:
+        best = min((score(n, a, bb, 0.5) for a in grid_a for bb in grid_b),
+                   key=lambda r: r["objective"])
+        for c in grid_c:
+            r = score(n, best["a"], best["b"], c)
+            best = r if r["objective"] < best["objective"] else best
+        print(f"[fit] {n} octaves: best a {best['a']} b {best['b']} c {best['c']}: "
+              + ", ".join(f"{k} {v['rel_rmse']:.1%} (mean x{v['mean_ratio']:.3f})"
+                          for k, v in best["scenes"].items()), flush=True)
+    return sorted(rows, key=lambda r: r["objective"])
+
+
+def run_ms(dev, args, record):
+    mw, mh = args.ms_size
+    scenes = ms_scenes(mw, mh)
+    refs = []
+    for name, b, cam, lights, base in scenes:
+        t0 = time.perf_counter()
+        ref, var, summ = path_reference(dev, b, cam, lights, base, args.ref_batches, args.ms_ref_spp)
+        refs.append((ref, var, summ))
+        single = render_volume(b, cam, lights, replace(base, estimator="path", max_depth=1,
+                                                       spp=args.ms_ref_spp, seed=7), dev)["rgba"]
+        summ["single_over_multiple"] = float(single[..., :3].mean() / max(ref[..., :3].mean(), 1e-30))
+        print(f"[{name}] MS reference: path {summ['spp']} spp, depth {summ['max_depth']}, "
+              f"{summ['kernel_ms_total'] / 1e3:.1f} s kernel; se {summ['se_rel']:.2%} of the value rms; "
+              f"single scattering is x{summ['single_over_multiple']:.2f} of it", flush=True)
+        sc = {"scene": name, "size": [mw, mh], "source": b.source, "reference": summ,
+              "settings": {"density_scale": base.density_scale, "albedo": list(base.albedo),
+                           "env": base.env}, "rows": []}
+        record["multiple_scattering"].append(sc)
+        spps = (1, 4, 16) if args.quick else (1, 2, 4, 8, 16, 32, 64, 128, 256)
+        octs = (1, 2, 4) if args.quick else (1, 2, 3, 4, 5, 6, 8)
+        settings = [("path", f"path {n} spp", replace(base, estimator="path", spp=n, seed=n)) for n in spps]
+        settings += [("octaves", f"march {n} octaves, 4 spp", replace(base, ms_octaves=n, spp=4, seed=5))
+                     for n in octs]
+        settings += [("octaves", f"march {n} octaves, 1 spp", replace(base, ms_octaves=n, seed=5))
+                     for n in (1, 4)]
+        done = sweep([(i, (lambda st=st: render_volume(b, cam, lights, st, dev)))
+                      for i, (_, _, st) in enumerate(settings)], args.repeat, args.basis)
+        for i, (group, label, st) in enumerate(settings):
+            img, t = done[i]
+            e = errors(img, ref, var)
+            row = {"group": group, "label": label, "settings": {**describe_volume(st),
+                   "ms_octaves": st.ms_octaves, "ms_octave_scales": list(st.ms_octave_scales),
+                   "max_depth": st.max_depth}, **t, **e,
+                   "rel_rmse": e["rmse_corrected"] / summ["value_rms"],
+                   "mean_ratio": float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30)),
+                   "spp": st.spp}
+            sc["rows"].append(row)
+            print(f"[{name}] {label:28s} {t['time_ms']:9.1f} ms  rel rmse {row['rel_rmse']:.2%}  "
+                  f"mean x{row['mean_ratio']:.3f}", flush=True)
+        pts = [r for r in sc["rows"] if r["group"] == "path"]
+        sc["path_time_to_error"] = {f"{tg:g}": time_to_error(pts, tg) for tg in MS_TARGETS}
+        print(f"[{name}] path time to " + ", ".join(
+            f"{float(k):.0%}: {v['time_ms']:.0f} ms ({v['spp']:.0f} spp{'?' if 'extra' in v['how'] else ''})"
+            for k, v in sc["path_time_to_error"].items()), flush=True)
+        pareto(sc["rows"], key="rmse_corrected")
+        sc["bench_s"] = time.perf_counter() - t0
+    if args.fit_octaves and scenes:
+        record["octave_fit"] = octave_fit(dev, scenes, refs, args)[:40]
+
+
 # --------------------------------------------------------------------------- glass
 
 def glass_scenes(width, height, quick):
@@ -336,6 +507,7 @@ def plot(record, path):
     import matplotlib.pyplot as plt
     import matplotlib.ticker
     panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
+    panels += [("ms", s) for s in record.get("multiple_scattering", [])]
     if not panels:
         return
     cols = min(2, len(panels))
@@ -344,17 +516,31 @@ def plot(record, path):
     markers = "osD^v<>pPX*h"
     for ax, (kind, sc) in zip(axes.flat, panels):
         groups = list(dict.fromkeys(r["group"] for r in sc["rows"]))
+        key = "rel_rmse" if kind == "ms" else "rmse"
         for i, g in enumerate(groups):
             rows = [r for r in sc["rows"] if r["group"] == g]
-            ax.loglog([r["time_ms"] for r in rows], [max(r["rmse"], 1e-12) for r in rows],
-                      markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute") else "--" if g.startswith("alone") else "-",
+            ax.loglog([r["time_ms"] for r in rows], [max(r[key], 1e-12) for r in rows],
+                      markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute", "octaves") else "--" if g.startswith("alone") else "-",
                       label=g, alpha=0.8)
+            if g == "octaves":        # label each point with its octave count (and spp)
+                for r in rows:
+                    ax.annotate(f"{r['settings']['ms_octaves']}" + ("" if r["spp"] == 4 else f"/{r['spp']}spp"),
+                                (r["time_ms"], max(r[key], 1e-12)), fontsize=6, xytext=(3, 2),
+                                textcoords="offset points")
         front = sorted((r for r in sc["rows"] if r["pareto"]), key=lambda r: r["time_ms"])
-        ax.step([r["time_ms"] for r in front], [max(r["rmse"], 1e-12) for r in front],
+        ax.step([r["time_ms"] for r in front], [max(r[key], 1e-12) for r in front],
                 where="post", color="k", lw=1.2, alpha=0.6, label="Pareto front")
-        ax.scatter([r["time_ms"] for r in front], [max(r["rmse"], 1e-12) for r in front],
+        ax.scatter([r["time_ms"] for r in front], [max(r[key], 1e-12) for r in front],
                    s=110, facecolors="none", edgecolors="k", lw=1.2)
-        if kind == "volume":
+        if kind == "ms":
+            ax.axhline(sc["reference"]["se_rel"], color="grey", ls=":", lw=1,
+                       label="reference noise (se / value rms)")
+            for tg in MS_TARGETS:
+                ax.axhline(tg, color="C3", ls="--", lw=0.6, alpha=0.5)
+            w, h = sc["size"]
+            title = (f"multiple scattering: {sc['scene']} {w}x{h} (ref: path {sc['reference']['spp']} spp, "
+                     f"depth {sc['reference']['max_depth']})")
+        elif kind == "volume":
             ax.axhline(sc["reference"]["se_rms"], color="grey", ls=":", lw=1,
                        label="reference noise (se rms)")
             title = f"volume: {sc['scene']} (ref: tracking {sc['reference']['spp']} spp)"
@@ -367,7 +553,8 @@ def plot(record, path):
             axis.set_major_formatter(fmt)
             axis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(2.0, 5.0)))
             axis.set_minor_formatter(fmt)
-        ax.set_ylabel("RMSE (RGB) vs reference")
+        ax.set_ylabel("relative RMSE vs path-traced reference" if kind == "ms" else
+                      "RMSE (RGB) vs reference")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     for ax in list(axes.flat)[len(panels):]:
@@ -394,13 +581,25 @@ def main(argv=None):
                          "launches / compute units (median), for a CPU device on a shared host")
     ap.add_argument("--no-volume", action="store_true", help="skip the volume scenes")
     ap.add_argument("--no-glass", action="store_true", help="skip the glass scenes")
-    ap.add_argument("--out", default=None, help="results tag: error_<tag>.json/.png (default: device)")
+    ap.add_argument("--no-ms", action="store_true", help="skip the multiple-scattering section")
+    ap.add_argument("--ms-size", default=None, help="multiple-scattering image size (96x72; quick 32x24)")
+    ap.add_argument("--ms-ref-spp", type=int, default=None,
+                    help="path reference spp per batch (default 1024; quick 64)")
+    ap.add_argument("--fit-octaves", action="store_true",
+                    help="grid over the octave scales and counts against the path reference")
+    ap.add_argument("--tag", default=None, help="added to the results' name: error_<device>-<tag>.json")
     args = ap.parse_args(argv)
     if args.quick and args.size == ap.get_default("size"):
         args.size = "48x36"
     args.repeat = args.repeat or (1 if args.quick else 5)
     args.ref_spp = args.ref_spp or (64 if args.quick else None)
     args.ref_batches = args.ref_batches or (4 if args.quick else 16)
+    args.ms_ref_spp = args.ms_ref_spp or (64 if args.quick else 1024)
+    try:
+        args.ms_size = tuple(int(v) for v in (args.ms_size or ("32x24" if args.quick else "96x72"))
+                             .lower().split("x"))
+    except ValueError:
+        ap.error(f"--ms-size takes WxH, got {args.ms_size!r}")
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
     except ValueError:
@@ -408,18 +607,21 @@ def main(argv=None):
     dev = device.get(args.device)
     cores = int(dev.device.max_compute_units)
     args.basis = (args.time, cores)
-    tag = args.out or (device_tag(dev) + ("-quick" if args.quick else ""))
-    path = RESULTS / f"error_{tag}.json"
+    path = result_path("error", dev, "-".join(t for t in (args.tag, "quick" if args.quick else None) if t))
     record = {"benchmark": "error", "size": [width, height], "repeat": args.repeat,
               "quick": args.quick, **device_info(dev),
               "reference_volume": f"tracking, {args.ref_batches} batches (spp per scene below)",
               "reference_glass": GLASS_REF, "time_basis": args.time,
               "time_label": ("kernel ms per frame (median of runs)" if args.time == "kernel" else
                              f"kernel-equivalent ms: CPU ms of the launches / {cores} cores (median)"),
-              "load_average_start": os.getloadavg(), "volume": [], "glass": []}
+              "load_average_start": os.getloadavg(), "volume": [], "glass": [],
+              "multiple_scattering": []}
     t0 = time.perf_counter()
     if not args.no_volume:
         run_volume(dev, width, height, args, record)
+        write_json(path, record)
+    if not args.no_ms:
+        run_ms(dev, args, record)
         write_json(path, record)
     if not args.no_glass:
         run_glass(dev, width, height, args, record)

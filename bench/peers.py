@@ -38,18 +38,20 @@ import sys
 import tempfile
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+                          shared_data, stats, write_json)
 from volrender import camera as camera_mod, device, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, render_volume  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_FILE = ROOT.parent / "shared" / "data" / "vdb" / "smoke.vdb"
+DEFAULT_FILE = shared_data() / "vdb" / "smoke.vdb"
 LIBLLVM16 = "/usr/lib/x86_64-linux-gnu/libLLVM-16.so.1"
 # per-file scene: density scale (sigma_t per world unit per grid value), vertical fov,
 # sun irradiance. smoke: as bench/volume.py; demo_cloud: as `bash run.sh demo`.
@@ -328,8 +330,10 @@ def dense_grid(b):
     return dense
 
 
-def mitsuba_scene(mi, b, cam, sun, scene, phase, spp=1):
-    """Scene dict (for mi.load_dict) and a JSON-able description of it."""
+def mitsuba_scene(mi, b, cam, sun, scene, phase, spp=1, max_depth=2, rr_depth=1000):
+    """Scene dict (for mi.load_dict) and a JSON-able description of it. max_depth 2 is
+    single scattering; volrender's --max-depth N is Mitsuba's N + 1 (Mitsuba counts the
+    segment to the light)."""
     dense = dense_grid(b)
     n = np.array(dense.shape, np.float64)
     # Mitsuba's gridvolume spans [0,1]^3 with CELL-CENTRED data: data[z, y, x] sits at
@@ -350,7 +354,7 @@ def mitsuba_scene(mi, b, cam, sun, scene, phase, spp=1):
     T = mi.ScalarTransform4f
     desc = {
         "type": "scene",
-        "integrator": {"type": "volpath", "max_depth": 2, "rr_depth": 1000},
+        "integrator": {"type": "volpath", "max_depth": max_depth, "rr_depth": rr_depth},
         "sensor": {"type": "perspective", "fov": cam.fov, "fov_axis": "y",
                    "to_world": f"look_at(origin={list(cam.origin)}, target={list(cam.target)}, up={list(cam.up)})",
                    "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
@@ -524,6 +528,111 @@ def mitsuba_section(args, b, cam, sun, scene, dev, mi, variant, note):
             }}
 
 
+# --------------------------------------------------------------------------- path tracing
+
+PATH_FILE = DEFAULT_FILE.parent / "wdas_cloud_sixteenth.vdb"
+PATH_TARGET = 0.02
+
+
+def noise_stats(imgs, secs, spp):
+    """Per-pixel noise of an unbiased estimator from independent batches of `spp`
+    samples: its expected error against the truth is its standard deviation, so
+    rel_noise_1spp = sqrt(mean per-pixel variance of one batch x spp) / value rms, and
+    the time to a relative RMSE e is (rel_noise_1spp / e)^2 x seconds per spp."""
+    imgs = np.asarray(imgs, np.float64)
+    mean = imgs.mean(0)
+    var = imgs.var(0, ddof=1)
+    rms = float(np.sqrt((mean ** 2).mean()))
+    rel1 = float(np.sqrt(var.mean() * spp) / rms)
+    per_spp = float(np.median(secs) / spp)
+    return mean, var / len(imgs), {"batches": len(imgs), "spp_per_batch": spp,
+                                   "total_spp": len(imgs) * spp, "batch_s": list(map(float, secs)),
+                                   "s_per_spp": per_spp, "rel_noise_1spp": rel1,
+                                   "value_rms": rms,
+                                   "time_to_target_s": (rel1 / PATH_TARGET) ** 2 * per_spp,
+                                   "spp_to_target": (rel1 / PATH_TARGET) ** 2}
+
+
+def path_section(args, dev, mi, variant):
+    """volrender --estimator path against Mitsuba volpath at the same max depth on the
+    WDAS cloud: agreement (image mean, per-pixel z of the difference) and the time each
+    needs to reach 2% relative RMSE, from the measured noise (both are unbiased)."""
+    path = args.path_file
+    if not path.exists():
+        return {"skipped": f"{path} not found"}
+    b = vdb.load_volume(path)
+    w, h = args.path_size
+    cam = camera_mod.frame_bounds(*b.world_bounds(), w, h, fov=40.0)
+    sun = Sun(SUN_DIR, 6.0)
+    scale = 0.05 if path.stem.startswith("wdas") else SCENES.get(path.stem, {}).get("density_scale", 1.0)
+    depth = args.path_depth
+    log(f"path scene: {path.name} {w}x{h}, density x{scale}, albedo {ALBEDO}, phase {MIXED_PHASE}, "
+        f"volrender --max-depth {depth} = Mitsuba max_depth {depth + 1}")
+    s = VolumeSettings(density_scale=scale, albedo=ALBEDO, phase=MIXED_PHASE, estimator="path",
+                       max_depth=depth, spp=args.path_vr_spp)
+    render_volume(b, cam, [sun], replace(s, spp=1), dev)                 # program build
+    vr_imgs, vr_secs, vr_cpu = [], [], []
+    for k in range(args.path_batches):
+        with Clock() as c:
+            r = render_volume(b, cam, [sun], replace(s, seed=500 + k), dev)
+        vr_imgs.append(r["rgba"][..., :3])
+        vr_secs.append(c.wall)
+        vr_cpu.append(c.cpu)
+    v_mean, v_var, v_stats = noise_stats(vr_imgs, vr_secs, args.path_vr_spp)
+    v_stats["cpu_s_per_spp"] = float(np.median(vr_cpu) / args.path_vr_spp)
+    log(f"  volrender: {v_stats['total_spp']} spp, {v_stats['s_per_spp'] * 1e3:.1f} ms/spp, "
+        f"noise at 1 spp {v_stats['rel_noise_1spp']:.1%}")
+    d, desc, _ = mitsuba_scene(mi, b, cam, sun, {"density_scale": scale}, MIXED_PHASE,
+                               max_depth=depth + 1, rr_depth=5)
+    sc = mi.load_dict(d)
+    np.asarray(mi.render(sc, spp=1, seed=99))                             # JIT warm-up
+    mi_imgs, mi_secs, mi_cpu = [], [], []
+    for k in range(args.path_batches):
+        with Clock() as c:
+            img = np.asarray(mi.render(sc, spp=args.path_mi_spp, seed=700 + k), np.float64)[..., :3]
+        mi_imgs.append(img)
+        mi_secs.append(c.wall)
+        mi_cpu.append(c.cpu)
+    del sc
+    m_mean, m_var, m_stats = noise_stats(mi_imgs, mi_secs, args.path_mi_spp)
+    m_stats["cpu_s_per_spp"] = float(np.median(mi_cpu) / args.path_mi_spp)
+    log(f"  mitsuba: {m_stats['total_spp']} spp, {m_stats['s_per_spp'] * 1e3:.1f} ms/spp, "
+        f"noise at 1 spp {m_stats['rel_noise_1spp']:.1%}")
+    # the variance floor keeps pixels whose few batches happened to agree exactly (dim
+    # pixels, or the sky) from dividing by ~0
+    floor = (1e-4 * v_stats["value_rms"]) ** 2
+    z = (m_mean - v_mean) / np.sqrt(np.maximum(m_var + v_var, floor))
+    lit = (v_mean + m_mean).max(axis=-1) > 1e-3 * max(float(v_mean.max()), 1e-30)
+    se_ratio = float(np.sqrt(m_var.sum() / m_mean.sum() ** 2 + v_var.sum() / v_mean.sum() ** 2))
+    agree = {"mean_ratio_mitsuba_over_volrender": float(m_mean.mean() / v_mean.mean()),
+             "mean_ratio_se": se_ratio,
+             "z_rms": float(np.sqrt((z[lit] ** 2).mean())),
+             "frac_abs_z_over_3": float((np.abs(z[lit]) > 3).mean()),
+             "frac_abs_z_over_4": float((np.abs(z[lit]) > 4).mean()),
+             "pixels": int(lit.sum()),
+             "note": ("z = (Mitsuba - volrender) / sqrt(se_M^2 + se_V^2) per pixel and channel "
+                      "(se from K batches each); the same estimand gives z about t-distributed: "
+                      "rms ~ sqrt((K-1)/(K-3)) (1.18 for K = 8) and ~2% beyond 3 for K = 8 "
+                      "(0.27% for a normal)")}
+    ratio = {basis: (m_stats[k] * m_stats["spp_to_target"]) / (v_stats[k] * v_stats["spp_to_target"])
+             for basis, k in (("wall", "s_per_spp"), ("cpu", "cpu_s_per_spp"))}
+    scale_px = 640 * 480 / (w * h)
+    log(f"  agreement: image mean Mitsuba / volrender {agree['mean_ratio_mitsuba_over_volrender']:.4f} "
+        f"(+- {se_ratio:.4f}), per-pixel z rms {agree['z_rms']:.2f}, |z| > 3: {agree['frac_abs_z_over_3']:.2%}")
+    log(f"  time to {PATH_TARGET:.0%}: volrender {v_stats['time_to_target_s']:.1f} s, Mitsuba "
+        f"{m_stats['time_to_target_s']:.1f} s at {w}x{h} (x{scale_px:.0f} at 640x480): "
+        f"Mitsuba / volrender x{ratio['wall']:.1f} (CPU x{ratio['cpu']:.1f})")
+    return {"file": str(path), "size": [w, h], "density_scale": scale, "albedo": ALBEDO,
+            "phase": MIXED_PHASE, "volrender_max_depth": depth, "mitsuba_max_depth": depth + 1,
+            "mitsuba_rr_depth": 5, "volrender_rr_depth": 4, "variant": variant,
+            "volrender": v_stats, "mitsuba": m_stats, "agreement": agree,
+            "target_rel_rmse": PATH_TARGET, "time_ratio_mitsuba_over_volrender": ratio,
+            "time_to_target_640x480_s": {"volrender": v_stats["time_to_target_s"] * scale_px,
+                                         "mitsuba": m_stats["time_to_target_s"] * scale_px,
+                                         "how": "scaled by the pixel count from the measured size"},
+            "scene": desc}
+
+
 # --------------------------------------------------------------------------- plot
 
 def plot(payload, path):
@@ -532,6 +641,8 @@ def plot(payload, path):
     import matplotlib.pyplot as plt
     from matplotlib.ticker import NullFormatter
     ms, vs = payload.get("mitsuba_scene"), payload.get("vdb_scene")
+    ps = payload.get("path_scene")
+    ps = ps if ps and "volrender" in ps else None
     cores = payload["cpu_count"] or 1
     if payload["time_basis"] == "wall":
         xlabel = "render time (wall), s"
@@ -541,9 +652,25 @@ def plot(payload, path):
         xlabel = f"CPU time / {cores} cores, s"
         vr_t = lambda r: r["volrender"]["cpu_s"]["median"] / cores  # noqa: E731
         vdb_t = lambda r: r["vdb_render"]["process_cpu_s"]["median"] / cores  # noqa: E731
-    panels = [p for p in (ms, vs) if p]
+    panels = [p for p in (ms, vs, ps) if p]
     fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.4), squeeze=False)
     axes = list(axes[0])
+    if ps:
+        ax = axes.pop()
+        for name, st, col in (("volrender --estimator path", ps["volrender"], "C0"),
+                              (f"Mitsuba volpath ({ps['variant']})", ps["mitsuba"], "C1")):
+            per = st["s_per_spp"] if payload["time_basis"] == "wall" else st["cpu_s_per_spp"] / cores
+            spp = np.geomspace(1, 4 * st["spp_to_target"], 50)
+            ax.loglog(spp * per, st["rel_noise_1spp"] / np.sqrt(spp), "-", color=col, label=name)
+            ax.loglog([st["total_spp"] * per], [st["rel_noise_1spp"] / np.sqrt(st["total_spp"])], "o",
+                      color=col)
+        ax.axhline(ps["target_rel_rmse"], color="grey", lw=0.7, ls=":")
+        w, h = ps["size"]
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("relative RMSE (from the measured noise)")
+        ax.set_title(f"path tracing, {Path(ps['file']).name} {w}x{h}, depth {ps['volrender_max_depth']} "
+                     f"(dots: what was rendered)", fontsize=9)
+        ax.legend(fontsize=7)
     if ms:
         ax = axes.pop(0)
         vr = ms["volrender"]
@@ -595,7 +722,8 @@ def plot(payload, path):
     for ax in fig.axes:
         ax.xaxis.set_minor_formatter(NullFormatter())
     size = payload["size"]
-    fig.suptitle(f"{payload['file']} {size[0]}x{size[1]}, {payload['device']}", fontsize=9)
+    fig.suptitle((f"{payload['file']} {size[0]}x{size[1]}, " if ms or vs else "") + payload["device"],
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -656,6 +784,28 @@ def tables(payload) -> str:
                 ratio = row["ratio_mitsuba_over_volrender_box"]
                 out.append(f"| {float(target):.0%} | {basis} | {cell(row['volrender_box'])} | {cell(row['volrender_all'])} "
                            f"| {cell(row['mitsuba'])} | {'n/a' if ratio is None else f'x{ratio:.0f}'} |")
+    ps = payload.get("path_scene")
+    if ps and "volrender" in ps:
+        v, m, a = ps["volrender"], ps["mitsuba"], ps["agreement"]
+        w, h = ps["size"]
+        out += ["", f"Path tracing ({Path(ps['file']).name}, {w}x{h}, volrender --max-depth "
+                f"{ps['volrender_max_depth']} = Mitsuba volpath max_depth {ps['mitsuba_max_depth']}, "
+                f"{ps['variant']}); errors from the measured noise of {v['batches']} independent "
+                f"batches each.", "",
+                "| renderer | spp (batches x spp) | ms per spp (wall) | CPU s / core per spp | noise at 1 spp | time to 2% here | at 640x480 |",
+                "|---|---:|---:|---:|---:|---:|---:|"]
+        cores = payload.get("cpu_count") or 1
+        for name, st in (("volrender path", v), ("Mitsuba volpath", m)):
+            t640 = ps["time_to_target_640x480_s"]["volrender" if st is v else "mitsuba"]
+            out.append(f"| {name} | {st['total_spp']} ({st['batches']} x {st['spp_per_batch']}) "
+                       f"| {st['s_per_spp'] * 1e3:.1f} | {st['cpu_s_per_spp'] / cores:.3f} "
+                       f"| {st['rel_noise_1spp']:.0%} | {st['time_to_target_s']:.1f} s | {t640:.0f} s |")
+        r = ps["time_ratio_mitsuba_over_volrender"]
+        out += ["", f"Image mean Mitsuba / volrender {a['mean_ratio_mitsuba_over_volrender']:.4f} "
+                f"(standard error {a['mean_ratio_se']:.4f}); per pixel and channel the difference "
+                f"over its standard error has rms {a['z_rms']:.2f} and exceeds 3 in "
+                f"{a['frac_abs_z_over_3']:.2%} of {a['pixels']} pixels. Time to 2%: Mitsuba / "
+                f"volrender x{r['wall']:.1f} wall, x{r['cpu']:.1f} CPU."]
     return "\n".join(out)
 
 
@@ -678,11 +828,22 @@ def main(argv=None):
     ap.add_argument("--mitsuba-variant", default="auto", help="auto = llvm_ad_rgb, else scalar_rgb")
     ap.add_argument("--mi-spp", type=ints, default=None, help="Mitsuba spp list (default 1,4,16,64,256)")
     ap.add_argument("--vr-spp", type=ints, default=None, help="volrender spp list (default 1,2,4,8,16)")
-    ap.add_argument("--no-vdb-render", action="store_true")
-    ap.add_argument("--no-mitsuba", action="store_true")
+    ap.add_argument("--no-vdb-render", action="store_true", help="leave out OpenVDB's vdb_render")
+    ap.add_argument("--no-mitsuba", action="store_true", help="leave out Mitsuba 3")
+    ap.add_argument("--no-path", action="store_true", help="skip the path-traced comparison")
+    ap.add_argument("--path-only", action="store_true",
+                    help="only the path-traced comparison (no vdb_render, no single scattering)")
+    ap.add_argument("--path-file", type=Path, default=PATH_FILE,
+                    help="volume of the path-traced comparison (default: the WDAS cloud)")
+    ap.add_argument("--path-size", default=None, help="its image size (default 160x120; quick 80x60)")
+    ap.add_argument("--path-depth", type=int, default=None,
+                    help="volrender --max-depth (Mitsuba max_depth is one more; default volrender's)")
+    ap.add_argument("--path-batches", type=int, default=None, help="independent batches (default 8; quick 4)")
+    ap.add_argument("--path-vr-spp", type=int, default=None, help="volrender spp per batch (default 64)")
+    ap.add_argument("--path-mi-spp", type=int, default=None, help="Mitsuba spp per batch (default 16)")
     ap.add_argument("--time", choices=["wall", "cpu"], default="wall",
                     help="time axis of the plot: wall seconds, or CPU seconds / cores (both are recorded)")
-    ap.add_argument("--tag", default=None, help="results file suffix (default: from the device)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: peers_<device>-<tag>.json")
     ap.add_argument("--table", type=Path, default=None, metavar="RESULTS.json",
                     help="only print the Markdown tables of an earlier run")
     args = ap.parse_args(argv)
@@ -691,13 +852,20 @@ def main(argv=None):
         print(tables(json.loads(args.table.read_text())))
         return 0
     if not args.file.exists():
-        log(f"bench/peers.py: {args.file} not found; skipping the peer comparison "
-            f"(give --file scenes/demo_cloud.vdb to run it on the bundled cloud)")
-        return 0
+        log(f"bench/peers.py: {missing_data(str(args.file))}; or give --file "
+            f"scenes/demo_cloud.vdb to compare on the bundled cloud")
+        return 2
     size = args.size or ("160x120" if args.quick else "320x240")
     width, height = (int(v) for v in size.lower().split("x"))
     args.mi_spp = args.mi_spp or [1, 4, 16, 64, 256]
     args.vr_spp = args.vr_spp or [1, 2, 4, 8, 16]
+    from volrender.volume import MAX_DEPTH
+    args.path_size = tuple(int(v) for v in (args.path_size or ("80x60" if args.quick else "160x120"))
+                           .lower().split("x"))
+    args.path_depth = args.path_depth or MAX_DEPTH
+    args.path_batches = args.path_batches or (4 if args.quick else 8)
+    args.path_vr_spp = args.path_vr_spp or (16 if args.quick else 64)
+    args.path_mi_spp = args.path_mi_spp or (4 if args.quick else 16)
     t_start = time.perf_counter()
     load_before = loadavg()
 
@@ -725,7 +893,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory(prefix="peers-") as tmpd:
         tmp = Path(tmpd)
         exe = shutil.which("vdb_render")
-        if args.no_vdb_render:
+        if args.no_vdb_render or args.path_only:
             payload["vdb_scene"] = None
         elif exe is None:
             log("peers: vdb_render not found (apt-get install libopenvdb-tools); skipping it")
@@ -747,19 +915,25 @@ def main(argv=None):
                 "(bash run.sh peers installs mitsuba 3.5.x)")
             payload["mitsuba_scene"] = {"skipped": str(e)}
         else:
-            payload["mitsuba_scene"] = {"phase": MIXED_PHASE,
-                                        **mitsuba_section(args, b, cam, sun, scene, dev, mi, variant, note)}
+            if args.path_only:
+                payload["mitsuba_scene"] = None
+            else:
+                payload["mitsuba_scene"] = {"phase": MIXED_PHASE,
+                                            **mitsuba_section(args, b, cam, sun, scene, dev, mi,
+                                                              variant, note)}
+            if not args.no_path:
+                payload["path_scene"] = path_section(args, dev, mi, variant)
 
     payload["loadavg_after"] = loadavg()
     payload["total_s"] = time.perf_counter() - t_start
-    tag = args.tag or (device_tag(dev) + ("-quick" if args.quick else ""))
-    out = write_json(RESULTS / f"peers_{tag}.json", payload)
+    out = write_json(result_path("peers", dev, "-".join(t for t in (args.tag, "quick" if args.quick else None) if t)), payload)
     ran = {k: (v if v and "skipped" not in v else None) for k, v in payload.items()
-           if k in ("mitsuba_scene", "vdb_scene")}
+           if k in ("mitsuba_scene", "vdb_scene", "path_scene")}
     if any(ran.values()):
         plot({**payload, **ran}, out.with_suffix(".png"))
     log(tables(payload))
-    log(f"wrote {out} and {out.with_suffix('.png').name} in {payload['total_s']:.0f} s")
+    log(f"wrote {out}" + (f" and {out.with_suffix('.png').name}" if any(ran.values()) else "")
+        + f" in {payload['total_s']:.0f} s")
     return 0
 
 

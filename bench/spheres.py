@@ -13,7 +13,7 @@ field's work (GlassSettings variant "stats"): evaluations per pixel, tests per e
 (node tests or cell lookups, sphere tests) and the SIMD efficiency of 8x4-pixel warps.
 Brute force runs only while one render of it takes under --brute-limit seconds. Lit
 variants are compared with the first lit one of their count (brute force where it ran).
-Writes bench/results/spheres_<tag>.json (every run) and .png and prints a table.
+Writes bench/results/spheres_<device>[-<tag>].json (every run) and .png and prints a table.
 """
 from __future__ import annotations
 
@@ -26,15 +26,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import RESULTS, device_info, device_tag, stats, write_json  # noqa: E402
+from bench.common import CONVERTED, device_info, result_path, shared_data, stats, write_json  # noqa: E402
 from volrender import device, glass, points  # noqa: E402
 from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 
 SUN = Sun((-0.5, -1.0, -0.4), 3.0)
 COUNTS = [1000, 3000, 10_000, 100_000, 1_000_000]
-ROOT = Path(__file__).resolve().parents[1]
-# scanned clouds (../shared/data/points, or bench/data where that is absent): file and
+# scanned clouds (shared_data()/points, or bench/data where that is absent): file and
 # settings. "-default" = what a user gets without options; the others are the issue's
 # look-good settings (one smooth piece of glass).
 SCANS = {
@@ -146,8 +145,7 @@ def _print(row):
 
 
 def scan_path(name):
-    for base in (ROOT.parent / "shared" / "data" / "points", ROOT / "bench" / "data",
-                 Path("/work/shared/data/points")):
+    for base in (shared_data() / "points", CONVERTED):
         if (base / name).is_file():
             return base / name
     return None
@@ -156,15 +154,19 @@ def scan_path(name):
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench spheres", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--size", default="640x480")
-    ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS))
-    ap.add_argument("--counts", type=ints, default=COUNTS)
-    ap.add_argument("--accel", type=words, default=["grid", "tree", "none"])
-    ap.add_argument("--lit", type=words, default=["lit", "unlit"])
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--bounces", type=int, default=2)
-    ap.add_argument("--tile", type=parse_tile, default=(8, 8))
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--size", default="640x480", help="image size WxH (default: 640x480)")
+    ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS),
+                    help="point generator (default: blob)")
+    ap.add_argument("--counts", type=ints, default=COUNTS,
+                    help="sphere counts, comma-separated (default: 1000 ... 1000000)")
+    ap.add_argument("--accel", type=words, default=["grid", "tree", "none"],
+                    help="accelerations, comma-separated (default: grid,tree,none)")
+    ap.add_argument("--lit", type=words, default=["lit", "unlit"],
+                    help="lighting, comma-separated: lit (one sun), unlit (default: both)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed renders per variant (default: 3)")
+    ap.add_argument("--bounces", type=int, default=2, help="glass surface events per path (default: 2)")
+    ap.add_argument("--tile", type=parse_tile, default=(8, 8), help="work-group WxH (default: 8x8)")
     ap.add_argument("--brute-limit", type=float, default=60.0,
                     help="seconds: stop brute force once one render takes longer")
     ap.add_argument("--dispatch", type=words, default=["fragment", "tiled"],
@@ -181,13 +183,12 @@ def main(argv=None):
     ap.add_argument("--no-sweep", action="store_true", help="only the scans")
     ap.add_argument("--cell-factor", type=float, default=None,
                     help="grid: cell edge = this times the median radius (default: automatic)")
-    ap.add_argument("--tag", default=None)
+    ap.add_argument("--tag", default=None, help="added to the results' name: spheres_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
     sw, sh = (int(v) for v in (args.scan_size or args.size).lower().split("x"))
     dev = device.get(args.device)
-    tag = (args.tag or device_tag(dev)) + ("-opaque" if args.opaque else "")
-    path = RESULTS / f"spheres_{tag}.json"
+    path = result_path("spheres", dev, "-".join(t for t in (args.tag, "opaque" if args.opaque else None) if t))
     rows, uber_rows, scan_rows = [], [], []
     cache = Cached()
     glass.pack_scene = cache
@@ -254,7 +255,8 @@ def main(argv=None):
         file, opts = SCANS[name]
         src = scan_path(file)
         if src is None:
-            print(f"scan {name}: {file} not found (../shared/data/points or bench/data); skipped")
+            print(f"scan {name}: {file} not found in {shared_data() / 'points'} or {CONVERTED}; "
+                  "skipped")
             continue
         cloud = points.load_points(src)
         if cloud.radii is None:

@@ -24,4 +24,11 @@ inline float2 vr_pixel_jitter(__constant Camera* cam, uint pixel, uint s)
     return q - floor(q);
 }
 
+/* A sample's radiance, safe to sum over 65536 of them: NaN -> 0, each channel at most
+   VR_SAMPLE_MAX (volrender/layout.py). The identity for every ordinary value. */
+inline float3 vr_safe_sample(float3 L)
+{
+    return fmin(select(L, (float3)(0.0f), isnan(L)), (float3)(VR_SAMPLE_MAX));
+}
+
 #endif

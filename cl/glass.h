@@ -3,6 +3,8 @@
 #ifndef VR_GLASS_H
 #define VR_GLASS_H
 
+#include "env.h"
+
 /* Exact unpolarised dielectric Fresnel reflectance. cos_i in [0, 1] on the incident
    side, eta = n_incident / n_transmitted. Total internal reflection -> 1; eta 1 -> 0. */
 inline float glass_fresnel(float cos_i, float eta)
@@ -55,22 +57,10 @@ inline float3 glass_sky(float3 d)
     return mix(horizon, ground, 1.0f - exp(-12.0f * dn));
 }
 
-/* Equirectangular map, bilinear: u = 0.5 + atan2(x, -z) / 2pi (image centre looks along
-   -z), v = acos(y) / pi (top row looks up). */
+/* Equirectangular map, bilinear (env.h, shared with the volume kernels). */
 inline float3 glass_env_map(__global const float4* env, int w, int h, float3 d)
 {
-    float u = 0.5f + atan2(d.x, -d.z) * (0.5f / VR_PI);
-    float v = acos(clamp(d.y, -1.0f, 1.0f)) * (1.0f / VR_PI);
-    if (!(isfinite(u) && isfinite(v)))
-        return (float3)(0.0f);
-    float fx = u * (float)w - 0.5f, fy = clamp(v * (float)h - 0.5f, 0.0f, (float)(h - 1));
-    float x0f = floor(fx), y0f = floor(fy);
-    float ax = fx - x0f, ay = fy - y0f;
-    int x0 = ((int)x0f % w + w) % w, x1 = (x0 + 1) % w;
-    int y0 = (int)y0f, y1 = min(y0 + 1, h - 1);
-    float3 a = mix(env[y0 * w + x0].xyz, env[y0 * w + x1].xyz, ax);
-    float3 b = mix(env[y1 * w + x0].xyz, env[y1 * w + x1].xyz, ax);
-    return mix(a, b, ay);
+    return vr_env_map(env, w, h, d);
 }
 
 #endif

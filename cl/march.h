@@ -1,32 +1,75 @@
-/* Ray marching helpers of the single-scattering marcher (render_volume.cl): the shadow
-   march and the in-scattered light at a sample. Include after volume.h, phase.h and
-   lights.h. Reads VR_N_SUNS, VR_N_POINTS, VR_SHADOWS. */
+/* Ray marching helpers of the marcher (render_volume.cl): the shadow march, the
+   in-scattered light at a sample with its multiple-scattering octaves, and the
+   environment's share. Include after volume.h, phase.h, lights.h and env.h. Reads
+   VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_CHROMATIC, VR_MS_OCTAVES, VR_ENV.
+
+   Octaves (Wrenninge, Kulla and Lundqvist 2013, "Oz: the great and volumetric"): the
+   light scattered at a sample is sum_k b^k p(mu; c^k g) T_light^(a^k), k < VR_MS_OCTAVES,
+   with T_light = exp(-tau) the light's transmittance: octave k sees sigma_t scaled by
+   a^k, contributes b^k and scatters with g scaled by c^k, a stand-in for the light that
+   reaches the sample after more than one scattering. One shadow march gives tau for
+   every octave. VR_MS_OCTAVES 1 is plain single scattering, bit for bit as before. */
 #ifndef VR_MARCH_H
 #define VR_MARCH_H
 
 #define VR_SHADOW_TAU_STOP 25.0f   /* exp(-25) ~ 1e-11: light fully blocked */
+#define VR_ENV_DIMS 0x80000000u    /* random dims of the environment samples, per step */
 
-#if VR_N_SUNS + VR_N_POINTS > 0
+/* Optical depth (grey: density_scale x the grid integral; the channels scale it by
+   VR_EXTINCTION) from local p along dl (local per world unit) over world length tmax,
+   clipped to the box, marched at the shadow step. Stops once it passes tau_stop. */
+inline float vr_march_tau(const VrGrid* g, __constant VolumeParams* vp, float3 p, float3 dl,
+                          float tmax, float u, float tau_stop)
+{
+    float2 tt = vr_ray_box(p, 1.0f / dl, (float3)(0.0f), vp->box_hi.xyz);
+    float t1 = fmin(tt.y, tmax);
+    if (t1 <= 0.0f)
+        return 0.0f;
+    return vr_optical_depth(g, p, dl, 0.0f, t1, vp->shadow_step, u, vp->density_scale, tau_stop);
+}
+
+/* A light's shadow optical depth: vr_march_tau, or 0 without shadows (--no-shadows
+   leaves the lights unattenuated; the environment always is). */
+inline float vr_shadow_tau(const VrGrid* g, __constant VolumeParams* vp, float3 p, float3 dl,
+                           float tmax, float u, float tau_stop)
+{
+#if VR_SHADOWS
+    return vr_march_tau(g, vp, p, dl, tmax, u, tau_stop);
+#else
+    return 0.0f;
+#endif
+}
+
 /* Transmittance from local point p towards light `dl` (local per world unit) over
    world length tmax, clipped to the volume box. */
 inline float vr_shadow(const VrGrid* g, __constant VolumeParams* vp, float3 p, float3 dl,
                        float tmax, float u)
 {
-#if VR_SHADOWS
-    float2 tt = vr_ray_box(p, 1.0f / dl, (float3)(0.0f), vp->box_hi.xyz);
-    float t1 = fmin(tt.y, tmax);
-    if (t1 <= 0.0f)
-        return 1.0f;
-    float tau = vr_optical_depth(g, p, dl, 0.0f, t1, vp->shadow_step, u, vp->density_scale,
-                                 VR_SHADOW_TAU_STOP);
-    return vr_transmit(tau);
-#else
-    return 1.0f;
-#endif
+    return vr_transmit(vr_shadow_tau(g, vp, p, dl, tmax, u, VR_SHADOW_TAU_STOP));
 }
 
-/* Sum over lights of phase * irradiance * light transmittance at local point p.
-   `wo` is the world direction towards the camera. */
+#if VR_MS_OCTAVES > 1 || VR_CHROMATIC
+/* The octave sum at cosine mu over shadow optical depth tau (one octave: p T). */
+inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau)
+{
+    VrSpec sum = 0.0f;
+    float ak = 1.0f, bk = 1.0f, ck = 1.0f;
+    for (int k = 0; k < VR_MS_OCTAVES; ++k) {
+        float4 ph = (float4)(vp->phase.x * ck, vp->phase.y * ck, vp->phase.z, 0.0f);
+        sum += bk * vr_phase(mu, ph) * vr_spec_transmit(ak * tau * VR_EXTINCTION(vp));
+        ak *= vp->ms.x;
+        bk *= vp->ms.y;
+        ck *= vp->ms.z;
+    }
+    return sum;
+}
+/* where the shadow march may stop: every octave's (and channel's) light below 1e-4 */
+#define VR_TAU_STOP(vp) ((vp)->ms.w)
+#endif
+
+#if VR_N_SUNS + VR_N_POINTS > 0
+/* Sum over lights of phase * irradiance * light transmittance at local point p (with
+   octaves: the octave sum). `wo` is the world direction towards the camera. */
 inline float3 vr_inscatter(const VrGrid* g, __constant VolumeParams* vp,
                            __constant Light* lights, float3 p, float3 wo,
                            uint seed, uint pixel, uint s, uint step)
@@ -39,10 +82,75 @@ inline float3 vr_inscatter(const VrGrid* g, __constant VolumeParams* vp,
         float tmax, atten;
         if (!vr_light_at(vp, lights, i, p, &dl, &tmax, &prop, &atten))
             continue;
+#if VR_MS_OCTAVES > 1 || VR_CHROMATIC
+        float tau = vr_shadow_tau(g, vp, p, dl, tmax, vr_rand(seed, pixel, s, dim++),
+                                  VR_TAU_STOP(vp));
+        sum += vr_octaves(vp, dot(prop, wo), tau) * lights[i].radiance.xyz / atten;
+#else
         float tr = vr_shadow(g, vp, p, dl, tmax, vr_rand(seed, pixel, s, dim++));
         sum += vr_phase(dot(prop, wo), vp->phase) * tr * lights[i].radiance.xyz / atten;
+#endif
     }
     return sum;
+}
+#endif
+
+#if VR_ENV
+/* Environment radiance arriving along world direction w (towards the environment). */
+inline float3 vr_env_radiance(__constant VolumeParams* vp, __global const float4* env, float3 w)
+{
+#if VR_ENV == 1
+    (void)env; (void)w;
+    return vp->env_radiance.xyz;
+#else
+    return vr_env_map(env, vp->env_width, vp->env_height, w);
+#endif
+}
+
+/* The environment's single-scattered light at local p, `d` the camera ray's world
+   direction, from one direction per step: drawn from the phase (octave 0), or (a map)
+   from the phase or the map with probability 1/2 each, weighted by the mixture density
+   (one-sample multiple importance sampling, balance heuristic). Octaves as for lights. */
+inline float3 vr_env_inscatter(const VrGrid* g, __constant VolumeParams* vp,
+                               __global const float4* env, __global const float* cdf,
+                               float3 p, float3 d, uint seed, uint pixel, uint s, uint step)
+{
+    uint dim = VR_ENV_DIMS + step * 8u;
+    float u0 = vr_rand(seed, pixel, s, dim), u1 = vr_rand(seed, pixel, s, dim + 1u);
+    float u2 = vr_rand(seed, pixel, s, dim + 2u), u3 = vr_rand(seed, pixel, s, dim + 3u);
+    float3 w;
+    float pdf_mix = 1.0f;
+#if VR_ENV == 2
+    float pdf_env;
+    if (u0 < 0.5f) {
+        w = vr_phase_sample(vp->phase, d, 2.0f * u0, u1, u2);
+        pdf_env = vr_env_pdf(cdf, vp->env_width, vp->env_height, w);
+    } else {
+        w = vr_env_sample(cdf, vp->env_width, vp->env_height, u1, u2, &pdf_env);
+    }
+    float p0 = vr_phase(dot(w, d), vp->phase);
+    pdf_mix = 0.5f * (p0 + pdf_env);
+    if (!(pdf_mix > 0.0f))
+        return (float3)(0.0f);
+#else
+    (void)cdf;
+    w = vr_phase_sample(vp->phase, d, u0, u1, u2);
+    float p0 = vr_phase(dot(w, d), vp->phase);
+#endif
+    float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, w);
+#if VR_MS_OCTAVES > 1 || VR_CHROMATIC
+    float tau = vr_march_tau(g, vp, p, dl, INFINITY, u3, VR_TAU_STOP(vp));
+    VrSpec f = vr_octaves(vp, dot(w, d), tau);
+#else
+    VrSpec f = p0 * vr_transmit(vr_march_tau(g, vp, p, dl, INFINITY, u3, VR_SHADOW_TAU_STOP));
+#endif
+#if VR_ENV == 1
+    f = f / p0;                 /* phase sampling: p / pdf = 1 for octave 0 */
+#else
+    f = f / pdf_mix;
+    (void)p0;
+#endif
+    return f * vr_env_radiance(vp, env, w);
 }
 #endif
 

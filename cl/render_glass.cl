@@ -35,7 +35,8 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
                   __global const TreeNode* restrict nodes, __global const float4* env,
                   __global const float4* restrict colors, __global const int2* restrict bricks,
                   __global const int2* restrict cells, __global const int4* restrict lists,
-                  __global const int2* restrict runs, __global float4* out, int y0)
+                  __global const int2* restrict runs, __global float4* out, int y0, int s0,
+                  int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
 #if VR_TILED
@@ -85,18 +86,33 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
     int3 stats = (int3)(0);
     sc.stats = &stats;
 #endif
+    /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
     float3 acc = (float3)(0.0f);
     float cover = 0.0f;
-    for (int s = 0; s < cam->spp; ++s) {
+    if (s0 > 0) {
+        acc = out[pixel].xyz;
+        cover = out[pixel].w;
+    }
+#if VR_STATS
+    float3 before = acc;
+#endif
+    for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 d = vr_camera_dir(cam, x, y, j.x, j.y);
         int covered;
-        acc += glass_path(&sc, gp, lights, env, cam->origin.xyz, d, &covered);
+        acc += vr_safe_sample(glass_path(&sc, gp, lights, env, cam->origin.xyz, d, &covered));
         cover += (float)covered;
+    }
+#if VR_STATS
+    acc = before + convert_float3(stats);            /* the totals so far */
+#endif
+    if (s1 < cam->spp) {               /* more samples follow in a later launch */
+        out[pixel] = (float4)(acc, cover);
+        return;
     }
     float inv = 1.0f / (float)cam->spp;
 #if VR_STATS
-    acc = convert_float3(stats) * (float)cam->spp;   /* so that * inv gives the totals */
+    acc *= (float)cam->spp;                          /* so that * inv gives the totals */
 #endif
     out[pixel] = (float4)(acc * inv, cover * inv);
 }

@@ -1,6 +1,9 @@
-/* Single-scattering volume renderer (DESIGN.md estimand), one work-item per pixel.
+/* Ray-marching volume renderer, one work-item per pixel: single scattering (DESIGN.md
+   estimand) with VR_MS_OCTAVES 1, or its multiple-scattering octaves (march.h); lit by
+   the lights and the environment (VR_ENV 1 uniform, 2 a map: one direction per step).
    Flags: VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_PHASE_MIXED, VR_SKIP_EMPTY,
-          VR_EMISSION, VR_DEPTH, VR_TILED, VR_TILE_W, VR_TILE_H, VR_TILE_CAP.
+          VR_EMISSION, VR_DEPTH, VR_TILED, VR_TILE_W, VR_TILE_H, VR_TILE_CAP,
+          VR_CHROMATIC, VR_ENV, VR_MS_OCTAVES, VR_TEMPERATURE.
 
    Dispatch (volrender/dispatch.py):
    fragment (VR_TILED 0): independent work-items, any local size, no local memory.
@@ -15,7 +18,8 @@
 #if !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || !defined(VR_SHADOWS) || \
     !defined(VR_PHASE_MIXED) || !defined(VR_SKIP_EMPTY) || !defined(VR_EMISSION) || \
     !defined(VR_DEPTH) || !defined(VR_TILED) || !defined(VR_TILE_W) || \
-    !defined(VR_TILE_H) || !defined(VR_TILE_CAP)
+    !defined(VR_TILE_H) || !defined(VR_TILE_CAP) || !defined(VR_CHROMATIC) || \
+    !defined(VR_ENV) || !defined(VR_MS_OCTAVES) || !defined(VR_TEMPERATURE)
 #error "render_volume.cl: a VR_* feature flag is missing (see volrender/features.py)"
 #endif
 
@@ -26,11 +30,14 @@
 #include "volume.h"
 #include "volume_tile.h"
 #include "lights.h"
+#include "env.h"
 #include "march.h"
 
 #define VR_T_CUTOFF 1e-5f          /* stop marching once the view transmittance is below */
 
-/* occ: the occupied bricks' coordinates (n_occ of them), read only by tiled culling. */
+/* occ: the occupied bricks' coordinates (n_occ of them), read only by tiled culling.
+   temperature: the temperature grid (VR_TEMPERATURE), bb: the blackbody table; env, cdf:
+   the environment map and its sampling CDFs (VR_ENV 2). */
 #if VR_TILED
 __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
 #endif
@@ -38,8 +45,10 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                             __constant Light* lights,
                             __global const int* table, __global const float* data,
                             __global const float* emission,
+                            __global const float* temperature, __global const float4* bb,
+                            __global const float4* env, __global const float* cdf,
                             __global float4* out, __global float* depth,
-                            __global const int4* occ, int n_occ, int y0)
+                            __global const int4* occ, int n_occ, int y0, int s0, int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
     float3 o = cam->origin.xyz;
@@ -62,9 +71,18 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
     VrGrid g = { vp->dims, table, data };
     float dt = vp->step;
 
+    /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
     float3 acc = (float3)(0.0f);
     float acc_alpha = 0.0f, acc_depth = 0.0f, acc_depth_w = 0.0f;
-    for (int s = 0; s < cam->spp; ++s) {
+    if (s0 > 0) {
+        acc = out[pixel].xyz;
+        acc_alpha = out[pixel].w;
+#if VR_DEPTH
+        acc_depth = depth[2 * pixel];
+        acc_depth_w = depth[2 * pixel + 1];
+#endif
+    }
+    for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 dir = vr_camera_dir(cam, x, y, j.x, j.y);    /* world */
         float3 d = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, dir);
@@ -86,9 +104,67 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
         }
 #endif
 
+#if VR_CHROMATIC
+        /* per-channel media: the same march with a transmittance per channel */
+        float3 L = (float3)(0.0f);
+        float3 T = (float3)(1.0f);
+        float dsum = 0.0f, dw = 0.0f;
+        float3 ext = vp->extinction.xyz, alb = vp->albedo_rgb.xyz;
+        for (int k = k0; t0 < t_end && k < VR_MAX_RAY_SAMPLES; ++k) {
+            float t = t0 + ((float)k + u) * dt;
+            if (t >= t_end || vr_spec_max(T) < VR_T_CUTOFF)
+                break;
+            float3 p = o + t * d;
+            float3 cf = floor(p);
+            int3 c = convert_int3(cf);
+            int slot = vr_brick_slot(&g, c);
+            if (slot < 0) {
+#if VR_SKIP_EMPTY
+                float te = vr_empty_exit(&g, o, inv_d, p);
+                k = max(k, (int)ceil((te - t0) / dt - u) - 1);
+#endif
+                continue;
+            }
+            float3 f = p - cf;
+            float sigma = vp->density_scale * vr_trilinear(data, slot, c, f);
+            float3 sigma_t = sigma * ext;
+            float3 tau = sigma_t * dt;
+            float3 a = 1.0f - vr_spec_transmit(tau);
+#if VR_EMISSION
+            float e = vr_trilinear(emission, slot, c, f);
+            if (e > 0.0f) {
+                float3 len = select(a / sigma_t, (float3)(dt), tau <= 1e-4f);
+                L += T * e * len * vr_emission_color(vp, temperature, bb, slot, c, f);
+            }
+#endif
+            if (vr_spec_max(a) > 0.0f) {
+#if VR_N_SUNS + VR_N_POINTS > 0 || VR_ENV
+                float3 S = (float3)(0.0f);
+#if VR_N_SUNS + VR_N_POINTS > 0
+                S = vr_inscatter(&g, vp, lights, p, -dir, cam->seed, pixel, (uint)s, (uint)k);
+#endif
+#if VR_ENV
+                S += vr_env_inscatter(&g, vp, env, cdf, p, dir, cam->seed, pixel, (uint)s, (uint)k);
+#endif
+                L += T * a * alb * S;
+#endif
+#if VR_DEPTH
+                float w = vr_spec_mean(T * a);
+                dsum += w * t;
+                dw += w;
+#endif
+                T *= 1.0f - a;
+            }
+        }
+#if VR_ENV
+        L += T * (vp->background.xyz + vp->env_visible * vr_env_radiance(vp, env, dir));
+#else
+        L += T * vp->background.xyz;
+#endif
+#else
         float3 L = (float3)(0.0f);
         float T = 1.0f, dsum = 0.0f, dw = 0.0f;
-        for (int k = k0; t0 < t_end; ++k) {
+        for (int k = k0; t0 < t_end && k < VR_MAX_RAY_SAMPLES; ++k) {
             float t = t0 + ((float)k + u) * dt;
             if (t >= t_end || T < VR_T_CUTOFF)
                 break;
@@ -98,7 +174,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {            /* empty brick: density and emission are zero */
 #if VR_SKIP_EMPTY
-                float te = vr_brick_exit(o, inv_d, p);
+                float te = vr_empty_exit(&g, o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
                 continue;
@@ -112,12 +188,22 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             if (e > 0.0f) {
                 /* integral of T(s) over the step, per unit emission: (1-e^-tau)/sigma_t */
                 float len = tau > 1e-4f ? a / sigma_t : dt;
+#if VR_TEMPERATURE
+                L += T * e * len * vr_emission_color(vp, temperature, bb, slot, c, f);
+#else
                 L += T * e * len * vp->emission_color.xyz;
+#endif
             }
 #endif
             if (a > 0.0f) {
+#if VR_N_SUNS + VR_N_POINTS > 0 || VR_ENV
+                float3 S = (float3)(0.0f);
 #if VR_N_SUNS + VR_N_POINTS > 0
-                float3 S = vr_inscatter(&g, vp, lights, p, -dir, cam->seed, pixel, (uint)s, (uint)k);
+                S = vr_inscatter(&g, vp, lights, p, -dir, cam->seed, pixel, (uint)s, (uint)k);
+#endif
+#if VR_ENV
+                S += vr_env_inscatter(&g, vp, env, cdf, p, dir, cam->seed, pixel, (uint)s, (uint)k);
+#endif
                 L += T * a * vp->albedo * S;
 #endif
 #if VR_DEPTH
@@ -127,15 +213,30 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 T *= 1.0f - a;
             }
         }
+#if VR_ENV
+        L += T * (vp->background.xyz + vp->env_visible * vr_env_radiance(vp, env, dir));
+#else
         L += T * vp->background.xyz;
-        acc += L;
-        acc_alpha += 1.0f - T;
+#endif
+#endif
+        acc += vr_safe_sample(L);
+        acc_alpha += 1.0f - vr_spec_mean(T);
         acc_depth += dsum;
         acc_depth_w += dw;
+    }
+#if VR_DEPTH
+    depth[2 * pixel + 1] = acc_depth_w;
+#endif
+    if (s1 < cam->spp) {               /* more samples follow in a later launch */
+        out[pixel] = (float4)(acc, acc_alpha);
+#if VR_DEPTH
+        depth[2 * pixel] = acc_depth;
+#endif
+        return;
     }
     float inv = 1.0f / (float)cam->spp;
     out[pixel] = (float4)(acc * inv, acc_alpha * inv);
 #if VR_DEPTH
-    depth[pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
+    depth[2 * pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
 #endif
 }

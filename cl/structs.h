@@ -6,6 +6,8 @@
 #define VR_APRON 9
 #define VR_BRICK_VALUES 729
 #define VR_MAX_LIGHTS 64
+#define VR_MAX_RAY_SAMPLES 16777216
+#define VR_SAMPLE_MAX 1e+33f
 #define VR_CELL_BRICK 8
 #define VR_CELL_OUTSIDE -1
 #define VR_CELL_INSIDE -2
@@ -32,7 +34,7 @@ typedef struct {  /* 32 bytes */
     float4 radiance;
 } Light;
 
-typedef struct {  /* 208 bytes */
+typedef struct {  /* 304 bytes */
     float4 world_to_local0;
     float4 world_to_local1;
     float4 world_to_local2;
@@ -44,14 +46,26 @@ typedef struct {  /* 208 bytes */
     float4 emission_color;
     float4 phase;
     int4 dims;
+    float4 albedo_rgb;
+    float4 extinction;
+    float4 env_radiance;
+    float4 ms;
     float density_scale;
     float albedo;
     float step;
     float shadow_step;
     float point_r2_min;
-    float _pad0;
-    float _pad1;
-    float _pad2;
+    int env_width;
+    int env_height;
+    float env_visible;
+    float emission_scale;
+    float temp_scale;
+    float temp_offset;
+    float bb_a;
+    float bb_b;
+    int max_depth;
+    int rr_depth;
+    int bb_n;
 } VolumeParams;
 
 typedef struct {  /* 32 bytes */

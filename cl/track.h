@@ -1,7 +1,19 @@
 /* Tracking on the brick majorants: a DDA walk over tentative collisions (delta and
-   ratio tracking share it), stiff-media bulk intervals, Russian roulette, and the
-   ratio-tracked shadow ray (track_volume.cl explains the estimators).
-   Include after volume.h, phase.h and lights.h. Reads VR_N_SUNS, VR_N_POINTS, VR_SHADOWS. */
+   ratio tracking share it), stiff-media bulk intervals, Russian roulette, the
+   ratio-tracked shadow ray and a path segment's walk (path_volume.cl explains the
+   estimators). Include after volume.h, phase.h and lights.h. Reads VR_N_SUNS,
+   VR_N_POINTS, VR_SHADOWS, VR_EMISSION, VR_CHROMATIC.
+
+   Per-channel media (VR_CHROMATIC): the majorant bounds the largest channel
+   (density_scale x max s x the brick maximum). Ratio tracking keeps one weight per
+   channel, prod (1 - sigma_c / mu), unbiased for each channel's transmittance. Delta
+   tracking decides real or null with the throughput-weighted mean probability
+   P = sum_c beta_c sigma_c / (mu sum_c beta_c) (Kutz et al. 2017, "spectral tracking"
+   with the history-aware average) and multiplies each channel's throughput by its own
+   ratio to it: sigma_s,c / (mu P) at a real collision, (1 - sigma_c / mu) / (1 - P) at
+   a null one. P is positive wherever any channel has sigma_c > 0 and below 1 wherever
+   one has sigma_c < mu, so every channel stays unbiased; grey media give P = sigma/mu
+   and the weights albedo and 1, plain delta tracking. */
 #ifndef VR_TRACK_H
 #define VR_TRACK_H
 
@@ -170,56 +182,148 @@ inline float vr_roulette(float w, float u)
     return u * VR_RR_W < w ? VR_RR_W : 0.0f;
 }
 
-#if VR_N_SUNS + VR_N_POINTS > 0
-/* Ratio-tracked transmittance from local point p along dl (local per world unit)
-   over world length tmax, clipped to the volume box. */
-inline float vr_track_shadow(const VrGrid* g, __global const float* maj,
-                             __constant VolumeParams* vp, float3 p, float3 dl, float tmax,
-                             uint seed, uint pixel, uint s, uint dim)
+/* Ratio-tracked transmittance (per channel) from local point p along dl (local per
+   world unit) over world length tmax, clipped to the volume box, drawing from the
+   running dimension counter *dim; rouletted below VR_RR_W on its largest channel. */
+inline VrSpec vr_shadow_ratio(const VrGrid* g, __global const float* maj,
+                              __constant VolumeParams* vp, float3 p, float3 dl, float tmax,
+                              uint seed, uint pixel, uint s, uint* dim)
 {
-#if VR_SHADOWS
     float2 tt = vr_ray_box(p, 1.0f / dl, (float3)(0.0f), vp->box_hi.xyz);
     float t0 = fmax(tt.x, 0.0f), t1 = fmin(tt.y, tmax);
     if (!(t1 > t0))
         return 1.0f;
     VrTrack k;
     vr_track_init(&k, g, maj, p, dl, t0, t1);
-    float w = 1.0f;
-    while (vr_track_next(&k, g, maj, 0, seed, pixel, s, &dim)) {
+    VrSpec w = 1.0f;
+    while (vr_track_next(&k, g, maj, 0, seed, pixel, s, dim)) {
         float sigma = vr_track_sigma(&k, g, vp->density_scale, k.t);
         if (k.bulk > 0.0f)
-            w *= vr_transmit(0.5f * (sigma + vr_track_sigma(&k, g, vp->density_scale,
-                                                             k.t + k.bulk)) * k.bulk);
+            w *= vr_spec_transmit(0.5f * (sigma + vr_track_sigma(&k, g, vp->density_scale,
+                                                                  k.t + k.bulk)) * k.bulk
+                                  * VR_EXTINCTION(vp));
         else
-            w *= 1.0f - fmin(sigma / k.mu, 1.0f);
-        w = vr_roulette(w, vr_rand(seed, pixel, s, dim++));
-        if (w <= 0.0f)
+            w *= 1.0f - fmin(sigma * VR_EXTINCTION(vp) / k.mu, 1.0f);
+        float m = vr_spec_max(w);
+        float r = vr_roulette(m, vr_rand(seed, pixel, s, (*dim)++));
+        if (r <= 0.0f)
             return 0.0f;
+        w *= r / m;
     }
     return w;
-#else
-    return 1.0f;
-#endif
 }
 
-/* Sum over lights of phase * irradiance * ratio-tracked transmittance at local p;
-   `wo` is the world direction towards the camera. */
-inline float3 vr_track_inscatter(const VrGrid* g, __global const float* maj,
-                                 __constant VolumeParams* vp, __constant Light* lights,
-                                 float3 p, float3 wo, uint seed, uint pixel, uint s)
+/* What one path segment o + t d, t in [t0, t1), gathers (path_volume.cl). */
+typedef struct {
+    VrSpec w;        /* ratio-tracking weight at t1: E[w] = T(t0, t1) per channel */
+    float3 le;       /* ratio-weighted emission: E[le] = int T e C dt */
+    int hit;         /* delta tracking found a real collision */
+    float tc;        /* its parameter (world distance) */
+    float3 x;        /* its local position */
+    VrSpec wt;       /* the throughput factor it carries: E[wt; hit in dt] = T sigma_s dt */
+} VrSegment;
+
+/* One walk over the segment's tentative collisions serving both estimators: ratio
+   tracking (`ratio`: the weight w to t1 and, with `emit`, the emission along the way;
+   w is rouletted below VR_RR_W) and delta tracking (`delta`: the first real collision,
+   chosen with the spectral-tracking probability for throughput `beta`; see the top of
+   this file). The walk ends when neither needs more points. Stiff media: bulk
+   intervals (VR_BULK_*) give the ratio weight exp(-tau) and a collision with
+   probability 1 - exp(-tau), at the offset where the channel-mean optical depth
+   reaches its share. */
+inline void vr_segment(const VrGrid* g, __global const float* maj,
+                       __global const float* emission, __global const float* temperature,
+                       __global const float4* bb, __constant VolumeParams* vp,
+                       float3 o, float3 d, float t0, float t1, int ratio, int emit, int delta,
+                       VrSpec beta, uint seed, uint pixel, uint s, uint* dim, VrSegment* out)
 {
-    float3 sum = (float3)(0.0f);
-    for (int i = 0; i < VR_N_SUNS + VR_N_POINTS; ++i) {
-        float3 dl, prop;
-        float tmax, atten;
-        if (!vr_light_at(vp, lights, i, p, &dl, &tmax, &prop, &atten))
-            continue;
-        float tr = vr_track_shadow(g, maj, vp, p, dl, tmax, seed, pixel, s,
-                                   (uint)(i + 1) * VR_LIGHT_DIMS);
-        sum += vr_phase(dot(prop, wo), vp->phase) * tr * lights[i].radiance.xyz / atten;
-    }
-    return sum;
-}
+    out->w = 1.0f;
+    out->le = (float3)(0.0f);
+    out->hit = 0;
+    out->tc = 0.0f;
+    out->x = o;
+    out->wt = 0.0f;
+    if (!(t1 > t0))
+        return;
+    VrSpec wnull = 1.0f;         /* delta tracking's null-collision weights so far */
+    int live = 1;                /* the ratio weight is still > 0 */
+    VrTrack k;
+    vr_track_init(&k, g, maj, o, d, t0, t1);
+    while ((delta || (ratio && live))
+           && vr_track_next(&k, g, maj, VR_EMISSION ? emission : 0, seed, pixel, s, dim)) {
+        float3 p = o + k.t * d;
+        float3 f;
+        int3 c = vr_track_cell(&k, p, &f);
+        float sigma = vp->density_scale * vr_trilinear(g->data, k.slot, c, f);
+        /* ratio: the chance this point is a real collision (per channel); len: the
+           emission estimator's length (1/mu at a point; over a bulk interval, the
+           integral of T within it) */
+        VrSpec ratio_c, len;
+        float sigma1 = 0.0f;
+        if (k.bulk > 0.0f) {
+            sigma1 = vr_track_sigma(&k, g, vp->density_scale, k.t + k.bulk);
+            VrSpec tau = 0.5f * (sigma + sigma1) * k.bulk * VR_EXTINCTION(vp);
+            ratio_c = 1.0f - vr_spec_transmit(tau);
+#if VR_CHROMATIC
+            len = select(ratio_c * (k.bulk / tau), (float3)(k.bulk), tau <= 1e-4f);
+#else
+            len = tau > 1e-4f ? ratio_c * (k.bulk / tau) : k.bulk;
 #endif
+        } else {
+            ratio_c = fmin(sigma * VR_EXTINCTION(vp) / k.mu, 1.0f);
+            len = 1.0f / k.mu;
+        }
+#if VR_EMISSION
+        if (emit && ratio && live) {
+            float e = vr_trilinear(emission, k.slot, c, f);
+            if (e > 0.0f)
+                out->le += out->w * e * len * vr_emission_color(vp, temperature, bb, k.slot, c, f);
+        }
+#else
+        (void)len; (void)emit; (void)temperature; (void)bb;
+#endif
+        if (delta) {
+            float u = vr_rand(seed, pixel, s, (*dim)++);
+#if VR_CHROMATIC
+            float3 h = beta * wnull;
+            float hs = h.x + h.y + h.z;
+            float P = hs > 0.0f ? dot(h, ratio_c) / hs : vr_spec_mean(ratio_c);
+#else
+            float P = ratio_c;
+#endif
+            if (u < P) {
+                delta = 0;
+                out->hit = 1;
+                out->tc = k.t;
+                if (k.bulk > 0.0f) {     /* where in the interval */
+                    float share = fmin(u / P, 1.0f) * vr_spec_mean(ratio_c);
+                    float m = vr_spec_mean(VR_EXTINCTION(vp));
+                    out->tc = k.t + vr_bulk_hit(sigma * m, sigma1 * m, k.bulk, -log(1.0f - share));
+                }
+                out->x = o + out->tc * d;
+#if VR_CHROMATIC
+                out->wt = wnull * ratio_c * VR_ALBEDO(vp) / P;
+#else
+                out->wt = VR_ALBEDO(vp);
+#endif
+            } else {
+#if VR_CHROMATIC
+                wnull *= (1.0f - ratio_c) / (1.0f - P);
+#endif
+            }
+        }
+        if (ratio && live) {
+            out->w *= 1.0f - ratio_c;
+            float m = vr_spec_max(out->w);
+            float r = vr_roulette(m, vr_rand(seed, pixel, s, (*dim)++));
+            if (r <= 0.0f) {
+                out->w = 0.0f;
+                live = 0;
+            } else {
+                out->w *= r / m;
+            }
+        }
+    }
+}
 
 #endif

@@ -1,9 +1,32 @@
-/* Sparse brick volume: trilinear density lookup, empty-brick skipping, shadow march.
+/* Sparse brick volume: trilinear density lookup, empty-brick skipping, shadow march,
+   spectral types and the emission colour (blackbody table, temperature grid).
    Everything here works in the layout's local index space (voxel centres at integer
    coordinates, box [0, dims*8]); ray parameters t are world distances.
-   Reads VR_SKIP_EMPTY, VR_EMISSION; VR_BRICK and VR_BRICK_VALUES come from structs.h. */
+   Reads VR_SKIP_EMPTY, VR_CHROMATIC, VR_TEMPERATURE; VR_BRICK and VR_BRICK_VALUES come
+   from structs.h. */
 #ifndef VR_VOLUME_H
 #define VR_VOLUME_H
+
+/* Per-channel quantities: one float for grey media, float3 with VR_CHROMATIC (an albedo
+   or a sigma_t scale that differs between channels). */
+#if defined(VR_CHROMATIC) && VR_CHROMATIC
+typedef float3 VrSpec;
+inline float vr_spec_max(float3 v) { return fmax(fmax(v.x, v.y), v.z); }
+inline float vr_spec_mean(float3 v) { return (v.x + v.y + v.z) * (1.0f / 3.0f); }
+inline float3 vr_spec_transmit(float3 tau)
+{
+    return (float3)(vr_transmit(tau.x), vr_transmit(tau.y), vr_transmit(tau.z));
+}
+#define VR_EXTINCTION(vp) ((vp)->extinction.xyz)
+#define VR_ALBEDO(vp) ((vp)->albedo_rgb.xyz)
+#else
+typedef float VrSpec;
+inline float vr_spec_max(float v) { return v; }
+inline float vr_spec_mean(float v) { return v; }
+inline float vr_spec_transmit(float tau) { return vr_transmit(tau); }
+#define VR_EXTINCTION(vp) 1.0f
+#define VR_ALBEDO(vp) ((vp)->albedo)
+#endif
 
 typedef struct {
     int4 dims;                        /* bricks per axis */
@@ -39,12 +62,55 @@ inline float vr_lookup(const VrGrid* g, __global const float* data, float3 p)
     return slot < 0 ? 0.0f : vr_trilinear(data, slot, c, p - cf);
 }
 
-/* World parameter where the ray leaves the brick containing point p. */
-inline float vr_brick_exit(float3 o, float3 inv_d, float3 p)
+/* Blackbody colour at `kelvin` from the table (volrender/blackbody.py: entry
+   bb_a / T + bb_b, linear between entries, clamped to the table's range). */
+inline float3 vr_blackbody(__global const float4* bb, __constant VolumeParams* vp, float kelvin)
 {
-    float3 lo = floor(p * (1.0f / VR_BRICK)) * VR_BRICK;
-    float2 tt = vr_ray_box(o, inv_d, lo, lo + (float3)(VR_BRICK));
-    return tt.y;
+    float f = clamp(vp->bb_a / fmax(kelvin, 1.0f) + vp->bb_b, 0.0f, (float)(vp->bb_n - 1));
+    int i = min((int)f, vp->bb_n - 2);
+    return mix(bb[i].xyz, bb[i + 1].xyz, f - (float)i);
+}
+
+/* Emitted radiance per unit length per emission-grid value at cell c + f of brick
+   `slot`: the blackbody colour of the voxel's own temperature (VR_TEMPERATURE), else the
+   one colour of --emission-temperature. */
+inline float3 vr_emission_color(__constant VolumeParams* vp, __global const float* temperature,
+                                __global const float4* bb, int slot, int3 c, float3 f)
+{
+#if defined(VR_TEMPERATURE) && VR_TEMPERATURE
+    float kelvin = vp->temp_offset + vp->temp_scale * vr_trilinear(temperature, slot, c, f);
+    return vp->emission_scale * vr_blackbody(bb, vp, kelvin);
+#else
+    (void)temperature; (void)bb; (void)slot; (void)c; (void)f;
+    return vp->emission_color.xyz;
+#endif
+}
+
+/* World parameter where the ray o + t d leaves the run of empty bricks that starts with
+   the (empty) brick holding p: a DDA over the brick table from there to the first
+   stored brick or out of the layout, so a run of empty bricks costs one table read
+   each instead of a ray-box test per brick and a sample in each. Each face parameter
+   is computed afresh from the brick's integer corner (no accumulated rounding). */
+inline float vr_empty_exit(const VrGrid* g, float3 o, float3 inv_d, float3 p)
+{
+    int3 b = convert_int3(floor(p * (1.0f / VR_BRICK)));
+    int3 step = select((int3)(-1), (int3)(1), inv_d > 0.0f);
+    int3 next = b + select((int3)(0), (int3)(1), inv_d > 0.0f);
+    for (;;) {
+        float3 tf = (convert_float3(next * VR_BRICK) - o) * inv_d;
+        tf = select(tf, (float3)(INFINITY), isnan(tf));
+        float te = fmin(fmin(tf.x, tf.y), tf.z);
+        if (tf.x <= tf.y && tf.x <= tf.z) {
+            b.x += step.x; next.x += step.x;
+        } else if (tf.y <= tf.z) {
+            b.y += step.y; next.y += step.y;
+        } else {
+            b.z += step.z; next.z += step.z;
+        }
+        if (any(b < 0) || any(b >= g->dims.xyz)
+            || g->table[(b.x * g->dims.y + b.y) * g->dims.z + b.z] >= 0)
+            return te;
+    }
 }
 
 /* Optical depth along o + t d, t in [t0, t1), samples at t0 + (k + u) dt. With
@@ -55,7 +121,7 @@ inline float vr_optical_depth(const VrGrid* g, float3 o, float3 d, float t0, flo
 {
     float3 inv_d = 1.0f / d;
     float tau = 0.0f;
-    for (int k = 0;; ++k) {
+    for (int k = 0; k < VR_MAX_RAY_SAMPLES; ++k) {
         float t = t0 + ((float)k + u) * dt;
         if (t >= t1 || tau > tau_stop)
             break;
@@ -65,7 +131,7 @@ inline float vr_optical_depth(const VrGrid* g, float3 o, float3 d, float t0, flo
         int slot = vr_brick_slot(g, c);
         if (slot < 0) {                /* empty brick: density is exactly zero */
 #if VR_SKIP_EMPTY
-            float te = vr_brick_exit(o, inv_d, p);
+            float te = vr_empty_exit(g, o, inv_d, p);
             k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
             continue;

@@ -66,7 +66,7 @@ def tolerance(b, cam, s, lights, peak):
         else:
             r = np.linalg.norm(np.maximum(0.0, np.maximum(lo - l.position, l.position - hi)))
             irradiance += max(l.color) * l.intensity / max(r, 0.5 * b.voxel_size) ** 2
-    scale = s.albedo * p_max * irradiance + max(1.0, peak, max(s.background))
+    scale = max(s.albedo) * p_max * irradiance + max(1.0, peak, max(s.background))
     return 4 * a * scale + 1e-7 * max(1.0, peak)
 
 

@@ -587,3 +587,81 @@ def test_grazing_rays(cl_device, white_env):
             if s.env is not None:
                 assert (img[..., :3] <= 1 + 1e-5).all()
             assert 0 < img[..., 3].mean() < 1
+
+
+# ================================================================== every knob at its bound
+
+from volrender.settings import MAX_VALUE  # noqa: E402
+
+BIG = MAX_VALUE          # the largest radiance-like value any knob accepts
+
+
+@pytest.mark.filterwarnings("ignore:phase g clamped")
+@pytest.mark.parametrize("knobs", [
+    dict(background=(BIG, BIG, BIG), spp=7),                   # the sum over samples
+    dict(emission_scale=BIG, spp=3),                           # times voxels of 3e38
+    dict(density_scale=BIG, background=(BIG,) * 3),
+    dict(lights="suns", phase=(0.999, 0.0, 1.0)),              # 64 suns, HG's peak
+    dict(lights="point at a voxel", shadows=False),
+], ids=["background", "emission", "density", "64_suns", "point_light"])
+def test_volume_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
+    """Every knob at the end of its range, with the data at float32's (emission voxels
+    3e38): the image is finite (each sample's radiance is clamped at layout.SAMPLE_MAX,
+    so a sum over 65536 samples stays below 3.4e38)."""
+    from volrender import layout
+    knobs = dict(knobs)
+    v = ball(N, R)
+    b = Bricks.from_dense(v, scaled(VOX, (-(N - 1) / 2 * VOX,) * 3), emission=v * 3e38)
+    lights = [Sun((0, -1, -1), 1.0)]
+    mode = knobs.pop("lights", None)
+    if mode == "suns":
+        lights = [Sun((np.sin(i), -1.0, np.cos(i)), BIG) for i in range(layout.MAX_LIGHTS)]
+    elif mode == "point at a voxel":
+        lights = [PointLight((0.0, 0.0, 0.0), BIG)]
+    s = VolumeSettings(**knobs, emission_grid="emission" if "emission_scale" in knobs else None)
+    r = render_volume(b, front_camera(12, 9), lights, s, cl_device)["rgba"]
+    finite(r)
+    assert r[..., :3].max() > 1e20               # bright, not blanked
+
+
+@pytest.mark.parametrize("knobs", [
+    dict(glow=BIG, color=(BIG, BIG, BIG), absorption=(0.0, 0.0, 0.0), spp=5),
+    dict(reflectivity=BIG, refraction=False),
+    dict(glow=BIG, absorption=(BIG, BIG, BIG)),                # inf * 0 inside the glass
+    dict(lights="suns"), dict(lights="point at a centre", shininess=1e5),
+], ids=["glow_color", "reflectivity", "absorption", "suns", "point_light"])
+def test_glass_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
+    from volrender import layout
+    knobs = dict(knobs)
+    cloud = points.blob(40, seed=26)
+    lights = [Sun((0.3, -1.0, -0.2), 3.0)]
+    mode = knobs.pop("lights", None)
+    if mode == "suns":
+        lights = [Sun((np.sin(i), -1.0, np.cos(i)), BIG) for i in range(layout.MAX_LIGHTS)]
+    elif mode == "point at a centre":
+        lights = [PointLight(tuple(cloud.centers[0]), BIG)]
+    img = grender(cl_device, cloud, glass.GlassSettings(bounces=4, **knobs), lights=lights)
+    finite(img)
+
+
+def test_environment_texels_beyond_the_range_are_clamped(cl_device, tmp_path):
+    env = np.full((8, 16, 4), 3e38, np.float32)
+    env[0, 0, 0] = np.nan
+    write_image(tmp_path / "hot.exr", env)
+    with pytest.warns(UserWarning, match="environment texel"):
+        s = glass.GlassSettings(env=str(tmp_path / "hot.exr"), reflectivity=BIG, spp=3)
+        img = grender(cl_device, points.blob(30, seed=27), s)
+    finite(img)
+
+
+def test_ranges_refuse_what_would_overflow():
+    """What the bounds refuse, named by the knob (the CLI and scene files name their own
+    spelling: tests/test_bad_input.py)."""
+    for kw in (dict(background=(1e39,) * 3), dict(emission_scale=1e300), dict(step=1e-9),
+               dict(shadow_step=1e-9), dict(density_scale=1e31)):
+        with pytest.raises(UserError):
+            VolumeSettings(**kw)
+    for kw in (dict(glow=1e300), dict(color=(1e31, 0.0, 0.0)), dict(reflectivity=1e300),
+               dict(absorption=(0.0, 0.0, 1e31))):
+        with pytest.raises(UserError):
+            glass.GlassSettings(**kw)

@@ -1,8 +1,7 @@
 import errno
+import io
 import os
-import struct
 import warnings
-import zlib
 
 import numpy as np
 import pytest
@@ -13,23 +12,11 @@ from volrender.image import check_output, read_exr_channels, read_image, to_srgb
 
 
 def decode_png(blob):
-    """Independent minimal decoder: checks signature and CRCs, expects filter type 0."""
-    assert blob[:8] == b'\x89PNG\r\n\x1a\n'
-    pos, chunks = 8, []
-    while pos < len(blob):
-        length, kind = struct.unpack('>I4s', blob[pos:pos + 8])
-        data = blob[pos + 8:pos + 8 + length]
-        (crc,) = struct.unpack('>I', blob[pos + 8 + length:pos + 12 + length])
-        assert crc == zlib.crc32(kind + data) & 0xFFFFFFFF, kind
-        chunks.append((kind, data))
-        pos += 12 + length
-    assert chunks[0][0] == b'IHDR' and chunks[-1] == (b'IEND', b'')
-    w, h, depth, colour, comp, filt, interlace = struct.unpack('>IIBBBBB', chunks[0][1])
-    assert (depth, colour, comp, filt, interlace) == (8, 2, 0, 0, 0)
-    raw = zlib.decompress(b''.join(d for k, d in chunks if k == b'IDAT'))
-    rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, 1 + 3 * w)
-    assert (rows[:, 0] == 0).all()
-    return rows[:, 1:].reshape(h, w, 3)
+    """Pillow's reading of a PNG written here: 8-bit RGBA, non-interlaced."""
+    from PIL import Image as PILImage
+    with PILImage.open(io.BytesIO(blob)) as im:
+        assert im.format == 'PNG' and im.mode == 'RGBA', (im.format, im.mode)
+        return np.asarray(im)
 
 
 def marked_image(rng, h=5, w=7):
@@ -96,18 +83,56 @@ def test_write_overwrites_and_leaves_no_temp(tmp_path):
 
 def test_png_known_values(tmp_path):
     rgba = np.zeros((2, 3, 4), np.float32)
+    rgba[..., 3] = 1.0
     rgba[0, 0, :3] = [0.0, 1.0, 0.5]
     rgba[0, 1, :3] = [2.0, 0.001, 0.0031308]
     rgba[1, 2, :3] = [1.0, 0.0, 0.0]  # bottom right is red
-    rgba[..., 3] = 0.3  # alpha is not written
     out = write_image(tmp_path / 'k.png', rgba, tonemap='clamp')
     px = decode_png(out.read_bytes())
-    assert px.shape == (2, 3, 3) and px.dtype == np.uint8
-    assert px[0, 0].tolist() == [0, 255, 188]
+    assert px.shape == (2, 3, 4) and px.dtype == np.uint8
+    assert px[0, 0].tolist() == [0, 255, 188, 255]
     # 2.0 clamps; 0.001 * 12.92 * 255 = 3.29 -> 3; threshold 0.0031308 -> 10.3 -> 10
-    assert px[0, 1].tolist() == [255, 3, 10]
-    assert px[1, 2].tolist() == [255, 0, 0] and px[1, 0].tolist() == [0, 0, 0]
+    assert px[0, 1].tolist() == [255, 3, 10, 255]
+    assert px[1, 2].tolist() == [255, 0, 0, 255] and px[1, 0].tolist() == [0, 0, 0, 255]
     assert (read_image(out) == px).all()
+
+
+def test_png_straight_alpha(tmp_path, rng):
+    """A premultiplied render c * alpha is written as colour c and alpha alpha (8 bits:
+    within one code); alpha 0 keeps the render's RGB (what lies behind); a known
+    background composited behind is taken out before the division."""
+    c = rng.random((6, 5, 3))
+    a = rng.random((6, 5))
+    a[0, 0], a[0, 1] = 0.0, 1.0
+    rgba = np.concatenate([c * a[..., None], a[..., None]], -1).astype(np.float32)
+    rgba[0, 0, :3] = [0.2, 0.3, 0.4]              # nothing covers it: the background
+    px = decode_png(write_image(tmp_path / 's.png', rgba, tonemap='clamp').read_bytes())
+    assert (px[..., 3] == np.floor(a * 255 + 0.5)).all()
+    want = to_srgb8(c, 0.0, 'clamp').astype(int)
+    want[0, 0] = to_srgb8(np.array([0.2, 0.3, 0.4]), 0.0, 'clamp')
+    covered = a > 0.02                          # c * a rounds to float32: tiny alpha amplifies
+    assert np.abs(px[..., :3].astype(int) - want)[covered].max() <= 1
+    assert (px[0, 0, :3] == want[0, 0]).all()
+    bg = np.array([0.5, 0.1, 0.3])
+    over = rgba.copy()
+    over[..., :3] += (1 - a[..., None]) * bg    # composited over a background
+    px2 = decode_png(write_image(tmp_path / 'b.png', over, tonemap='clamp',
+                                 background=bg).read_bytes())
+    assert np.abs(px2[..., :3].astype(int) - px[..., :3])[covered].max() <= 1
+
+
+def test_png_16_bit(tmp_path, rng):
+    rgba = rng.random((7, 9, 4)).astype(np.float32)
+    rgba[..., 3] = 1.0
+    out = write_image(tmp_path / 'd.png', rgba, tonemap='clamp', png_bits=16)
+    back = read_image(out)
+    assert back.dtype == np.uint16 and back.shape == (7, 9, 4)
+    assert (back[..., :3] == image.to_srgb(rgba[..., :3], 0.0, 'clamp', 16)).all()
+    assert (back[..., 3] == 65535).all()
+    eight = image.to_srgb8(rgba[..., :3], 0.0, 'clamp').astype(int)
+    assert np.abs(back[..., :3] / 257.0 - eight).max() <= 0.5 + 1e-9   # same curve, finer codes
+    with pytest.raises(UserError, match='bit depth'):
+        write_image(tmp_path / 'e.png', rgba, png_bits=12)
 
 
 def test_png_exposure(tmp_path):
@@ -143,10 +168,11 @@ def test_png_non_finite_does_not_crash(tmp_path):
     rgba[0, 1] = np.inf
     rgba[1, 0] = -np.inf
     rgba[1, 1] = [0.5, 0.5, 0.5, 1]
+    rgba[..., 3] = 1
     for tonemap in image.TONEMAPS:
         with pytest.warns(RuntimeWarning, match='non-finite'):
             out = write_image(tmp_path / f'{tonemap}.png', rgba, tonemap=tonemap)
-        px = decode_png(out.read_bytes())
+        px = decode_png(out.read_bytes())[..., :3]
         assert px[0, 0].tolist() == [0, 0, 0] and px[0, 1].tolist() == [255, 255, 255]
         assert px[1, 0].tolist() == [0, 0, 0] and px[1, 1].tolist() == [188] * 3
 
@@ -157,18 +183,16 @@ def test_png_finite_input_does_not_warn(tmp_path):
         write_image(tmp_path / 'f.png', np.full((2, 2, 4), 1e30, np.float32), exposure=8.0)
 
 
-def test_png_matches_pillow(tmp_path, rng):
+def test_png_reads_other_pngs(tmp_path, rng):
+    """read_image takes any PNG Pillow reads (filtered rows, greyscale, palette), as RGBA."""
     PIL = pytest.importorskip('PIL.Image')
-    rgba = rng.random((17, 23, 4), dtype=np.float32) * 2
-    out = write_image(tmp_path / 'p.png', rgba)
-    with PIL.open(out) as im:
-        assert im.mode == 'RGB' and im.size == (23, 17)
-        assert (np.asarray(im) == decode_png(out.read_bytes())).all()
-    # our reader handles Pillow's filtered rows too
     px = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
     px[:, :5] = 7  # smooth part so the encoder picks several filter types
     PIL.fromarray(px).save(tmp_path / 'pil.png', optimize=True)
-    assert (read_image(tmp_path / 'pil.png') == px).all()
+    back = read_image(tmp_path / 'pil.png')
+    assert (back[..., :3] == px).all() and (back[..., 3] == 255).all()
+    PIL.fromarray(px[..., 0]).save(tmp_path / 'grey.png')
+    assert (read_image(tmp_path / 'grey.png')[..., 1] == px[..., 0]).all()
 
 
 def test_unknown_tonemap(tmp_path):
@@ -185,9 +209,8 @@ def test_failed_write_leaves_existing_file(tmp_path, monkeypatch, suffix):
     write_image(out, np.full((4, 4, 4), 0.5, np.float32))
     before = out.read_bytes()
 
-    def failing(tmp, *args):
-        with open(tmp, 'wb') as f:
-            f.write(b'half an image')
+    def failing(f, *args):
+        f.write(b'half an image')
         raise OSError(errno.ENOSPC, 'No space left on device')
 
     monkeypatch.setitem(image._WRITERS, suffix, failing)
@@ -199,8 +222,8 @@ def test_failed_write_leaves_existing_file(tmp_path, monkeypatch, suffix):
 
 
 def test_unexpected_error_also_cleans_up(tmp_path, monkeypatch):
-    def failing(tmp, *args):
-        open(tmp, 'wb').close()
+    def failing(f, *args):
+        f.write(b'x')
         raise KeyboardInterrupt
 
     monkeypatch.setitem(image._WRITERS, '.npy', failing)
@@ -209,14 +232,92 @@ def test_unexpected_error_also_cleans_up(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_real_exr_library_failure_is_user_error(tmp_path, monkeypatch):
-    # Make the OpenEXR writer hit a real I/O error: its temp file is a directory.
-    blocker = tmp_path / 'blocker'
-    blocker.mkdir()
-    monkeypatch.setattr(image, '_new_temp', lambda out: blocker)
-    with pytest.raises(UserError, match='cannot write image'):
-        write_image(tmp_path / 'x.exr', np.zeros((2, 2, 4), np.float32))
-    assert not (tmp_path / 'x.exr').exists()
+@pytest.mark.parametrize('suffix', image.SUFFIXES)
+def test_real_disk_full_is_user_error(tmp_path, monkeypatch, suffix):
+    """The real writers (OpenEXR, numpy, Pillow) on a full disk: the temporary file's
+    writes go to /dev/full, which fails every write with ENOSPC."""
+    if not os.path.exists('/dev/full'):
+        pytest.skip('no /dev/full')
+    from volrender import atomic
+    out = tmp_path / f'x{suffix}'
+    out.write_bytes(b'old')
+    real_fdopen = os.fdopen
+
+    def full(fd, mode='r', *args, **kw):
+        os.close(fd)
+        return real_fdopen(os.open('/dev/full', os.O_WRONLY), mode, *args, **kw)
+
+    monkeypatch.setattr(atomic.os, 'fdopen', full)
+    with pytest.raises(UserError, match='No space left|space') as info:
+        write_image(out, np.zeros((64, 64, 4), np.float32))
+    assert 'free some disk space' in str(info.value)
+    assert out.read_bytes() == b'old' and sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+
+
+def test_temporary_files_are_ours_and_stale_ones_are_swept(tmp_path):
+    """Temporary names carry the writer's pid; a write removes those of processes that
+    are gone (SIGKILL), never a live one's or anyone else's."""
+    from volrender import atomic
+    import subprocess
+    import sys
+    dead = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'],
+                          capture_output=True, text=True).stdout.strip()
+    stale = tmp_path / f'.volrender-{dead}-0123abcd.tmp.png'
+    alive = tmp_path / f'.volrender-{os.getppid()}-0123abcd.tmp.png'
+    other = tmp_path / '.o.png.tmp1234'
+    for p in (stale, alive, other):
+        p.write_bytes(b'x')
+    atomic._SWEPT.discard(tmp_path)
+    write_image(tmp_path / 'o.png', np.zeros((2, 2, 4), np.float32))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(['o.png', alive.name, other.name])
+    assert atomic.TEMP_RE.match(alive.name) and not atomic.TEMP_RE.match(other.name)
+
+
+def test_outputs_symlinks_modes_and_what_is_refused(tmp_path):
+    """Written through a symlink (the link stays); a replaced file keeps its mode, a new
+    one gets 0666 minus the umask; read-only files, FIFOs and symlink loops are refused."""
+    target = tmp_path / 'real.npy'
+    link = tmp_path / 'link.npy'
+    target.write_bytes(b'old')
+    link.symlink_to(target.name)
+    assert write_image(link, np.ones((2, 2, 4), np.float32)) == target
+    assert link.is_symlink() and (read_image(target) == 1).all()
+    target.chmod(0o640)
+    write_image(link, np.zeros((2, 2, 4), np.float32))
+    assert (target.stat().st_mode & 0o777) == 0o640
+    mask = os.umask(0o022)
+    try:
+        fresh = write_image(tmp_path / 'new.npy', np.zeros((1, 1, 4), np.float32))
+    finally:
+        os.umask(mask)
+    assert (fresh.stat().st_mode & 0o777) == 0o644
+    ro = tmp_path / 'ro.npy'
+    ro.write_bytes(b'keep')
+    ro.chmod(0o444)
+    if not os.access(ro, os.W_OK):               # root may write anything
+        with pytest.raises(UserError, match='read-only'):
+            write_image(ro, np.zeros((1, 1, 4), np.float32))
+        assert ro.read_bytes() == b'keep'
+    os.mkfifo(tmp_path / 'pipe.png')
+    with pytest.raises(UserError, match='FIFO'):
+        check_output(tmp_path / 'pipe.png')
+    (tmp_path / 'a.png').symlink_to('b.png')
+    (tmp_path / 'b.png').symlink_to('a.png')
+    with pytest.raises(UserError, match='symlink loop'):
+        check_output(tmp_path / 'a.png')
+    with pytest.raises(UserError, match='bytes long'):
+        check_output(tmp_path / ('x' * 300 + '.png'))
+
+
+def test_any_file_name_is_written(tmp_path):
+    """Names that are not UTF-8 (the EXR library takes str paths only) and names with
+    control characters, which messages escape."""
+    odd = os.fsdecode(b'x\xff\x1b[2J.exr')
+    out = write_image(tmp_path / odd, np.ones((2, 2, 4), np.float32))
+    assert (read_image(out) == 1).all()
+    with pytest.raises(UserError) as info:
+        check_output(tmp_path / os.fsdecode(b'y\x1b]0;owned\x07.jpg'))
+    assert '\x1b' not in str(info.value) and '\\x1b' in str(info.value)
 
 
 # ------------------------------------------------------------------------ validation
@@ -280,7 +381,7 @@ def test_bad_shapes(tmp_path):
 
 
 def test_read_errors(tmp_path):
-    with pytest.raises(UserError, match='not found'):
+    with pytest.raises(UserError, match='no such file'):
         read_image(tmp_path / 'missing.exr')
     (tmp_path / 'junk.exr').write_bytes(b'junk')
     with pytest.raises(UserError, match='OpenEXR'):
@@ -291,3 +392,6 @@ def test_read_errors(tmp_path):
     (tmp_path / 'bad.png').write_bytes(bytes(bad))
     with pytest.raises(UserError, match='corrupt PNG'):
         read_image(tmp_path / 'bad.png')
+    (tmp_path / 'cut.png').write_bytes(good[:40])
+    with pytest.raises(UserError, match='corrupt PNG'):
+        read_image(tmp_path / 'cut.png')

@@ -192,13 +192,13 @@ def err(path, *fragments):
 
 
 def test_missing_file_and_unsupported_suffix(tmp_path):
-    err(tmp_path / "nope.ply", "file not found")
+    err(tmp_path / "nope.ply", "no such file")
     (tmp_path / "a.obj").write_text("v 1 2 3\n")
     err(tmp_path / "a.obj", "unsupported suffix '.obj'", ".ply")
     (tmp_path / "noext").write_text("1 2 3\n")
     err(tmp_path / "noext", "unsupported suffix")
     (tmp_path / "dir.ply").mkdir()
-    err(tmp_path / "dir.ply", "not a regular file")
+    err(tmp_path / "dir.ply", "is a directory")
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".xyz", ".csv", ".npy"])

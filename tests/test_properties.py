@@ -114,6 +114,9 @@ def valid_value(kind, key):
         return st.lists(st.integers(1, 32768), min_size=2, max_size=2)
     if kind == scene.PATH:
         return st.just("pts.xyz")
+    if kind == scene.ENV:         # a map file or a uniform radiance
+        return st.one_of(st.just("pts.xyz"),
+                         st.lists(st.one_of(finite, st.integers(0, 100)), min_size=1, max_size=3))
     raise AssertionError(kind)
 
 
@@ -146,6 +149,10 @@ def wrong_value(kind):
     if kind == scene.PATH:
         return st.one_of(anything.filter(lambda v: not isinstance(v, str)), st.just(""),
                          st.just("missing.ply"), st.just("."), st.just("a\x00b"), st.just("x" * 300))
+    if kind == scene.ENV:
+        return st.one_of(st.booleans(), st.dates(), st.just(""), st.just("missing.exr"),
+                         st.just("."), st.lists(st.text(max_size=2), min_size=1, max_size=3),
+                         st.lists(st.floats(-5, 5), min_size=4, max_size=6))
     raise AssertionError(kind)
 
 
@@ -215,8 +222,10 @@ def expected(kind, v, base):
         return tuple(float(x) for x in v)
     if kind == scene.SIZE:
         return tuple(v)
-    if kind == scene.PATH:
+    if kind == scene.PATH or (kind == scene.ENV and isinstance(v, str)):
         return (base / v).resolve()
+    if kind == scene.ENV:
+        return tuple(float(x) for x in v)
     return v
 
 

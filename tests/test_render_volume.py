@@ -228,7 +228,7 @@ def test_emission_is_integrated_along_the_chord(cl_device):
     c = (n - 1) / 2 * VOX
     b = Bricks.from_dense(ball(n, R), scaled(VOX, (-c, -c, -c)), emission=ball(n, R))
     cam = Camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 8.0, 8, 8)
-    colour = volume_mod.blackbody_rgb(1500.0)
+    colour = volume_mod.emission_color(VolumeSettings())
     for sigma in (0.0, 2.0):
         r = render_volume(b, cam, [], VolumeSettings(density_scale=sigma, emission_scale=2.0, step=0.25),
                           cl_device)["rgba"]

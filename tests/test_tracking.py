@@ -1,4 +1,4 @@
-"""The tracking estimator (cl/track_volume.cl): unbiased against closed forms and against
+"""The tracking estimator (cl/path_volume.cl at max depth 1): unbiased against closed forms and against
 fine ray marching, with tolerances derived from the estimator's own sample variance.
 
 Every pixel is an independent estimate (the RNG is keyed by pixel), so where all pixels
@@ -14,7 +14,7 @@ from volrender import cli, reference
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
-from volrender.volume import (ESTIMATORS, VolumeSettings, blackbody_rgb, render_volume,
+from volrender.volume import (ESTIMATORS, VolumeSettings, emission_color, render_volume,
                               track_majorants)
 from volrender.vdb import Bricks
 from conftest import ROOT
@@ -104,7 +104,7 @@ def test_slab_emission_and_background(cl_device):
         s = VolumeSettings(density_scale=sigma, spp=256, seed=11, background=bg,
                            emission_scale=0.5, estimator="track")
         assert np.all(track_majorants(slab, s) > 0)
-        col = 0.5 * blackbody_rgb(s.emission_temperature)
+        col = emission_color(s)
         r = render_volume(slab, cam, [], s, cl_device)["rgba"]
         T = np.exp(-sigma * THICK / cz)
         emitted = THICK / cz if sigma == 0 else (1 - T) / sigma
@@ -116,7 +116,7 @@ def test_slab_emission_and_background(cl_device):
 def test_stiff_slab_reaches_the_half_space_limit(cl_device, slab, sigma):
     """Optical depth 6e4 and 6e8 across the slab: mean free paths far below what a float
     ray parameter resolves (1e9) switch the walk to whole intervals with a linear density
-    (cl/track_volume.cl, VR_BULK_*), exact on the slab's linear ramp. The closed form
+    (cl/track.h, VR_BULK_*), exact on the slab's linear ramp. The closed form
     tends to albedo p E / (1 + c), independent of sigma."""
     sun = Sun((0.0, 0.0, -1.0), 3.0)
     cam = top_camera(8)
@@ -196,7 +196,7 @@ def test_tracking_image_does_not_depend_on_the_launch(cl_device):
 
 
 def test_estimator_is_validated(tmp_path, capsys):
-    assert ESTIMATORS == ("march", "track")
+    assert ESTIMATORS == ("march", "track", "path")
     with pytest.raises(UserError, match="estimator"):
         VolumeSettings(estimator="monte-carlo")
     out = tmp_path / "o.png"
@@ -219,12 +219,14 @@ def test_cli_renders_with_tracking(tmp_path, capsys):
 def test_error_bench_quick_run(tmp_path, monkeypatch):
     """bench/error.py --quick end to end (volumes only), writing into tmp_path."""
     import json
-    from bench import error
-    monkeypatch.setattr(error, "RESULTS", tmp_path)
+    from bench import common, error
+    monkeypatch.setattr(common, "RESULTS", tmp_path)
     assert error.main(["--quick", "--no-glass", "--size", "24x18", "--ref-spp", "16",
-                       "--out", "t"]) == 0
-    rec = json.loads((tmp_path / "error_t.json").read_text())
-    assert (tmp_path / "error_t.png").stat().st_size > 0
+                       "--tag", "t"]) == 0
+    (path,) = tmp_path.glob("error_*-t-quick.json")     # the device's tag, then ours
+    rec = json.loads(path.read_text())
+    assert path.with_suffix(".png").stat().st_size > 0
+    assert rec["commit"] and rec["argv"] and rec["timing"] == "warm"
     demo = rec["volume"][0]
     assert demo["scene"] == "demo_cloud" and demo["reference"]["spp"] == 64
     rows = demo["rows"]
@@ -232,3 +234,10 @@ def test_error_bench_quick_run(tmp_path, monkeypatch):
     assert any(r["pareto"] for r in rows)
     for r in rows:
         assert r["time_ms"] > 0 and np.isfinite(r["rmse"]) and r["max_abs"] >= r["rmse"] * 0.99
+    ms = rec["multiple_scattering"][0]            # path reference, path and octave rows
+    assert ms["scene"] == "demo_cloud" and ms["reference"]["estimator"] == "path"
+    assert {"path", "octaves"} <= {r["group"] for r in ms["rows"]}
+    assert set(ms["path_time_to_error"]) == {"0.05", "0.02", "0.01"}
+    # single scattering is darker than the multiply scattered reference
+    one = next(r for r in ms["rows"] if r["label"] == "march 1 octaves, 4 spp")
+    assert one["mean_ratio"] < 0.9 and ms["reference"]["single_over_multiple"] < 0.9

@@ -270,6 +270,90 @@ def _saved(b, path):
     return path
 
 
+@pytest.mark.parametrize("edit,msg", [
+    (lambda z: z.update(dims=np.array([1 << 30] * 3, np.int64)), "dims"),
+    (lambda z: z.update(dims=np.array([2, 0, 1], np.int32)), "dims"),
+    (lambda z: z.update(majorant=-z["majorant"]), "majorants are negative"),
+    (lambda z: z.update(majorant=z["majorant"] * 0.5), "below the largest value"),
+    (lambda z: z.update(index_to_world=np.diag([1.0, 1.0, 1e-7, 1.0])), "nearly singular"),
+    (lambda z: z.update(index_to_world=np.diag([1e-30, 1e-30, 1e-30, 1.0])), "scales voxels"),
+    (lambda z: z.update(index_to_world=np.eye(4) + np.eye(4)[::-1] * 0.5), "not affine"),
+    (lambda z: z.update(origin=np.array([1 << 40, 0, 0], np.int64)), "int32"),
+    (lambda z: z.update(table=np.zeros_like(z["table"])), "twice"),
+], ids=["dims_overflow", "dims_zero", "negative_majorant", "low_majorant", "near_singular",
+        "tiny_scale", "not_affine", "origin", "shared_slot"])
+def test_corrupt_caches_are_refused(tmp_path, edit, msg):
+    """Caches are validated fully: dims against the table, majorants against the data,
+    a well-conditioned affine transform."""
+    b = V.Bricks.from_dense(np.random.default_rng(3).random((20, 9, 9)).astype(np.float32))
+    z = dict(np.load(_saved(b, tmp_path / "ok.npz")))
+    edit(z)
+    np.savez(tmp_path / "bad.npz", **z)
+    with pytest.raises(UserError, match=msg) as e:
+        V.load_volume(tmp_path / "bad.npz")
+    assert "corrupt brick cache" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_cache_member_headers_are_checked_against_their_size(tmp_path):
+    """A member whose .npy header claims more than the member holds is refused before
+    numpy allocates what it claims."""
+    import zipfile
+    b = V.Bricks.from_dense(np.ones((9, 9, 9), np.float32))
+    good = _saved(b, tmp_path / "ok.npz")
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(tmp_path / "lie.npz", "w") as dst:
+        for info in src.infolist():
+            data = src.read(info)
+            if info.filename == "data.npy":          # same header length: eat padding
+                import re
+                new = re.sub(rb"'shape': \((\d+),", b"'shape': (999999999,", data, count=1)
+                grown = len(new) - len(data)
+                end = new.index(b"\n")
+                data = new[:end - grown] + new[end:]
+            dst.writestr(info, data)
+    with pytest.raises(UserError, match="corrupt brick cache.*header says shape"):
+        V.load_volume(tmp_path / "lie.npz")
+
+
+def test_nan_voxels_in_a_cache_warn_and_read_as_zero(tmp_path):
+    v = np.ones((9, 9, 9), np.float32)
+    b = V.Bricks.from_dense(v)
+    z = dict(np.load(_saved(b, tmp_path / "ok.npz")))
+    z["data"] = z["data"].copy()
+    z["data"][0, 1, 1, 1], z["data"][0, 2, 2, 2], z["data"][0, 3, 3, 3] = np.nan, np.inf, -4.0
+    z["majorant"] = np.full_like(z["majorant"], np.nan)
+    np.savez(tmp_path / "nan.npz", **z)
+    with pytest.warns(UserWarning) as rec:
+        c = V.load_volume(tmp_path / "nan.npz")
+    text = " ".join(str(w.message) for w in rec)
+    assert "2 NaN/Inf" in text and "1 negative" in text
+    assert np.isfinite(c.data).all() and c.data.min() == 0.0
+    np.testing.assert_array_equal(c.majorant, c.data.reshape(len(c.data), -1).max(1))
+
+
+def test_vdb_descriptors_must_point_forwards(tmp_path):
+    """Offsets are never trusted: each grid lies after its descriptor, in order, inside
+    the file; counts must fit the file."""
+    import struct
+    def string(x):
+        return struct.pack("<I", len(x)) + x
+    head = struct.pack("<qIII", 0x56444220, 224, 10, 0) + b"\x01" + b"0" * 36 + struct.pack("<I", 0)
+    desc = string(b"density") + string(b"Tree_float_5_4_3") + string(b"")
+    start = len(head) + 4
+    good = head + struct.pack("<i", 1) + desc
+    g = len(good) + 24
+    cases = {"back": good + struct.pack("<qqq", 17, 17, start),
+             "past": good + struct.pack("<qqq", g, g, g + 10 ** 6) + bytes(8),
+             "many": head + struct.pack("<i", 2 ** 31 - 1) + desc + struct.pack("<qqq", g, g, g + 8)}
+    words = {"back": "out of order", "past": "past the end", "many": "cannot fit"}
+    ok = good + struct.pack("<qqq", g, g + 8, g + 8) + bytes(8)
+    (tmp_path / "ok.vdb").write_bytes(ok)
+    assert [x.name for x in V.list_grids(tmp_path / "ok.vdb")] == ["density"]
+    for name, data in cases.items():
+        (tmp_path / f"{name}.vdb").write_bytes(data)
+        with pytest.raises(UserError, match=words[name]):
+            V.list_grids(tmp_path / f"{name}.vdb")
+
+
 # ----------------------------------------------------------------- bad input
 
 def test_bad_paths(tmp_path):

@@ -11,10 +11,20 @@ AOVs, timings and the device name.
 """
 __version__ = "0.1.0"
 
+import sys as _sys  # noqa: E402
+
+# The command line (`volrender ...`, `python -m volrender ...`): a Ctrl-C while the
+# modules below import ends it with one line, not a traceback (cli.main takes over).
+if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
+                  or list(getattr(_sys, "orig_argv", ()))[1:3] == ["-m", "volrender"]):
+    from .atomic import exit_on_signals_during_startup as _startup
+    _startup()
+
 from .errors import UserError  # noqa: E402
 from .lights import PointLight, Sun  # noqa: E402
 from .render import Image, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
+from .sequence import render_sequence  # noqa: E402
 
-__all__ = ["load_scene", "render", "Scene", "Image", "Sun", "PointLight", "UserError",
-           "__version__"]
+__all__ = ["load_scene", "render", "render_sequence", "Scene", "Image", "Sun", "PointLight",
+           "UserError", "__version__"]

@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from . import layout
 from .errors import UserError
-from .settings import SIZE, VEC3, floats, in_range, knob, one_of, pair, rgb
+from .settings import NUM, SIZE, VEC3, floats, in_range, knob, one_of, pair, rgb
 
 # Default framing: the camera looks at the bounding box's centre from this direction
 # (from the centre towards the camera: in front (+z), a little right and above).
@@ -92,6 +93,27 @@ def _vec3_or_none(v):
 
 
 UP_AXES = ("auto", "y", "z")
+# frame (y up, the default view in front along +z) -> world with z up (Blender): y -> z,
+# z -> -y, so the default camera looks from the front (-y), a little right and above
+_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def up_frame(axis: str):
+    """The rotation from the y-up frame to a world whose up axis is `axis` (None for y)."""
+    return _Y_TO_Z if axis == "z" else None
+
+
+def view_direction(azimuth=None, elevation=None):
+    """Direction from the target towards the camera in the y-up frame: DEFAULT_VIEW (not
+    normalised), or azimuth (degrees from +z towards +x) and elevation (degrees above the
+    horizon), as a unit vector."""
+    if azimuth is None and elevation is None:
+        return np.asarray(DEFAULT_VIEW, np.float64)
+    d = np.asarray(DEFAULT_VIEW, np.float64)
+    az = math.degrees(math.atan2(d[0], d[2])) if azimuth is None else azimuth
+    el = math.degrees(math.asin(d[1] / np.linalg.norm(d))) if elevation is None else elevation
+    a, e = math.radians(az), math.radians(el)
+    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
 
 
 @dataclass(frozen=True)
@@ -112,19 +134,91 @@ class View:
     up: tuple | None = knob(None, "camera up vector (default: the up axis)", metavar="X,Y,Z",
                             parse=floats(3, name="--up"), check=_vec3_or_none,
                             toml=("camera", "up"), kind=VEC3, show_default=False)
-    fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees", check=in_range(1e-3, 179),
+    fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees; the default framing "
+                      "fits the bounds at this fov", check=in_range(1e-3, 179),
                       toml=("camera", "fov"))
+    up_axis: str = knob("auto", "the world's up axis: y, z (Blender caches are Z-up), or "
+                        "auto: z when the file says Blender wrote it, else y",
+                        check=one_of(UP_AXES), choices=UP_AXES, toml=("camera", "up_axis"))
+    azimuth: float | None = knob(None, "default framing: orbit around the up axis, degrees "
+                                 "from the front towards the right (default: 14.04)",
+                                 check=in_range(-1e4, 1e4, allow_none=True), metavar="DEG",
+                                 toml=("camera", "azimuth"), kind=NUM, show_default=False)
+    elevation: float | None = knob(None, "default framing: degrees above the horizon "
+                                   "(default: 18.73)", check=in_range(-89.9, 89.9, allow_none=True),
+                                   metavar="DEG", toml=("camera", "elevation"), kind=NUM,
+                                   show_default=False)
 
     def __post_init__(self):
         from .settings import check_fields
         check_fields(self)
 
-    def camera(self, lo, hi) -> "Camera":
-        """The Camera: origin/target as given, else framing the box lo..hi."""
-        up = self.up or (0.0, 1.0, 0.0)
+    def axis(self, hint=None) -> str:
+        """The up axis: up_axis, or with "auto" the file's hint (else y)."""
+        return self.up_axis if self.up_axis != "auto" else (hint or "y")
+
+    def camera(self, lo, hi, up_hint=None) -> "Camera":
+        """The Camera: origin/target as given, else framing the box lo..hi from
+        azimuth/elevation around the up axis (up_hint: the file's suggestion for auto)."""
+        frame = up_frame(self.axis(up_hint))
+        view = view_direction(self.azimuth, self.elevation)
+        up = self.up or ((0.0, 1.0, 0.0) if frame is None else tuple(frame[:, 1]))
+        view = view if frame is None else frame @ view
         w, h = self.size
-        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up)
+        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up, view=tuple(view))
         if self.origin is not None or self.target is not None:
             cam = Camera(tuple(self.origin or cam.origin), tuple(self.target or cam.target),
                          tuple(up), self.fov, w, h)
         return cam
+
+
+def _num(v):
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+        else None
+
+
+def read_camera_file(path) -> dict:
+    """{View field: (value, where)} from a camera file written by write_camera_file (or
+    any TOML with [camera] origin/target/up/fov and [render] size)."""
+    import tomllib
+    p = Path(path)
+    if not p.is_file():
+        raise UserError("no such camera file", path=p, fix="give a file written by --camera-out")
+    try:
+        doc = tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"not valid TOML ({exc})", path=p, fix="fix the syntax") from None
+    out = {}
+    allowed = {"camera": ("origin", "target", "up", "fov"), "render": ("size",)}
+    for section, table in doc.items():
+        if section not in allowed or not isinstance(table, dict):
+            raise UserError(f"unknown section [{section}] in a camera file", path=p,
+                            fix="a camera file holds [camera] origin, target, up, fov and [render] size")
+        for key, value in table.items():
+            where = f"{p}: [{section}].{key}"
+            if key not in allowed[section]:
+                raise UserError(f"unknown key {where}", fix=f"known keys: {', '.join(allowed[section])}")
+            if key == "fov":
+                value = _num(value)
+            elif key == "size":
+                ok = isinstance(value, list) and len(value) == 2 and all(
+                    isinstance(v, int) and not isinstance(v, bool) for v in value)
+                value = tuple(value) if ok else None
+            else:
+                ok = isinstance(value, list) and len(value) == 3 and all(_num(v) is not None for v in value)
+                value = tuple(float(v) for v in value) if ok else None
+            if value is None:
+                raise UserError(f"{where} has the wrong type", fix="rewrite it with --camera-out")
+            out[key] = (value, where)
+    return out
+
+
+def write_camera_file(camera: "Camera", path) -> Path:
+    """Write a camera as TOML (floats exact), atomically; `--camera` reads it back."""
+    p = Path(path)
+    text = ("# volrender camera: volrender render IN --camera " + p.name + "\n[camera]\n"
+            + "".join(f"{k} = [{', '.join(repr(float(v)) for v in getattr(camera, k))}]\n"
+                      for k in ("origin", "target", "up"))
+            + f"fov = {float(camera.fov)!r}\n\n[render]\nsize = [{camera.width}, {camera.height}]\n")
+    from .atomic import write_bytes
+    return write_bytes(p, text.encode(), "camera file")

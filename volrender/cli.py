@@ -12,8 +12,8 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
-from .errors import UserError
+from . import __version__, atomic
+from .errors import UserError, printable
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -51,8 +51,11 @@ def add_option(group, opt, default):
     from .settings import number
     meta = opt.meta
     text = meta["help"]
+    bounds = getattr(meta["check"], "range", None)
     if meta["show_default"] and default is not None and meta["kind"] is not bool:
-        text += f" (default: {_show(default)})"
+        text += f" (default: {_show(default)}{f'; range {bounds}' if bounds else ''})"
+    elif bounds:
+        text += f" (range {bounds})"
     kw = dict(dest=opt.key, default=None, help=text)
     if meta["kind"] is bool:
         group.add_argument(opt.flag, action="store_true", **kw)
@@ -70,7 +73,7 @@ def add_option(group, opt, default):
 # which help group each render option joins: by owner, with a few common ones moved
 GROUPS = [("image and camera", "view"), ("lights", "lights"), ("volumes (.vdb, .npz)", "volume"),
           ("molten glass (point clouds)", "glass"), ("sampling and dispatch", "common")]
-_GROUP_OF = {"shadows": "lights"}
+_GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
@@ -86,10 +89,12 @@ def add_render_options(r):
     lg = groups["lights"]
     lg.description = "default: one sun, direction -0.6,-1,-0.5, E=6"
     lg.add_argument("--sun", type=floats(4, name="--sun"), action="append", default=None,
-                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance (repeatable)")
+                    metavar="DX,DY,DZ,E", help="sun: propagation direction and irradiance, E in "
+                                               "0..1e30 (repeatable)")
     lg.add_argument("--point-light", type=floats(4, name="--point-light"), action="append",
                     default=None, metavar="X,Y,Z,I",
-                    help="point light: position and intensity, irradiance I/r^2 (repeatable)")
+                    help="point light: position and intensity, irradiance I/r^2; I in 0..1e30 "
+                         "(repeatable)")
     lg.add_argument("--no-lights", action="store_true", default=None,
                     help="no lights: absorption and emission only")
     for opt in options().values():
@@ -123,16 +128,42 @@ def build_parser():
     r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
                                  "GENERATOR:COUNT, or SCENE.toml")
     r.add_argument("-o", "--output", required=True,
-                   help="OUT.exr (linear RGBA + layers), OUT.npy (float32 HxWx4) or OUT.png "
-                        "(tone-mapped 8-bit sRGB)")
+                   help="OUT.exr (linear premultiplied RGBA + layers), OUT.npy (float32 HxWx4) "
+                        "or OUT.png (tone-mapped sRGB RGBA, straight alpha); never one of the "
+                        "inputs; a symlink is written through")
     before = {a.dest for a in r._actions}
     add_render_options(r)
-    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before]
+    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before] + ["camera"]
+    cg = [g for g in r._action_groups if g.title == "image and camera"][0]
+    cg.add_argument("--camera", default=None, metavar="CAM.toml",
+                    help="reuse a camera written by --camera-out (options given beside it win)")
+    cg.add_argument("--camera-out", default=None, metavar="CAM.toml",
+                    help="also write the camera used (origin, target, up, fov, size) as TOML")
+    sq = r.add_argument_group(
+        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #), smoke_%04d.vdb, "
+                     "or a quoted glob 'smoke_*.vdb' (input only); one camera for every frame")
+    sq.add_argument("--frames", default=None, metavar="A-B[:STEP]",
+                    help="frames to render (also N, or a comma-separated list); default: every "
+                         "file a glob matches")
+    sq.add_argument("--workers", type=_int("--workers"), default=None, metavar="N",
+                    help="Dask workers of a LocalCluster on this machine; 0 renders in this "
+                         "process (default: one per GPU, else one per 8 CPU cores)")
+    sq.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                    help="submit to an existing Dask cluster (`dask scheduler`, `dask worker`; "
+                         "inputs and outputs on a shared filesystem)")
+    sq.add_argument("--chunk", type=_int("--chunk"), default=None, metavar="K",
+                    help="frames per task (default: enough tasks to keep every worker busy, "
+                         "at most 8 frames each)")
+    sq.add_argument("--skip-existing", action="store_true",
+                    help="keep frames whose output exists (resume an interrupted run)")
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
     o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
                    help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
+    o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
+                   help="PNG only: bits per channel of the sRGB RGBA (straight alpha) "
+                        "file (default: 8)")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")
     add_common(r)
@@ -146,6 +177,8 @@ def build_parser():
     c.add_argument("--grid", default=None,
                    help="density grid (default: 'density', else the only float fog-volume grid)")
     c.add_argument("--emission-grid", default=None, help="also convert this emission grid")
+    c.add_argument("--temperature-grid", default=None,
+                   help="also convert this temperature grid (colours the emission)")
     c.add_argument("--debug", action="store_true", help="show tracebacks")
     c.add_argument("-v", "--verbose", action="store_true", help="log what is done")
 
@@ -231,17 +264,76 @@ def describe(scene) -> str:
     return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {s.accel}"
 
 
+def look_problems(img, scene) -> list[str]:
+    """Warnings for an image that came out empty or saturated, with the fix."""
+    import numpy as np
+    alpha = img.rgba[..., 3]
+    what = "volume" if scene.kind == "volume" else "point cloud"
+    if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
+        fix = ("raise --density-scale (`volrender info FILE` suggests one) or check the camera"
+               if scene.kind == "volume" else "check the camera (--origin, --target, --fov)")
+        return [f"the image is empty: the {what} covers no pixel (alpha < 0.001 everywhere); {fix}"]
+    out = []
+    covered = alpha > 0.01
+    if scene.kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
+        out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
+                   "covers); lower --density-scale (`volrender info FILE` suggests one)")
+    rgb = img.rgba[..., :3][covered]
+    if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
+        out.append("the image is overexposed (half the covered pixels are above 4); lower the "
+                   "lights' irradiance or --exposure")
+    return out
+
+
+SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
+
+
+def cmd_sequence(args):
+    from .sequence import render_sequence
+    r = render_sequence(args.input, args.output, args.frames, workers=args.workers,
+                        scheduler=args.scheduler, chunk=args.chunk,
+                        skip_existing=args.skip_existing, device=args.device,
+                        progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
+                        **render_overrides(args))
+    for rec in r.failed:
+        print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
+              file=sys.stderr)
+    done = sum(rec["status"] == "ok" for rec in r.records)
+    skipped = sum(rec["status"] == "skipped" for rec in r.records)
+    print(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
+          f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}",
+          file=sys.stderr)
+    if r.failed:
+        print(f"volrender: error: {len(r.failed)} frames failed: "
+              f"{', '.join(str(rec['frame']) for rec in r.failed)}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def cmd_render(args):
+    from .sequence import is_pattern
+    if args.frames is not None or is_pattern(args.input):
+        return cmd_sequence(args)
+    given = [o for o in SEQUENCE_OPTIONS if getattr(args, o) not in (None, False)]
+    if given:
+        raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
+                        f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
     from . import image
+    from .files import refuse_overwrite
     from .render import check_image_memory, get_device, render
     from .scene import request
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
+    refuse_overwrite(out_path, req.inputs, shown=args.output)
     dev = get_device(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
-    scene = req.load()
+    try:
+        scene = req.load()
+    except MemoryError:
+        raise UserError("out of host memory while reading it", path=args.input,
+                        fix="render a smaller volume or cloud, or free memory") from None
     for note in scene.notes:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
@@ -249,27 +341,37 @@ def cmd_render(args):
         print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
               f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
-    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap)
-    print(f"wrote {out_path} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
+    for problem in look_problems(img, scene):
+        warnings.warn(problem)
+    img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
+    if args.camera_out:
+        from .camera import write_camera_file
+        write_camera_file(scene.camera, args.camera_out)
+    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
 
 
 def cmd_convert(args):
     from . import vdb
+    from .files import check_input, refuse_overwrite
     src, dst = Path(args.input), Path(args.output)
     if src.suffix.lower() != ".vdb":
         raise UserError("convert reads OpenVDB files", path=src, fix="give a .vdb input")
     if dst.suffix.lower() != ".npz":
         raise UserError("convert writes .npz brick files", path=dst, fix="name the output OUT.npz")
-    if not dst.parent.resolve().is_dir() or not os.access(dst.parent.resolve(), os.W_OK):
+    check_input(src, "volume file", fix="give a .vdb file")
+    real = atomic.destination(dst, "brick cache")
+    if not real.parent.is_dir() or not os.access(real.parent, os.W_OK | os.X_OK):
         raise UserError("output directory does not exist or is not writable", path=dst,
                         fix="choose a writable directory")
+    refuse_overwrite(real, [src], "convert", shown=args.output)
     t0 = time.perf_counter()
-    bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid)
+    bricks = vdb.load_bricks(src, grid=args.grid, emission_grid=args.emission_grid,
+                             temperature_grid=args.temperature_grid)
     bricks.save_npz(dst)
     n = len(bricks.majorant)
-    print(f"wrote {dst}: grid {bricks.grid_name!r}, {n} bricks of 8^3 "
+    print(f"wrote {printable(dst)}: grid {printable(repr(bricks.grid_name))}, {n} bricks of 8^3 "
           f"(of {int(bricks.dims.prod())}), voxel size {bricks.voxel_size:.6g}, "
           f"in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     return 0
@@ -291,16 +393,9 @@ def cmd_tree(args):
 def cmd_info(args):
     from . import device as device_mod
     if args.input:
-        from . import vdb
-        src = Path(args.input)
-        if src.suffix.lower() == ".vdb":
-            for g in vdb.list_grids(src):
-                print(f"{g.name:24s} {g.value_type:8s} {g.grid_class}")
-            return 0
-        b = vdb.load_volume(src)
-        lo, hi = b.world_bounds()
-        print(f"grid {b.grid_name!r}: {len(b.majorant)} bricks, dims {tuple(b.dims)}, "
-              f"voxel size {b.voxel_size:.6g}, world bounds {tuple(lo)} .. {tuple(hi)}")
+        from .info import describe
+        for line in describe(args.input, args.device):
+            print(line)
         return 0
     import numpy
     import pyopencl
@@ -329,7 +424,9 @@ def cmd_info(args):
 BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lighting, uber-kernel",
               "volume": "volume files: skipping, fragment vs tiled dispatch",
               "error": "error against run time for every speed knob",
-              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)"}
+              "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
+              "sequence": "frame sequences on Dask: frames per second against worker count",
+              "launch": "launch granularity: adaptive launch overhead, time to stop on signals"}
 
 
 def bench_dir() -> Path:
@@ -343,12 +440,18 @@ def bench_dir() -> Path:
 
 def cmd_bench(args):
     root = bench_dir()
+    try:
+        import matplotlib  # noqa: F401  (every benchmark plots its results)
+    except ImportError as exc:
+        raise UserError(f"matplotlib is not installed ({exc})",
+                        fix="pip install 'volrender[bench]' (bash run.sh setup installs it)") from None
     sys.path.insert(0, str(root))
     import importlib
     module = importlib.import_module(f"bench.{args.name}")
     extra = list(args.args)
     if args.device and "--device" not in extra:
         extra = ["--device", args.device, *extra]
+    sys.argv[0] = f"volrender bench {args.name}"      # the benchmark's usage line
     return module.main(extra) or 0
 
 
@@ -357,7 +460,7 @@ COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "inf
 
 
 def _warn_one_line(message, category, filename, lineno, file=None, line=None):
-    print(f"volrender: warning: {message}", file=sys.stderr)
+    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
 
 
 _NUMBER = re.compile(r"^-[0-9.]")
@@ -377,15 +480,69 @@ def join_negative_values(argv):
     return out
 
 
+def handle_signals():
+    """SIGTERM and SIGHUP raise atomic.Interrupted, as SIGINT raises KeyboardInterrupt, so
+    every one of them unwinds (temporary files removed) and exits with 128 + the signal.
+    A signal ignored when the process started (nohup, a background job's SIGINT) stays
+    ignored, and so does a call from a thread other than the main one. Returns the
+    previous handlers (for restore_signals)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def interrupted(signum, frame):
+        raise atomic.Interrupted(signum)
+    old = {}
+    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
+                          ("SIGHUP", interrupted)):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
+def restore_signals(old):
+    import signal
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def _interrupted(exc) -> int:
+    """One line saying what really happened (after the rename, the output was written)."""
+    import signal
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):       # a second signal: no traceback
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
+    what = f"{done} was written before that" if done else "no output written"
+    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
+    return 128 + signum
+
+
+_written_from = 0          # atomic.WRITTEN's length when this command started
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="volrender: %(message)s")
-    with warnings.catch_warnings():
-        if not args.debug:
-            warnings.showwarning = _warn_one_line
-        return _run(args)
+    global _written_from
+    _written_from = len(atomic.WRITTEN)
+    old = handle_signals()
+    try:
+        parser = build_parser()
+        args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="volrender: %(message)s")
+        with warnings.catch_warnings():
+            if not args.debug:
+                warnings.showwarning = _warn_one_line
+            return _run(args)
+    except KeyboardInterrupt as exc:        # start-up, option parsing, or --debug
+        if argv is not None and "--debug" in argv:
+            raise
+        return _interrupted(exc)
+    finally:
+        restore_signals(old)
 
 
 _CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
@@ -430,9 +587,8 @@ def _run(args) -> int:
             raise
         print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("volrender: interrupted; no output written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
     except MemoryError:
         if args.debug:
             raise

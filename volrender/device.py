@@ -23,7 +23,41 @@ log = logging.getLogger("volrender")
 ENV_DEVICE = "VOLRENDER_DEVICE"
 
 
+def _writable_dir(path) -> bool:
+    try:
+        os.makedirs(path, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            return True
+    except OSError:
+        return False
+
+
+def pocl_cache_dir() -> str | None:
+    """Make sure the OpenCL stack has a writable cache before it starts: PoCL fails to
+    list its device at all when it cannot create its kernel cache, and pyopencl (through
+    pytools) raises when it cannot create its own. Both live under $XDG_CACHE_HOME (else
+    ~/.cache); when that is not writable (a read-only or missing $HOME), point
+    $XDG_CACHE_HOME at a private folder under the temporary directory. Returns the cache
+    root in use, or None when none is writable."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if _writable_dir(base):
+        return base
+    fallback = os.path.join(tempfile.gettempdir(), f"volrender-cache-{os.getuid()}")
+    if _writable_dir(fallback):
+        os.environ["XDG_CACHE_HOME"] = fallback
+        log.info("the cache folder %s is not writable; using %s", base, fallback)
+        return fallback
+    return None
+
+
+_CACHE_CHECKED = False
+
+
 def _cl():
+    global _CACHE_CHECKED
+    if not _CACHE_CHECKED:
+        _CACHE_CHECKED = True
+        pocl_cache_dir()
     try:
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - set-up problem
@@ -55,6 +89,10 @@ def choose(spec: str | None = None):
     spec = spec or os.environ.get(ENV_DEVICE) or None
     found = all_devices()
     if not found:
+        if pocl_cache_dir() is None:
+            raise UserError("no OpenCL device found: PoCL cannot create its kernel cache "
+                            "(neither ~/.cache nor the temporary directory is writable)",
+                            fix="set XDG_CACHE_HOME to a writable directory")
         raise UserError("no OpenCL device found", fix="run `bash run.sh setup` to install PoCL")
     if spec is None:
         for _, _, p, d in found:
@@ -71,6 +109,7 @@ def choose(spec: str | None = None):
 
 class BuildError(UserError):
     """An OpenCL program failed to build; carries the compiler log."""
+    multiline = True
 
 
 @contextlib.contextmanager

@@ -13,11 +13,17 @@ auto:     the default: fragment. Against 8x8 fragment blocks tiled gains nothing
           measurable (H200 1080p: volumes x0.90-1.01, glass x0.85-1.04; PoCL x0.8-1.0);
           the gains measured before (x1.2-1.8) came from the block shape, not the lists.
 
-Both launch in row bands (for progress and so no launch runs for minutes); on GPUs the
-bands are large, since small launches leave most of the device idle.
+Both launch in row bands and sample ranges (run_rows): each launch renders samples
+s0..s1-1 of a band's pixels and continues the sums the launch before left in the output
+buffer, so any split gives the bit-identical image (the RNG is keyed by pixel and sample).
+Launch sizes adapt to the measured speed so that each takes about TARGET_S (CPUs) or
+GPU_TARGET_S: Ctrl-C and the progress bar (both act between launches) wait no longer
+than that. GPUs get whole frames (GPU_BAND_PIXELS) and split only samples, since small
+launches leave most of the device idle.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +35,9 @@ DISPATCHES = ("fragment", "tiled")
 CHOICES = ("auto",) + DISPATCHES
 KINDS = CHOICES + ("fragment-driver",)   # fragment with the driver's local size (bench only)
 GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
+TARGET_S = 0.25                # launch length aimed at on CPUs (PoCL)
+GPU_TARGET_S = 0.5             # on GPUs
+FIXED_LAUNCH = None            # (rows, samples) per launch instead (benchmarks, tests)
 
 
 @dataclass(frozen=True)
@@ -44,7 +53,8 @@ class Dispatch:
         if not (isinstance(tw, (int, np.integer)) and isinstance(th, (int, np.integer))
                 and 1 <= tw <= 64 and 1 <= th <= 64 and tw * th <= 1024):
             raise UserError(f"tile {tw}x{th} is out of range",
-                            fix="give --tile WxH with 1..64 each and W*H <= 1024")
+                            fix="give a tile WxH (--tile, or tile in the scene's [render]) with "
+                                "1..64 each and W*H <= 1024")
 
     @property
     def tiled(self) -> bool:
@@ -72,7 +82,7 @@ class Dispatch:
         if n > limit:
             raise UserError(f"tile {self.tile[0]}x{self.tile[1]} ({n} work-items) exceeds this "
                             f"kernel's work-group limit {limit} on {device.name}",
-                            fix="give a smaller --tile")
+                            fix="give a smaller tile (--tile, or tile in the scene's [render])")
 
 
 def parse_tile(text: str) -> tuple:
@@ -107,32 +117,57 @@ def row_bands(width: int, height: int, pixels: int, unit: int = 1):
 
 
 def run_rows(device, kernel, args, width, height, pixels, progress=None,
-             dispatch: Dispatch | None = None) -> float:
-    """Launch `kernel(*args, y0)` band by band over the image; returns the kernel time in
-    ms (OpenCL profiling events). `pixels` is the band size on CPUs; GPUs get
-    GPU_BAND_PIXELS."""
+             dispatch: Dispatch | None = None, spp: int = 1) -> float:
+    """Launch `kernel(*args, y0, s0, s1)` over the image, band by band and sample range by
+    sample range (see the module docstring); returns the kernel time in ms (OpenCL
+    profiling events). `pixels`: pixel-samples of the first launch on CPUs, after which
+    launches grow or shrink (at most x8 per launch) towards TARGET_S."""
     import pyopencl as cl
     dispatch = (dispatch or Dispatch()).resolve(device)
     dispatch.check(device, kernel)
     driver = dispatch.driver_local
     tw, th = (1, 1) if driver else dispatch.tile
-    if is_gpu(device):
-        pixels = max(pixels, GPU_BAND_PIXELS)
-    bands = row_bands(width, height, pixels, th)
-    bar = Progress(len(bands), "render", progress)
+    spp = max(1, int(spp))
+    gpu = is_gpu(device)
+    target = GPU_TARGET_S if gpu else TARGET_S
+    gpu_rows = row_bands(width, height, GPU_BAND_PIXELS, th)[0][1]
+    work = gpu_rows * width if gpu else max(1, pixels)        # pixel-samples per launch
+    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height)
     kernel_ns = 0
     gx = -(-width // tw) * tw
+    y0 = 0
     try:
-        for y0, rows in bands:
-            kernel.set_args(*args, np.int32(y0))
-            if driver:
-                ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (width, rows), None)
+        while y0 < height:
+            if FIXED_LAUNCH is not None:
+                rows = min(height - y0, max(th, FIXED_LAUNCH[0] // th * th))
+                work = width * rows * FIXED_LAUNCH[1]
+            elif gpu:
+                rows = min(height - y0, gpu_rows)
+            elif work >= width * spp * th:                   # whole samples, several rows
+                rows = min(height - y0, max(th, work // (width * spp) // th * th))
             else:
-                gy = -(-rows // th) * th
-                ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (gx, gy), (tw, th))
-            ev.wait()
-            kernel_ns += ev.profile.end - ev.profile.start
-            bar.update()
+                rows = min(height - y0, th)
+            s0 = 0
+            while s0 < spp:
+                chunk = max(1, work // (width * rows))
+                chunk = -(-(spp - s0) // -(-(spp - s0) // chunk))    # even chunks, no stub
+                s1 = min(spp, s0 + chunk)
+                kernel.set_args(*args, np.int32(y0), np.int32(s0), np.int32(s1))
+                start = time.perf_counter()
+                if driver:
+                    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (width, rows), None)
+                else:
+                    gy = -(-rows // th) * th
+                    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (gx, gy), (tw, th))
+                ev.wait()
+                took = time.perf_counter() - start
+                kernel_ns += ev.profile.end - ev.profile.start
+                done = width * rows * (s1 - s0)
+                if FIXED_LAUNCH is None:
+                    work = int(min(max(done * target / max(took, 1e-6), done / 8), done * 8))
+                bar.update(done, y0 + rows if s1 == spp else y0)
+                s0 = s1
+            y0 += rows
     finally:
         bar.close()
     return kernel_ns * 1e-6

@@ -24,6 +24,10 @@ class VolumeFeatures:
     skip_empty: bool = True
     emission: bool = False
     depth: bool = False
+    chromatic: bool = False    # albedo or sigma_t scale differs between channels
+    env: int = 0               # environment light: 0 none, 1 uniform, 2 a map (volume.env_mode)
+    ms_octaves: int = 1        # marcher: multiple-scattering octaves (1: single scattering)
+    temperature: bool = False  # per-voxel blackbody colour from a temperature grid
     # tiled dispatch (volrender.dispatch): work-groups of tile_w x tile_h pixels cull the
     # occupied bricks against their tile's frustum into a local list of tile_cap entries.
     # Fragment dispatch keeps the defaults, so it compiles no local-memory code.
@@ -44,11 +48,16 @@ class VolumeFeatures:
     def from_scene(cls, scene, dispatch) -> "VolumeFeatures":
         """What a volume Scene compiles in (dispatch: the resolved Dispatch)."""
         from .lights import counts
+        from .volume import env_mode
         n_suns, n_points = counts(scene.lights)
         s, bricks = scene.content.settings, scene.content.bricks
+        emission = bricks.emission is not None
         return cls(n_suns=n_suns, n_points=n_points, shadows=s.shadows,
                    phase_mixed=s.phase[2] < 1.0, skip_empty=s.skip_empty,
-                   emission=bricks.emission is not None, depth=s.depth,
+                   emission=emission, depth=s.depth, chromatic=s.chromatic,
+                   env=env_mode(scene.environment),
+                   ms_octaves=s.ms_octaves if s.estimator == "march" else 1,
+                   temperature=emission and s.temperature_grid is not None,
                    **cls.dispatch_fields(dispatch))
 
     def flags(self) -> dict[str, int]:

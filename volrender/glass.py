@@ -18,8 +18,8 @@ from .camera import DEFAULT_FOV, frame_bounds
 from .dispatch import Dispatch
 from .errors import UserError
 from .features import GlassFeatures
-from .settings import (MAX_VALUE, NUM, PATH, CommonSettings, boolean, floats, in_range, knob,
-                       one_of, rgb)
+from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, one_of,
+                       rgb)
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
@@ -99,9 +99,7 @@ class GlassSettings(CommonSettings):
     point_colors: bool = knob(True, "ignore the cloud's per-point colours (use --color everywhere)",
                               check=boolean, flag="--no-point-colors",
                               toml=("render", "point_colors"))
-    env: str | None = knob(None, "equirectangular environment map (.exr) (default: a "
-                           "procedural sky over a checker ground)", metavar="ENV.exr",
-                           toml=("environment", "map"), kind=PATH, show_default=False)
+    # env (the environment) is a CommonSettings knob: volumes read it too
 
     def __post_init__(self):
         super().__post_init__()
@@ -135,7 +133,7 @@ def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
         return np.full(n, float(settings.radius))
     if cloud.radii is None:
         raise UserError(f"the point cloud {cloud.source or ''} has no radii".replace("  ", " "),
-                        fix="give a radius (--radius)")
+                        fix="give a radius (--radius, or [points].radius)")
     r = np.asarray(cloud.radii, np.float64)
     if not (np.isfinite(r).all() and (r >= 0).all()):
         raise UserError("point radii must be finite and >= 0", fix="repair the radius column")
@@ -190,7 +188,7 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
         tree_ms = 1e3 * (time.perf_counter() - t0)
         if tree.depth > MAX_TREE_DEPTH:
             raise UserError(f"tree depth {tree.depth} exceeds {MAX_TREE_DEPTH}",
-                            fix="raise --leaf-size")
+                            fix="raise the leaf size (--leaf-size, or [render].leaf_size)")
         order, first_leaf = tree.order, tree.first_leaf
         nodes = layout.record("TreeNode", tree.n_nodes)
         # float32 sphere centres round by up to half an ulp of their magnitude: widen the
@@ -218,7 +216,7 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
     if not scale + bulge <= MAX_EXTENT:
         raise UserError(f"the point cloud spans {scale + bulge:.3g} units (radius plus blend), "
                         f"beyond float32's reach ({MAX_EXTENT:.0e})",
-                        fix="rescale the points (or lower --blend)")
+                        fix="rescale the points (or lower the blend: --blend, or [render].blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
     grid, note = None, ""
@@ -272,13 +270,23 @@ def uber_bits(features: GlassFeatures) -> int:
 
 
 def load_environment(path):
-    """float32 (H, W, 3) texels of an equirectangular .exr/.npy (NaN/Inf become 0)."""
+    """float32 (H, W, 3) texels of an equirectangular .exr/.npy: NaN/Inf and negative
+    texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
+    them), so every radiance the kernel reads is finite."""
+    import warnings
     from .image import read_image
     img = np.asarray(read_image(path))
-    if img.dtype == np.uint8 or img.ndim != 3 or img.shape[2] < 3:
+    if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
         raise UserError("the environment must be a float image (.exr or .npy)", path=path,
                         fix="convert it to an equirectangular .exr")
-    return np.nan_to_num(img[..., :3], nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+    rgb = img[..., :3].astype(np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(rgb) | (rgb < 0) | (rgb > MAX_VALUE)))
+    if bad:
+        warnings.warn(f"{path}: {bad} environment texel values are NaN/Inf, negative or above "
+                      f"{MAX_VALUE:g}; read as 0 (NaN/Inf, negative) or {MAX_VALUE:g}",
+                      stacklevel=2)
+    rgb = np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0), 0.0, MAX_VALUE)
+    return rgb.astype(np.float32)
 
 
 def _env_texels(environment):

@@ -7,30 +7,33 @@ Formats (see DESIGN.md, "Outputs"):
   (``depth`` -> ``Z``, the name OpenEXR tools use for depth; ``transmittance`` -> ``T``);
   any other AOV name is used as the channel name unchanged.
 - ``.npy``: linear float32 ``H x W x 4``.
-- ``.png``: tone-mapped 8-bit sRGB, RGB only (see ``to_srgb8``).
+- ``.png``: tone-mapped sRGB RGBA with straight (not premultiplied) alpha, 8 bits per
+  channel (Pillow) or 16 on request (``png_bits=16``, pypng: Pillow writes no 16-bit
+  colour PNGs); see ``png_pixels`` for what the colour means.
 
-All arrays are ``H x W x C`` with the top image row first. Every write goes to a
-temporary file in the destination directory and is renamed over the destination only
-once complete, so a failed write never leaves a half-written image and never touches an
+All arrays are ``H x W x C`` with the top image row first. Every write goes through
+``volrender.atomic`` (a temporary file renamed over the destination once complete), so a
+failed or interrupted write never leaves a half-written image and never touches an
 existing file.
 """
 
 from __future__ import annotations
 
+import io
 import os
-import secrets
-import struct
 import warnings
-import zlib
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
+from . import atomic
 from .errors import UserError
+from .files import check_input
 
 SUFFIXES = ('.exr', '.npy', '.png')
 TONEMAPS = ('filmic', 'clamp')
+PNG_BITS = (8, 16)
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
 
 # Filmic shoulder: identity up to the knee, then an exponential shoulder that meets the
@@ -47,18 +50,21 @@ def _aov_channel(name: str) -> str:
 
 
 def check_output(path, aovs=()) -> Path:
-    """Validate an output path before a render starts; return it resolved.
+    """Validate an output path before a render starts; return the file a write replaces
+    (absolute, symlinks followed: see ``atomic.destination``).
 
     Checks that the suffix is one of ``SUFFIXES``, that the parent directory exists and
-    is writable, that ``path`` is not a directory, and that AOVs (extra layers such as
-    ``'depth'``, ``'transmittance'``; names or a dict keyed by name) are only asked of
-    ``.exr`` and map to distinct channels other than R, G, B, A. Raises ``UserError``.
+    is writable, that ``path`` is no directory, FIFO, device, symlink loop or read-only
+    file, and that AOVs (extra layers such as ``'depth'``, ``'transmittance'``; names or a
+    dict keyed by name) are only asked of ``.exr`` and map to distinct channels other
+    than R, G, B, A. Raises ``UserError``.
     """
-    out = Path(path).expanduser().resolve()
-    suffix = out.suffix.lower()
+    shown = Path(path)
+    suffix = shown.suffix.lower()
     if suffix not in SUFFIXES:
-        raise UserError(f"unsupported image format {out.suffix or '(no suffix)'!r}", path=out,
+        raise UserError(f"unsupported image format {shown.suffix or '(no suffix)'!r}", path=path,
                         fix=f"use one of {', '.join(SUFFIXES)}")
+    out = atomic.destination(path)
     parent = out.parent
     if not parent.is_dir():
         raise UserError(f"output directory {str(parent)!r} does not exist", path=out,
@@ -66,8 +72,6 @@ def check_output(path, aovs=()) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"output directory {str(parent)!r} is not writable", path=out,
                         fix="choose another directory or fix its permissions")
-    if out.is_dir():
-        raise UserError("output path is a directory", path=out, fix="give a file name")
     names = [aovs] if isinstance(aovs, str) else list(aovs or ())
     if names and suffix != '.exr':
         raise UserError(f"extra layers ({', '.join(map(str, names))}) need an .exr output",
@@ -106,29 +110,69 @@ def _check_tonemap(tonemap: str) -> None:
         raise UserError(f"unknown tone map {tonemap!r}", fix=f"use one of {', '.join(TONEMAPS)}")
 
 
-def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
-    """Linear values -> 8-bit sRGB codes (same shape, uint8).
+def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) -> np.ndarray:
+    """Linear values -> sRGB codes of `bits` (8: uint8, 16: uint16), same shape.
 
     Multiplies by ``2**exposure``, clips negatives to 0, applies ``tonemap`` (``'filmic'``:
     identity up to 0.5, then a smooth exponential shoulder towards 1, see ``_filmic``;
-    ``'clamp'``: clip to 1), then the exact sRGB
-    OETF, and rounds to the nearest code. NaN becomes 0 and +Inf white, with a
-    ``RuntimeWarning`` naming how many values were not finite.
+    ``'clamp'``: clip to 1), then the exact sRGB OETF, and rounds to the nearest code.
+    NaN becomes 0 and +Inf white, with a ``RuntimeWarning`` naming how many values were
+    not finite.
     """
     _check_tonemap(tonemap)
     if not np.isfinite(exposure):
         raise ValueError(f"exposure must be finite, got {exposure!r}")
+    if bits not in PNG_BITS:
+        raise ValueError(f"bits must be one of {PNG_BITS}, got {bits!r}")
     x = np.asarray(rgb, dtype=np.float64)
     bad = np.count_nonzero(~np.isfinite(x))
-    x = x * 2.0 ** exposure  # finite values that overflow here become white, unwarned
+    with np.errstate(over='ignore'):
+        x = x * 2.0 ** exposure  # finite values that overflow here become white, unwarned
     if bad:
         warnings.warn(f"{bad} non-finite value(s) in the image: NaN written as 0, "
                       "+Inf as white, -Inf as 0", RuntimeWarning, stacklevel=2)
-        x = np.nan_to_num(x, nan=0.0, posinf=np.inf, neginf=0.0)
+    x = np.nan_to_num(x, nan=0.0, posinf=np.inf, neginf=0.0)
     x = np.maximum(x, 0.0)
     x = _filmic(x) if tonemap == 'filmic' else np.minimum(x, 1.0)
     x = np.minimum(x, 1.0)  # +Inf under 'filmic' is exactly 1 already; keep it safe
-    return np.floor(_srgb_oetf(x) * 255.0 + 0.5).astype(np.uint8)
+    top = (1 << bits) - 1
+    return np.floor(_srgb_oetf(x) * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)
+
+
+def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
+    """`to_srgb` with 8-bit codes."""
+    return to_srgb(rgb, exposure, tonemap, 8)
+
+
+def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None) -> np.ndarray:
+    """The PNG's H x W x 4 codes (uint8 or uint16) of a premultiplied linear render.
+
+    Alpha is the render's alpha, linear. The colour is straight: the covering part of the
+    pixel, (RGB - (1 - alpha) * background) / alpha, tone-mapped and sRGB-encoded, where
+    `background` is the radiance the render composited behind (a volume's --background;
+    None = 0, as for glass, whose sky is not known per pixel here). Where alpha is 0 the
+    colour is the render's RGB as it is, i.e. what lies behind (the background, the sky
+    or environment), so a viewer that ignores alpha still shows the whole picture. Light
+    with no opacity (emission where the density is 0) cannot be expressed with straight
+    alpha: it survives in EXR/NPY only.
+    """
+    rgba = np.asarray(rgba, np.float64)
+    rgb, alpha = rgba[..., :3], rgba[..., 3]
+    a = np.where(np.isfinite(alpha), np.clip(alpha, 0.0, 1.0), 1.0)
+    covered = a > 0
+    colour = rgb.copy()
+    if np.any(covered):
+        part = rgb
+        if background is not None:
+            part = rgb - (1.0 - a)[..., None] * np.asarray(background, np.float64)[:3]
+        with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+            straight = part / np.where(covered, a, 1.0)[..., None]
+        colour = np.where(covered[..., None], straight, rgb)
+    out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
+    out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
+    top = (1 << bits) - 1
+    out[..., 3] = np.floor(a * top + 0.5)
+    return out
 
 
 # ---------------------------------------------------------------------------- writers
@@ -150,84 +194,66 @@ def camera_attributes(camera) -> dict:
             'volrender:fov': float(camera.fov)}
 
 
-def _write_exr(tmp: str, rgba, channels: dict, exposure, tonemap, camera=None) -> None:
+def _write_exr(f, rgba, channels: dict, options: dict) -> None:
     # The bindings read the raw buffer and ignore strides: pass C-contiguous arrays only.
     pixels = {'RGBA': np.ascontiguousarray(rgba, dtype=np.float32)}
     for name, data in channels.items():
         pixels[name] = np.ascontiguousarray(data, dtype=np.float32)
     # A fresh header each time: the constructor adds dataWindow/displayWindow to it.
     header = {'compression': OpenEXR.ZIP_COMPRESSION, 'type': OpenEXR.scanlineimage}
-    if camera is not None:
-        header.update(camera_attributes(camera))
+    if options.get('camera') is not None:
+        header.update(camera_attributes(options['camera']))
     try:
-        OpenEXR.File(header, pixels).write(tmp)
+        OpenEXR.File(header, pixels).write(f)     # a file object: any path, any encoding
     except RuntimeError as e:  # the library's I/O errors (disk full, permissions)
         raise OSError(str(e)) from e
 
 
-def _write_npy(tmp: str, rgba, channels: dict, exposure, tonemap, camera=None) -> None:
-    with open(tmp, 'wb') as f:
-        np.save(f, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
+def _write_npy(f, rgba, channels: dict, options: dict) -> None:
+    np.save(f, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
 
 
-def _png_chunk(kind: bytes, data: bytes) -> bytes:
-    return (struct.pack('>I', len(data)) + kind + data
-            + struct.pack('>I', zlib.crc32(kind + data) & 0xFFFFFFFF))
+def _write_png(f, rgba, channels: dict, options: dict) -> None:
+    bits = options.get('png_bits', 8)
+    px = png_pixels(rgba, options.get('exposure', 0.0), options.get('tonemap', 'filmic'), bits,
+                    options.get('background'))
+    h, w = px.shape[:2]
+    if bits == 8:
+        from PIL import Image as PILImage
+        from PIL import PngImagePlugin
+        info = PngImagePlugin.PngInfo()
+        info.add(b'sRGB', b'\x00')                  # sRGB, perceptual intent
+        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=6)
+    else:
+        import png                                  # pypng: 16-bit colour PNGs
+        png.Writer(w, h, greyscale=False, alpha=True, bitdepth=16, compression=6).write(
+            f, px.reshape(h, w * 4))
 
 
-def _encode_png(rgb8) -> bytes:
-    """Encode an ``H x W x 3`` uint8 sRGB array as PNG (8-bit RGB, filter type 0)."""
-    rgb8 = np.ascontiguousarray(rgb8, dtype=np.uint8)
-    h, w, _ = rgb8.shape
-    rows = np.zeros((h, 1 + 3 * w), dtype=np.uint8)  # leading 0 per row: filter "None"
-    rows[:, 1:] = rgb8.reshape(h, 3 * w)
-    ihdr = struct.pack('>IIBBBBB', w, h, 8, 2, 0, 0, 0)  # 8-bit, truecolour, no interlace
-    return (_PNG_SIGNATURE
-            + _png_chunk(b'IHDR', ihdr)
-            + _png_chunk(b'sRGB', b'\x00')                     # sRGB, perceptual intent
-            + _png_chunk(b'gAMA', struct.pack('>I', 45455))    # companion per the PNG spec
-            + _png_chunk(b'IDAT', zlib.compress(rows.tobytes(), 6))
-            + _png_chunk(b'IEND', b''))
-
-
-def _write_png(tmp: str, rgba, channels: dict, exposure: float, tonemap: str, camera=None) -> None:
-    data = _encode_png(to_srgb8(rgba[..., :3], exposure, tonemap))
-    with open(tmp, 'wb') as f:
-        f.write(data)
-
-
-# suffix -> writer(tmp_path, rgba, channels, exposure, tonemap)
+# suffix -> writer(file object, rgba, channels, options)
 _WRITERS = {'.exr': _write_exr, '.npy': _write_npy, '.png': _write_png}
 
 
-def _new_temp(out: Path) -> Path:
-    """Create an empty, new temporary file beside ``out``: ``.<stem>.tmpXXXXXXXX<suffix>``."""
-    while True:
-        tmp = out.with_name(f".{out.stem}.tmp{secrets.token_hex(4)}{out.suffix}")
-        try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
-        except FileExistsError:
-            continue
+def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 'filmic',
+                camera=None, png_bits: int = 8, background=None) -> Path:
+    """Write a rendered image atomically; return the file written (symlinks followed).
 
-
-def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
-                tonemap: str = 'filmic', camera=None) -> Path:
-    """Write a rendered image atomically; return the resolved path.
-
-    ``rgba``: float ``H x W x 4``, linear, row 0 = top of the image. ``aovs``: optional
-    dict of layer name -> ``H x W`` float array, ``.exr`` only (channel names:
-    ``AOV_CHANNELS``). ``exposure`` and ``tonemap`` apply to ``.png`` only, which stores
-    RGB without alpha: the renders already composite the background, so RGB is the
-    final picture. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
+    ``rgba``: float ``H x W x 4``, linear, premultiplied, row 0 = top of the image.
+    ``aovs``: optional dict of layer name -> ``H x W`` float array, ``.exr`` only (channel
+    names: ``AOV_CHANNELS``). ``exposure``, ``tonemap``, ``png_bits`` (8 or 16) and
+    ``background`` (the radiance composited behind, see ``png_pixels``) apply to ``.png``
+    only. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
     ``camera``: a camera.Camera recorded in the EXR header (``camera_attributes``).
 
     Raises ``UserError`` for a bad path or a failed write (disk full, permissions); on any
-    failure an existing file at ``path`` is left untouched and no temporary file remains.
+    failure or interruption an existing file at ``path`` is left untouched and no
+    temporary file remains (``volrender.atomic``).
     """
     aovs = dict(aovs or {})
     out = check_output(path, aovs)
     _check_tonemap(tonemap)
+    if png_bits not in PNG_BITS:
+        raise UserError(f"PNG bit depth {png_bits!r} is not supported", fix="use 8 or 16")
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.shape[0] < 1 or rgba.shape[1] < 1:
         raise ValueError(f"rgba must be H x W x 4 with H, W >= 1, got shape {rgba.shape}")
@@ -239,28 +265,10 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
         if data.shape != rgba.shape[:2]:
             raise ValueError(f"layer {name!r} has shape {data.shape}, expected {rgba.shape[:2]}")
         channels[_aov_channel(name)] = data
-
-    try:
-        tmp = _new_temp(out)
-    except OSError as e:
-        raise UserError(f"cannot create a file in {str(out.parent)!r}: {e.strerror or e}",
-                        path=out, fix="check the directory's permissions and free space") from e
-    try:
-        _WRITERS[out.suffix.lower()](str(tmp), rgba, channels, exposure, tonemap, camera)
-        fd = os.open(tmp, os.O_RDWR)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, out)
-    except OSError as e:
-        raise UserError(f"cannot write image: {e.strerror or e}", path=out,
-                        fix="check free disk space and the directory's permissions") from e
-    finally:
-        try:
-            tmp.unlink()  # gone already after a successful replace
-        except OSError:
-            pass
+    options = dict(exposure=exposure, tonemap=tonemap, camera=camera, png_bits=png_bits,
+                   background=background)
+    with atomic.replace(out, "image") as f:
+        _WRITERS[out.suffix.lower()](f, rgba, channels, options)
     return out
 
 
@@ -268,88 +276,39 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0,
 
 def read_exr_channels(path) -> dict[str, np.ndarray]:
     """Every channel of an EXR file (first part) by name, as ``H x W`` arrays."""
-    path = Path(path)
-    if not path.is_file():
-        raise UserError("file not found", path=path, fix="check the path")
+    path = check_input(path, "image")
     try:
-        f = OpenEXR.File(str(path), separate_channels=True)
+        with open(path, 'rb') as fh:            # a file object: any path, any encoding
+            f = OpenEXR.File(io.BytesIO(fh.read()), separate_channels=True)
     except RuntimeError as e:
         raise UserError(f"not a readable OpenEXR file ({e})", path=path,
                         fix="re-export it as OpenEXR") from e
     return {name: ch.pixels for name, ch in f.channels().items()}
 
 
-def _unfilter(raw: bytes, h: int, stride: int, bpp: int) -> np.ndarray:
-    """Undo PNG per-row filters (all five types) -> ``h x stride`` uint8."""
-    data = np.frombuffer(raw, dtype=np.uint8).reshape(h, stride + 1)
-    out = np.zeros((h, stride), dtype=np.uint8)
-    prev = np.zeros(stride, dtype=np.int32)
-    for y in range(h):
-        kind, line = data[y, 0], data[y, 1:].astype(np.int32)
-        if kind == 0:
-            cur = line
-        elif kind == 2:
-            cur = (line + prev) & 0xFF
-        elif kind in (1, 3, 4):
-            cur = line.copy()
-            for x in range(stride):
-                a = cur[x - bpp] if x >= bpp else 0
-                b = prev[x]
-                c = prev[x - bpp] if x >= bpp else 0
-                if kind == 1:
-                    pred = a
-                elif kind == 3:
-                    pred = (a + b) // 2
-                else:
-                    p = a + b - c
-                    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-                    pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
-                cur[x] = (cur[x] + pred) & 0xFF
-        else:
-            raise ValueError(f"bad PNG filter type {kind}")
-        out[y] = cur
-        prev = cur
-    return out
-
-
 def _read_png(path: Path) -> np.ndarray:
-    """Decode an 8-bit RGB, non-interlaced PNG (what ``write_image`` produces)."""
-    blob = path.read_bytes()
-    fix = "only 8-bit RGB non-interlaced PNGs are read here; use Pillow for others"
+    """H x W x 4 codes of a PNG (uint8, or uint16 for a 16-bit file), any colour type."""
+    from PIL import Image as PILImage
+    with open(path, 'rb') as fh:
+        blob = fh.read()
     if not blob.startswith(_PNG_SIGNATURE):
-        raise UserError("not a PNG file", path=path, fix=fix)
-    pos, header, idat = len(_PNG_SIGNATURE), None, []
-    while pos + 12 <= len(blob):
-        length, kind = struct.unpack('>I4s', blob[pos:pos + 8])
-        if pos + 12 + length > len(blob):
-            raise UserError("corrupt PNG (truncated)", path=path, fix="re-render it")
-        data = blob[pos + 8:pos + 8 + length]
-        (crc,) = struct.unpack('>I', blob[pos + 8 + length:pos + 12 + length])
-        if zlib.crc32(kind + data) & 0xFFFFFFFF != crc:
-            raise UserError(f"corrupt PNG (bad {kind!r} chunk)", path=path, fix="re-render it")
-        if kind == b'IHDR':
-            header = struct.unpack('>IIBBBBB', data)
-        elif kind == b'IDAT':
-            idat.append(data)
-        elif kind == b'IEND':
-            break
-        pos += 12 + length
-    if header is None or not idat:
-        raise UserError("corrupt PNG (missing IHDR or IDAT)", path=path, fix="re-render it")
-    w, h, depth, colour, _, _, interlace = header
-    if (depth, colour, interlace) != (8, 2, 0):
-        raise UserError(f"unsupported PNG (bit depth {depth}, colour type {colour}, "
-                        f"interlace {interlace})", path=path, fix=fix)
+        raise UserError("not a PNG file", path=path, fix="re-render it")
     try:
-        raw = zlib.decompress(b''.join(idat))
-        pixels = _unfilter(raw, h, 3 * w, 3)
-    except (zlib.error, ValueError) as e:
-        raise UserError(f"corrupt PNG ({e})", path=path, fix="re-render it") from e
-    return pixels.reshape(h, w, 3)
+        if len(blob) > 24 and blob[12:16] == b'IHDR' and blob[24] == 16:
+            import png                          # Pillow reads 16-bit colour as 8 bits
+            w, h, rows, info = png.Reader(bytes=blob).asRGBA()
+            return np.vstack([np.asarray(r, np.uint16) for r in rows]).reshape(h, w, 4)
+        with PILImage.open(io.BytesIO(blob)) as im:
+            im.load()
+            return np.asarray(im.convert('RGBA'))
+    except Exception as e:                      # Pillow and pypng raise many kinds
+        raise UserError(f"corrupt PNG ({type(e).__name__}: {e})", path=path,
+                        fix="re-render it") from None
 
 
 def read_image(path) -> np.ndarray:
-    """Read an image: ``H x W x 4`` float32 for .exr/.npy, ``H x W x 3`` uint8 for .png.
+    """Read an image: ``H x W x 4`` float32 for .exr/.npy, ``H x W x 4`` uint8 (uint16
+    for 16-bit files) sRGB codes with straight alpha for .png.
 
     An EXR without an A channel reads with alpha 1.
     """
@@ -358,15 +317,12 @@ def read_image(path) -> np.ndarray:
     if suffix not in SUFFIXES:
         raise UserError(f"unsupported image format {path.suffix or '(no suffix)'!r}",
                         path=path, fix=f"use one of {', '.join(SUFFIXES)}")
-    if not path.is_file():
-        raise UserError("file not found", path=path, fix="check the path")
+    path = check_input(path, "image")
     if suffix == '.png':
         return _read_png(path)
     if suffix == '.npy':
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except ValueError as e:
-            raise UserError(f"not a readable .npy array ({e})", path=path, fix="re-render it") from e
+        from .points import load_npy_checked
+        arr = load_npy_checked(path, "re-render it")
     else:
         ch = read_exr_channels(path)
         if not all(c in ch for c in 'RGB'):

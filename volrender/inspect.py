@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import atomic
 from .errors import UserError
 from .points import default_radius  # noqa: F401  (re-exported for notebooks)
 
@@ -45,7 +46,11 @@ _CORNER_BITS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dt
 
 
 def _pv():
-    import pyvista
+    try:
+        import pyvista
+    except ImportError as exc:
+        raise UserError(f"pyvista is not installed ({exc})",
+                        fix="pip install 'volrender[inspect]' (bash run.sh setup installs it)") from None
     return pyvista
 
 
@@ -283,21 +288,10 @@ def _check_outputs(screenshot, export, show):
 
 
 def _atomic(path: Path, write):
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it."""
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.",
-                                   suffix=path.suffix)
-    except OSError as e:
-        raise UserError(f"cannot write ({e.strerror})", path=path,
-                        fix="check that the folder exists and is writable") from None
-    os.close(fd)
-    try:
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it
+    (volrender.atomic: signals, temporary files and errors handled as for images)."""
+    with atomic.replace_by_name(path, "view") as tmp:
         write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _save_vtm(blocks, path: Path):
@@ -317,7 +311,8 @@ def _save_vtm(blocks, path: Path):
             for f in parts.iterdir():
                 os.replace(f, dest / f.name)
             parts.rmdir()
-        os.replace(tmpdir / path.name, path)
+        index = (tmpdir / path.name).read_bytes()
+        atomic.write_bytes(path, index, "export")
     finally:
         for f in tmpdir.rglob("*"):
             if f.is_file():

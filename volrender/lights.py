@@ -23,6 +23,7 @@ class Sun:
             raise UserError(f"sun direction must be a non-zero finite vector, got {self.direction}")
         if not np.isfinite(self.irradiance) or self.irradiance < 0:
             raise UserError(f"sun irradiance must be finite and >= 0, got {self.irradiance}")
+        d = d / np.abs(d).max()             # first: |d|^2 neither overflows nor underflows
         object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
 
 

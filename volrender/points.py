@@ -17,9 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .files import check_input
 
 __all__ = ["PointCloud", "load_points", "blob", "uniform_box", "glass_gather",
            "generate", "GENERATORS"]
+
+
+MAX_COORDINATE = 1e18       # |coordinate| accepted from files (glass.MAX_EXTENT: float32 squares)
 
 
 @dataclass(frozen=True)
@@ -82,10 +86,7 @@ def load_points(path) -> PointCloud:
     if suffix not in readers:
         raise UserError(f"unsupported suffix '{suffix or '(none)'}' for a point cloud",
                         path=path, fix="use .ply, .xyz, .csv, .txt or .npy")
-    if not path.exists():
-        raise UserError("file not found", path=path, fix="check the path")
-    if not path.is_file():
-        raise UserError("not a regular file", path=path, fix="give a point-cloud file")
+    check_input(path, "point-cloud file")
     centers, radii, colors = readers[suffix](path)
     return _finish(path, centers, radii, colors)
 
@@ -100,13 +101,20 @@ def _finish(path, centers, radii, colors) -> PointCloud:
         raise UserError(f"{int(bad.sum())} of {n} points have NaN/Inf coordinates "
                         f"(first: point {int(np.argmax(bad))})", path=path,
                         fix="remove or repair those points")
+    far = np.abs(centers).max(axis=1) > MAX_COORDINATE
+    if far.any():
+        i = int(np.argmax(far))
+        raise UserError(f"{int(far.sum())} of {n} points lie beyond +-{MAX_COORDINATE:g}, "
+                        f"where float32 rendering cannot follow (first: point {i}, "
+                        f"{tuple(float(v) for v in centers[i])})", path=path,
+                        fix="rescale or recentre the cloud")
     if radii is not None:
-        bad = ~np.isfinite(radii) | (radii < 0)
+        bad = ~np.isfinite(radii) | (radii < 0) | (radii > MAX_COORDINATE)
         if bad.any():
             i = int(np.argmax(bad))
-            raise UserError(f"{int(bad.sum())} radii are negative or NaN/Inf "
-                            f"(first: point {i}, radius {radii[i]})", path=path,
-                            fix="radii must be finite and >= 0")
+            raise UserError(f"{int(bad.sum())} radii are negative, NaN/Inf or above "
+                            f"{MAX_COORDINATE:g} (first: point {i}, radius {radii[i]})",
+                            path=path, fix=f"radii must be in [0, {MAX_COORDINATE:g}]")
     if colors is not None:
         if not np.isfinite(colors).all() or colors.min() < 0 or colors.max() > 1:
             raise UserError(f"colours outside 0..1 (range {np.nanmin(colors)}.."
@@ -189,6 +197,9 @@ def _parse_ply_header(path, data: bytes):
                 prop = (words[2], _PLY_TYPES[words[1]])
             elif (len(words) == 5 and words[1] == "list" and words[2] in _PLY_TYPES
                   and words[3] in _PLY_TYPES):
+                if _PLY_TYPES[words[2]][0] not in "iu":
+                    raise UserError(f"{where}: a list's count must have an integer type",
+                                    path=path, fix="use e.g. 'property list uchar int ...'")
                 prop = (words[4], "list", _PLY_TYPES[words[2]], _PLY_TYPES[words[3]])
             else:
                 raise UserError(f"{where}: unknown property type", path=path,
@@ -220,6 +231,9 @@ def _read_ply(path):
         if axis not in pnames:
             raise UserError(f"PLY vertex element has no '{axis}' property", path=path,
                             fix="the vertex element needs float x, y, z")
+        if any(p[0] == axis and len(p) == 4 for p in vertex.props):
+            raise UserError(f"PLY vertex property '{axis}' is a list", path=path,
+                            fix="x, y and z must be scalar properties (property float x)")
     if fmt == "ascii":
         cols = _ply_ascii_vertices(path, data[body:], elements[:vi], vertex, nheader)
     else:
@@ -296,7 +310,10 @@ def _ply_ascii_rows_with_lists(path, vlines, vertex, lineno):
                     out[p[0]].append(float(toks[t]))
                     t += 1
                 else:
-                    t += 1 + int(toks[t])
+                    n = int(toks[t])
+                    if n < 0:
+                        raise ValueError("negative list count")
+                    t += 1 + n
         except (IndexError, ValueError):
             raise UserError(f"line {lineno(k)}: malformed vertex row", path=path,
                             fix="each vertex line needs one value per property") from None
@@ -354,6 +371,8 @@ def _skip_uniform_lists(data, offset, elem, endian):
             if pos + np.dtype(p[2]).itemsize > len(data):
                 return None
             n = int(np.frombuffer(data, endian + p[2], 1, pos)[0])
+            if n < 0 or n * np.dtype(p[3]).itemsize > len(data):
+                return None
             lengths[p[0]] = n
             fields.append((p[0], endian + p[2]))
             fields.append((p[0] + "#items", endian + p[3], (n,)))
@@ -386,6 +405,10 @@ def _walk_binary_rows(path, data, offset, elem, endian, keep):
                     pos += np.dtype(p[1]).itemsize
                 else:
                     (n,) = struct.unpack_from(endian + _STRUCT_CODES[p[2]], data, pos)
+                    if n < 0:
+                        raise UserError(f"corrupt binary PLY: a negative list length ({n}) in "
+                                        f"the '{elem.name}' element", path=path,
+                                        fix="re-export or re-download the file")
                     pos += np.dtype(p[2]).itemsize + int(n) * np.dtype(p[3]).itemsize
     except struct.error:
         pos = len(data) + 1
@@ -469,12 +492,36 @@ def _all_numbers(tokens) -> bool:
 
 # ---- npy
 
-def _read_npy(path):
+def load_npy_checked(path, fix: str):
+    """np.load of a .npy file once its header agrees with the file's size (a header that
+    claims more than the file holds would otherwise ask for that much memory first)."""
+    fmt = np.lib.format
     try:
-        arr = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise UserError(f"not a readable .npy array ({exc})", path=path,
-                        fix="save with numpy.save(path, array) of shape (N,3) or (N,4)") from None
+        with open(path, "rb") as f:
+            version = fmt.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = fmt.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, _, dtype = fmt.read_array_header_2_0(f)
+            else:
+                shape, _, dtype = fmt._read_array_header(f, version)
+            start = f.tell()
+        size = Path(path).stat().st_size
+        if dtype.hasobject:
+            raise UserError("the array holds Python objects, which volrender does not unpickle",
+                            path=path, fix=fix)
+        need = math.prod(shape) * dtype.itemsize
+        if need != size - start:
+            raise UserError(f"the .npy header says shape {shape} of {dtype} ({need} bytes), "
+                            f"but the file holds {size - start} bytes of data", path=path,
+                            fix=fix)
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, TypeError, SyntaxError) as exc:
+        raise UserError(f"not a readable .npy array ({exc})", path=path, fix=fix) from None
+
+
+def _read_npy(path):
+    arr = load_npy_checked(path, "save with numpy.save(path, array) of shape (N,3) or (N,4)")
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiu" \
             or arr.ndim != 2 or arr.shape[1] not in (3, 4):
         desc = f"shape {getattr(arr, 'shape', '?')}, dtype {getattr(arr, 'dtype', '?')}"

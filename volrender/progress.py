@@ -1,32 +1,42 @@
-"""A small progress bar on stderr, shown only for renders that take more than a moment."""
+"""Progress bars: tqdm (tqdm.auto, so a notebook gets its widget), shown only for work
+that takes more than half a second, and by default only when stderr is a terminal or in
+a notebook. A render's bar (dispatch.run_rows) counts pixel-samples, with the rows
+finished as its postfix, and is updated after every launch, i.e. at least every second
+(launches aim at dispatch.TARGET_S)."""
 from __future__ import annotations
 
 import sys
-import time
+
+
+def _interactive() -> bool:
+    try:
+        if sys.stderr.isatty():
+            return True
+    except (AttributeError, ValueError):
+        return False
+    return "ipykernel" in sys.modules
 
 
 class Progress:
-    def __init__(self, total: int, label: str = "render", enabled: bool | None = None,
-                 delay: float = 0.5, stream=None):
-        self.total, self.label, self.done = max(1, total), label, 0
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.delay, self.start, self.shown = delay, time.perf_counter(), False
+    """Progress(total, label, enabled); update(n) adds n done, and `rows` (when given)
+    shows as 'rows R/total_rows'."""
 
-    def update(self, n: int = 1):
-        self.done = min(self.total, self.done + n)
-        elapsed = time.perf_counter() - self.start
-        if not self.enabled or (elapsed < self.delay and not self.shown):
+    def __init__(self, total: int, label: str = "render", enabled: bool | None = None,
+                 delay: float = 0.5, *, unit: str = "it", rows: int | None = None):
+        self.rows, self.bar = rows, None
+        if not (_interactive() if enabled is None else enabled):
             return
-        self.shown = True
-        frac = self.done / self.total
-        eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} {100 * frac:5.1f}% [{bar:<30}] "
-                          f"{elapsed:6.1f} s, eta {eta:5.1f} s")
-        self.stream.flush()
+        from tqdm.auto import tqdm
+        self.bar = tqdm(total=max(1, total), desc=label, unit=unit, unit_scale=True, delay=delay,
+                        file=sys.stderr, dynamic_ncols=True, mininterval=0.2, leave=True)
+
+    def update(self, n: int = 1, rows: int | None = None):
+        if self.bar is None:
+            return
+        if rows is not None and self.rows:
+            self.bar.set_postfix_str(f"rows {rows}/{self.rows}", refresh=False)
+        self.bar.update(n)
 
     def close(self):
-        if self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
+        if self.bar is not None:
+            self.bar.close()

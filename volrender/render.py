@@ -30,13 +30,13 @@ VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
 class Plan:
     """What one launch needs. Kernel arguments are `inputs` (uploaded read-only; numpy
     scalars are passed by value), then one buffer per output, then `extra`, then the
-    band's first row (added by dispatch.run_rows)."""
+    launch's first row and sample range (added by dispatch.run_rows)."""
     entry: str                       # cl/<entry>.cl and its kernel
     features: object                 # frozen Features with .flags()
     inputs: list
     outputs: list                    # [(name, shape)]: float32 buffers the kernel writes
     dispatch: Dispatch
-    band_pixels: int                 # pixels per launch on CPUs (GPUs launch whole frames)
+    band_pixels: int                 # pixel-samples of the first launch on CPUs (dispatch)
     extra: list = field(default_factory=list)
     aovs: tuple = ()                 # layers to return besides rgba
     info: dict = field(default_factory=dict)
@@ -65,11 +65,14 @@ class Image:
     def height(self) -> int:
         return self.rgba.shape[0]
 
-    def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic") -> Path:
-        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB), atomically."""
+    def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic",
+             png_bits: int = 8) -> Path:
+        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB RGBA,
+        straight alpha: image.png_pixels), atomically."""
         from .image import write_image
         return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
-                           camera=self.camera)
+                           camera=self.camera, png_bits=png_bits,
+                           background=self.info.get("background"))
 
     def as_dict(self) -> dict:
         """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
@@ -106,6 +109,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = get_device(device)
     cam = scene.camera
+    t_plan = time.perf_counter()
     plan = _planner(scene.kind)(scene, dev, variant)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags())
@@ -116,8 +120,9 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     args += list(outs.values())
     args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.extra]
     t0, c0 = time.perf_counter(), time.process_time()
+    setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     kernel_ms = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                         dispatch=plan.dispatch)
+                         dispatch=plan.dispatch, spp=scene.settings.spp)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -128,9 +133,13 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     rgba = host.pop("rgba")
     aovs = {}
     for name in plan.aovs:
-        aovs[name] = host[name] if name in host else _derived_aov(name, rgba)
+        if name in host:                  # (value, weight) pairs keep the value
+            aovs[name] = host[name][..., 0].copy() if host[name].ndim == 3 else host[name]
+        else:
+            aovs[name] = _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
-                 device=dev.name, flags=plan.features.flags(), camera=cam, info=plan.info)
+                 device=dev.name, flags=plan.features.flags(), camera=cam,
+                 info={**plan.info, "setup_ms": setup_ms})
 
 
 def _derived_aov(name, rgba):
@@ -160,4 +169,4 @@ def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
         hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
         raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
                         f"fits {where} ({limit / gib:.1f} GiB)",
-                        fix=f"render a smaller --size ({hint} at most)")
+                        fix=f"render a smaller size (--size, or [render].size; {hint} at most)")

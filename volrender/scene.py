@@ -28,12 +28,13 @@ ranges and kinds, naming the file and `[section].key`. Paths resolve relative to
     [material]               # molten glass: color, ior, absorption, reflectivity, glow, shininess
     [camera]                 # origin, target, up, fov (default framing fits the content)
     [[lights]]               # type = "sun" (direction, irradiance) or "point" (position, intensity)
-    [environment]            # map = "sky.exr" (glass)
+    [environment]            # map = "sky.exr" or map = [r, g, b] (uniform radiance)
     [render]                 # size, spp, seed, shadows, dispatch, tile, and glass's tracing keys
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 from dataclasses import dataclass
@@ -44,8 +45,8 @@ import numpy as np
 
 from .camera import View
 from .errors import UserError
-from .settings import (NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value, knobs,
-                       override_key)
+from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
+                       knobs, override_key)
 
 MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
@@ -79,9 +80,15 @@ class GlassContent:
 @dataclass(frozen=True, eq=False)
 class Environment:
     """An equirectangular environment: float32 (H, W, 3) radiance; row 0 looks up, the
-    image centre looks along -z (cl/glass.h)."""
+    image centre looks along -z (cl/env.h). A uniform radiance is a 1x1 map."""
     texels: np.ndarray
     source: str = ""
+
+    @property
+    def uniform(self):
+        """The radiance (3 floats) when every texel holds the same, else None."""
+        t = self.texels.reshape(-1, 3)
+        return tuple(float(v) for v in t[0]) if np.all(t == t[0]) else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,9 +111,9 @@ class Scene:
 
     @classmethod
     def of(cls, camera, lights, content, environment=None) -> "Scene":
-        """A Scene from parts already resolved (tests, benchmarks); a glass settings.env
-        path is read here."""
-        if environment is None and content.kind == "glass" and content.settings.env is not None:
+        """A Scene from parts already resolved (tests, benchmarks); settings.env is read
+        here."""
+        if environment is None and content.settings.env is not None:
             environment = _environment(content.settings.env, "env")
         return cls(camera, tuple(lights), content, environment)
 
@@ -144,17 +151,13 @@ def _options() -> dict[str, Option]:
 
 
 LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
+EXTRA_KEYS = LIGHT_KEYS + ("camera",)     # override keys that are not settings fields
 
 
+@functools.lru_cache(maxsize=None)
 def options() -> dict[str, Option]:
     """Every override key -> Option (the CLI builds its render options from these)."""
-    global _OPTIONS
-    if _OPTIONS is None:
-        _OPTIONS = _options()
-    return _OPTIONS
-
-
-_OPTIONS = None
+    return _options()
 
 
 # --------------------------------------------------------------------------- scene files
@@ -188,6 +191,11 @@ def _check_type(value, kind, where, base: Path):
         return value if isinstance(value, str) else bad("a string")
     if kind == NUM:
         return float(value) if _finite(value) else bad("a finite number")
+    if kind == ENV:              # a uniform R,G,B or a map file
+        return _check_type(value, VEC if isinstance(value, (list, int, float)) else PATH,
+                           where, base)
+    if kind == VEC and _finite(value):
+        value = [value]          # one number = one value (e.g. albedo = 0.9)
     if kind in (VEC3, VEC):
         n = (3,) if kind == VEC3 else (1, 2, 3)
         if not (isinstance(value, list) and len(value) in n and all(map(_finite, value))):
@@ -207,9 +215,9 @@ def _check_type(value, kind, where, base: Path):
         if not isinstance(value, str) or not value:
             bad("a file path")
         try:        # a NUL byte or an over-long name raise ValueError / OSError here
-            path = (base / value).resolve()
+            path = (base / value).resolve()        # a loop raises RuntimeError on 3.11
             exists, is_dir = path.exists(), path.is_dir()
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
                             fix="give the path of an existing file") from None
@@ -219,6 +227,11 @@ def _check_type(value, kind, where, base: Path):
         if is_dir:
             raise UserError(f"{where} names {value!r}, which is a directory",
                             fix="give the path of a file")
+        from .files import check_input
+        try:
+            check_input(path, "file")
+        except UserError as exc:             # a FIFO, a device, an unreadable file
+            raise UserError(f"{where} names {value!r}: {str(exc).split(': ', 1)[-1]}") from None
         return path
     raise AssertionError(kind)
 
@@ -239,9 +252,8 @@ def _section(table, name, where, base):
 def read(path) -> dict:
     """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
     resolved relative to the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise UserError("no such scene file", path=path)
+    from .files import check_input
+    path = check_input(path, "scene file")
     try:
         raw = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -273,7 +285,7 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
     if vol is not None:
         if "file" not in vol:
             raise UserError("[volume] needs file = ...")
-        for section in ("material", "environment"):
+        for section in ("material",):
             if section in scene:
                 raise UserError(f"[{section}] applies to point clouds (molten glass), not to "
                                 "a [volume]", fix=f"remove [{section}]")
@@ -342,6 +354,12 @@ def generated_cloud(text: str, seed: int = 0):
     return points.generate(text.partition(":")[0], generated_cloud_count(text), seed)
 
 
+def _explicit(overrides) -> set:
+    """Option keys given as overrides (not from a file)."""
+    by_field = {o.field: o.key for o in options().values()}
+    return {by_field.get(k, k) for k, v in overrides.items() if v is not None}
+
+
 def _negates(opt) -> bool:
     """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
     return opt.meta["kind"] is bool and opt.key != opt.field
@@ -356,12 +374,12 @@ def _given_from_overrides(overrides) -> dict:
     for key, value in overrides.items():
         if value is None:
             continue
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             given[key] = (value, "--" + key.replace("_", "-"))
             continue
         opt = opts.get(key) or by_field.get(key)
         if opt is None:
-            known = ", ".join(sorted([*opts, *LIGHT_KEYS]))
+            known = ", ".join(sorted([*opts, *EXTRA_KEYS]))
             raise UserError(f"unknown option {key!r}", fix=f"known options: {known}")
         if isinstance(value, list):
             value = tuple(value)
@@ -389,7 +407,7 @@ def _given_from_file(doc, path) -> dict:
 
 def _check_kinds(given, kind, label):
     for key, (value, where) in given.items():
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             continue
         owner = options()[key].owner
         if owner in ("volume", "glass") and owner != kind:
@@ -402,7 +420,7 @@ def _field_values(given, owners):
     """Checked {field: value} of the given keys whose owner is in owners."""
     out = {}
     for key, (value, where) in given.items():
-        if key in LIGHT_KEYS:
+        if key in EXTRA_KEYS:
             continue
         opt = options()[key]
         if opt.owner in owners:
@@ -411,8 +429,26 @@ def _field_values(given, owners):
     return out
 
 
-def _lights(given, doc):
-    from .lights import DEFAULT_LIGHTS, PointLight, Sun
+def _check_light(kind, vec, power, color, where):
+    """Ranges of one light (settings.MAX_VALUE bounds radiance-like values, so the packed
+    float32 radiance, colour x power, stays finite)."""
+    from .settings import MAX_VALUE
+    name = ("irradiance", "direction") if kind == "sun" else ("intensity", "position")
+    if not 0.0 <= power <= MAX_VALUE:
+        raise UserError(f"{where}: {name[0]} must be in [0, {MAX_VALUE:g}], got {power:g}")
+    if not all(0.0 <= c <= MAX_VALUE for c in color) or max(color) * power > MAX_VALUE:
+        raise UserError(f"{where}: color x {name[0]} must be in [0, {MAX_VALUE:g}], got "
+                        f"{', '.join(f'{c:g}' for c in color)} x {power:g}")
+    if kind == "sun":
+        top = max(abs(v) for v in vec)
+        if top == 0.0:
+            raise UserError(f"{where}: the direction must not be zero")
+    elif max(abs(v) for v in vec) > MAX_VALUE:
+        raise UserError(f"{where}: position coordinates must be within +-{MAX_VALUE:g}")
+
+
+def _lights(given, doc, path=None):
+    from .lights import PointLight, Sun
     no_lights = given.get("no_lights", (False, ""))[0]
     explicit = [k for k in ("lights", "sun", "point_light") if k in given]
     if no_lights and explicit:
@@ -422,15 +458,27 @@ def _lights(given, doc):
     if "lights" in given:
         return tuple(given["lights"][0])
     if "sun" in given or "point_light" in given:
+        for key, kind in (("sun", "sun"), ("point_light", "point")):
+            for v in given.get(key, ((),))[0]:
+                if v:
+                    _check_light(kind, v[:3], v[3], (1.0, 1.0, 1.0),
+                                 f"--{key.replace('_', '-')} {','.join(f'{x:g}' for x in v)}")
         out = [Sun(tuple(s[:3]), s[3]) for s in given.get("sun", ((),))[0] if s]
         out += [PointLight(tuple(p[:3]), p[3]) for p in given.get("point_light", ((),))[0] if p]
         return tuple(out)
     if doc.get("lights"):
-        return tuple(Sun(l["direction"], l.get("irradiance", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     if l["type"] == "sun" else
-                     PointLight(l["position"], l.get("intensity", 1.0), l.get("color", (1.0, 1.0, 1.0)))
-                     for l in doc["lights"])
-    return tuple(DEFAULT_LIGHTS)
+        out = []
+        for i, l in enumerate(doc["lights"]):
+            where = f"{path}: [[lights]] #{i + 1}" if path else f"[[lights]] #{i + 1}"
+            color = l.get("color", (1.0, 1.0, 1.0))
+            if l["type"] == "sun":
+                _check_light("sun", l["direction"], l.get("irradiance", 1.0), color, where)
+                out.append(Sun(l["direction"], l.get("irradiance", 1.0), color))
+            else:
+                _check_light("point", l["position"], l.get("intensity", 1.0), color, where)
+                out.append(PointLight(l["position"], l.get("intensity", 1.0), color))
+        return tuple(out)
+    return None                           # the defaults, turned to the up axis by load()
 
 
 def _scan_defaults(cloud, settings):
@@ -452,10 +500,16 @@ def _scan_defaults(cloud, settings):
 
 
 def _environment(path, where):
+    """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
+    if isinstance(path, tuple):
+        rgb = np.asarray(path, np.float32).reshape(1, 1, 3)
+        return Environment(rgb, "uniform " + ",".join(f"{v:g}" for v in path))
+    from .files import check_input
     from .glass import load_environment
-    p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{where}: no such environment map", path=p, fix="check the path")
+    try:
+        p = check_input(path, "environment map")
+    except UserError as exc:
+        raise UserError(f"{where}: {exc}") from None
     return Environment(load_environment(p), str(p))
 
 
@@ -468,9 +522,10 @@ class Request:
     origin: str                       # "volume", "points", "generator" or "scene"
     doc: dict                         # the parsed scene file ({} without one)
     view: View
-    lights: tuple
+    lights: tuple | None              # None: the default lights
     settings: object                  # VolumeSettings or GlassSettings
     given: dict                       # {option key: (value, where)}
+    camera_file: Path | None = None   # --camera FILE
 
     @property
     def inputs(self) -> tuple:
@@ -481,8 +536,10 @@ class Request:
         for section in ("volume", "points"):
             if "file" in self.doc.get(section, {}):
                 out.append(Path(self.doc[section]["file"]))
-        if self.kind == "glass" and self.settings.env is not None:
+        if isinstance(self.settings.env, str):
             out.append(Path(self.settings.env))
+        if self.camera_file is not None:
+            out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
     def load(self) -> Scene:
@@ -492,7 +549,8 @@ class Request:
         if self.kind == "volume":
             from . import vdb
             path = self.doc["volume"]["file"] if self.doc else Path(self.source)
-            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid)
+            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid,
+                                     temperature_grid=settings.temperature_grid)
             content = VolumeContent(bricks, settings)
         else:
             from . import points
@@ -510,11 +568,23 @@ class Request:
                 settings, note = _scan_defaults(cloud, settings)
                 notes.append(note)
             content = GlassContent(cloud, settings)
-            if settings.env is not None:
-                environment = _environment(settings.env, self.given["env"][1])
+        if settings.env is not None:
+            environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
-        return Scene(self.view.camera(lo, hi), self.lights, content, environment, self.source,
-                     self.inputs, tuple(notes))
+        hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
+            if self.kind == "volume" else (None, "")
+        if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
+            notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
+        camera = self.view.camera(lo, hi, hint)
+        lights = self.lights
+        if lights is None:                # the default sun, from above along the up axis
+            from .camera import up_frame
+            from .lights import DEFAULT_LIGHTS, Sun
+            frame = up_frame(self.view.axis(hint))
+            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)), l.irradiance, l.color)
+                           if frame is not None else l for l in DEFAULT_LIGHTS)
+        return Scene(camera, lights, content, environment, self.source, self.inputs,
+                     tuple(notes))
 
 
 def request(source, **overrides) -> Request:
@@ -528,10 +598,19 @@ def request(source, **overrides) -> Request:
         given = {**_given_from_file(doc, Path(source)), **given}
     if origin == "generator":
         generated_cloud_count(str(source))
+    camera_file = None
+    if "camera" in given:               # a camera file: above the scene file, below the options
+        from .camera import read_camera_file
+        camera_file = Path(given.pop("camera")[0])
+        by_field = {o.field: o.key for o in options().values() if o.owner == "view"}
+        explicit = _explicit(overrides)
+        for field, value in read_camera_file(camera_file).items():
+            if by_field[field] not in explicit:
+                given[by_field[field]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
     view = View(**_field_values(given, ("view",)))
-    lights = _lights(given, doc)
+    lights = _lights(given, doc, Path(source) if origin == "scene" else None)
     values = _field_values(given, ("common", kind))
     if kind == "volume":
         from .volume import VolumeSettings
@@ -539,10 +618,13 @@ def request(source, **overrides) -> Request:
     else:
         from .glass import GlassSettings
         settings = GlassSettings(**values)
-        if settings.env is not None and not Path(settings.env).is_file():
-            raise UserError(f"{given['env'][1]}: no such environment map", path=settings.env,
-                            fix="check the path")
-    return Request(str(source), kind, origin, doc, view, lights, settings, given)
+    if isinstance(settings.env, str):
+        from .files import check_input
+        try:
+            check_input(settings.env, "environment map")
+        except UserError as exc:
+            raise UserError(f"{given['env'][1]}: {exc}") from None
+    return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file)
 
 
 def load_scene(source, **overrides) -> Scene:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 
 from .errors import UserError
@@ -24,6 +25,7 @@ from .errors import UserError
 
 # Value kinds of scene-file keys (scene.py checks them; the ranges are the knobs' checks).
 NUM, VEC3, VEC, SIZE, PATH, STRS = "number", "vec3", "vec", "size", "path", "strings"
+ENV = "environment"          # R,G,B (a list in scene files) or a file path
 
 
 def knob(default, help: str, *, check=None, flag: str | None = "", toml=None, kind=None,
@@ -150,6 +152,19 @@ def number(name: str, kind=float):
     return parse
 
 
+def env_value(text: str):
+    """--env: 1 or 3 comma-separated numbers (a uniform radiance), else a file path."""
+    try:
+        return floats(1, 3, "--env")(text)
+    except argparse.ArgumentTypeError:
+        if all(c in "0123456789.,+-eE " for c in text):
+            raise                 # numbers, but malformed: say so rather than "no such file"
+        return text
+
+
+env_value.__name__ = "--env"
+
+
 # ---------------------------------------------------------------------- the checks
 
 def _num(v) -> bool:
@@ -171,6 +186,7 @@ def in_range(lo, hi, *, integer=False, allow_none=False):
             kind = "an integer" if integer else "a finite number"
             return f"must be {kind} in [{lo:g}, {hi:g}]"
         return None
+    check.range = f"{lo}..{hi}" if integer else f"{lo:g}..{hi:g}"
     return check
 
 
@@ -182,6 +198,7 @@ def rgb(lo=0.0, hi=math.inf, n=(3,)):
             count = " or ".join(map(str, n))
             return f"takes {count} finite values {bound}"
         return None
+    check.range = f">= {lo:g} each" if hi == math.inf else f"{lo:g}..{hi:g} each"
     return check
 
 
@@ -197,9 +214,28 @@ def boolean(v):
 
 # ---------------------------------------------------------------------- shared settings
 
+def tile_size(v):
+    """A work-group tile WxH: 1..64 per side, at most 1024 work-items."""
+    ok = (isinstance(v, tuple) and len(v) == 2 and all(_int(c) and 1 <= c <= 64 for c in v)
+          and v[0] * v[1] <= 1024)
+    return None if ok else "is out of range (WxH with 1..64 per side and W*H <= 1024)"
+
+
+_SEED = in_range(-2 ** 63, 2 ** 64 - 1, integer=True)
+_SEED.range = "any 64-bit integer"
+
+
 # Largest radiance-like value accepted anywhere (lights, background, emission, glow...):
 # far below float32's 3.4e38, so sums over samples and lights stay finite.
 MAX_VALUE = 1e30
+
+
+def env_ok(v):
+    """An environment: None, a file path, or 3 radiances >= 0 (1 value = grey)."""
+    if v is None or (isinstance(v, str) and v) or isinstance(v, os.PathLike):
+        return None
+    return rgb(0, MAX_VALUE, n=(1, 3))(v) and \
+        f"takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
 
 
 @dataclass(frozen=True)
@@ -208,7 +244,7 @@ class CommonSettings:
     spp: int = knob(1, "samples per pixel (box filter, stratified)",
                     check=in_range(1, 65536, integer=True), toml=("render", "spp"),
                     parse=number("--spp", int))
-    seed: int = knob(0, "random seed", check=in_range(-2 ** 63, 2 ** 64 - 1, integer=True),
+    seed: int = knob(0, "random seed", check=_SEED,
                      toml=("render", "seed"), parse=number("--seed", int))
     shadows: bool = knob(True, "lights are not attenuated on their way (unshadowed lights)",
                          check=boolean, flag="--no-shadows", toml=("render", "shadows"))
@@ -217,11 +253,26 @@ class CommonSettings:
                          "into local memory first; auto: fragment (measured faster on PoCL and "
                          "the H200)", check=one_of(("auto", "fragment", "tiled", "fragment-driver")),
                          choices=("auto", "fragment", "tiled"), toml=("render", "dispatch"))
-    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles",
+    tile: tuple = knob((8, 8), "work-group size in pixels: fragment's blocks, tiled's tiles "
+                       "(1..64 per side, W*H <= 1024)", check=tile_size,
                        metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
                        kind=SIZE)
+    env: str | tuple | None = knob(
+        None, "environment: R,G,B (a uniform radiance; one value = grey) or an "
+        "equirectangular map (.exr, .npy; centre looks along -z, top row up). Glass reflects "
+        "and refracts it (default: a procedural sky over a checker ground); a volume is lit by "
+        "it and shows it behind (default: none)", metavar="R,G,B|ENV.exr", parse=env_value,
+        check=env_ok, toml=("environment", "map"), kind=ENV, show_default=False)
 
     def __post_init__(self):
+        if isinstance(self.env, (int, float)) and not isinstance(self.env, bool):
+            object.__setattr__(self, "env", (self.env,))
+        if isinstance(self.env, tuple) and len(self.env) == 1:
+            object.__setattr__(self, "env", tuple(self.env) * 3)
+        if isinstance(self.env, tuple) and all(map(_num, self.env)):
+            object.__setattr__(self, "env", tuple(float(v) for v in self.env))
+        elif self.env is not None and not isinstance(self.env, (str, tuple)):
+            object.__setattr__(self, "env", str(self.env))      # a pathlib.Path
         check_fields(self)
         from .dispatch import Dispatch
         Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid

@@ -9,14 +9,15 @@ Layout (the volume kernel depends on it):
   * table[(bx*dims[1] + by)*dims[2] + bz] = slot, or -1 for an all-zero brick.
   * data[slot, i, j, k] = value of local voxel (bx*8+i, by*8+j, bz*8+k).
   * majorant[slot] = data[slot].max() (bounds the interpolated density in the brick).
+  * optional emission and temperature grids in the same slots; a brick is stored when
+    its density or emission is non-zero (the temperature only colours the emission).
 """
 from __future__ import annotations
 
 import importlib
-import os
+import math
 import re
 import struct
-import tempfile
 import warnings
 import zipfile
 from dataclasses import dataclass
@@ -24,13 +25,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from . import atomic
+from .errors import UserError, printable
+from .files import check_input
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
-NPZ_VERSION = 1
+# 1: density (+ emission); 2: also a temperature grid. Caches are written as version 1
+# unless they hold a temperature grid, so older readers refuse only what they would
+# render without its colours; this reader takes both.
+NPZ_VERSION = 2
+NPZ_VERSIONS = (1, 2)
 MAX_BRICKS = 1 << 27          # table entries (512 MB of int32); more is refused
+MAX_COND = 1e5                # largest condition number of a grid's linear transform
+SCALE_RANGE = (1e-20, 1e20)   # singular values of the transform (world units per voxel)
+MAX_ORIGIN = 1 << 31          # |VDB index| of a layout's origin (VDB coordinates are int32)
 VDB_MAGIC = 0x56444220
+_MIN_DESCRIPTOR = 3 * 4 + 3 * 8   # three empty strings and three offsets
 _NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
 
 
@@ -55,6 +66,8 @@ class GridInfo:
     value_type: str            # 'float', 'vec3s', 'int32', 'double', 'ptdataidx32', ...
     grid_class: str            # 'fog volume', 'level set', 'staggered' or 'unknown'
     active_voxels: int | None = None
+    creator: str = ""          # the file's 'creator' metadata (the writing application)
+    metadata_keys: tuple = ()  # names of the grid's metadata entries
 
     def describe(self) -> str:
         return f"{self.name} ({self.value_type}, {self.grid_class})"
@@ -88,7 +101,10 @@ class _Reader:
 def _read_metamap(r: _Reader) -> dict:
     """MetaMap: count, then (name, type name, uint32 size, value bytes) each."""
     meta = {}
-    for _ in range(r.unpack("I")):
+    count = r.unpack("I")
+    if count * 12 > r.size - r.f.tell():
+        raise _Corrupt(f"{count} metadata entries cannot fit in the rest of the file")
+    for _ in range(count):
         name, type_name = r.string(), r.string()
         n = r.unpack("I")
         if n > r.size - r.f.tell():
@@ -98,6 +114,8 @@ def _read_metamap(r: _Reader) -> dict:
             meta[name] = raw.decode("utf-8", "replace")
         elif type_name in ("int32", "int64") and n in (4, 8):
             meta[name] = struct.unpack("<i" if n == 4 else "<q", raw)[0]
+        else:
+            meta[name] = None          # present, value not decoded
     return meta
 
 
@@ -122,25 +140,32 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
             r.unpack("II")                 # library major, minor
             has_offsets = r.read(1) != b"\0"
             r.read(36)                     # UUID as text
-            _read_metamap(r)               # file metadata
+            creator = _read_metamap(r).get("creator") or ""    # file metadata
             if not has_offsets:
                 return None
             count = r.unpack("i")
             if count < 0:
                 raise _Corrupt("negative grid count")
+            if count * _MIN_DESCRIPTOR > size - f.tell():
+                raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
             grids = []
             for _ in range(count):
                 name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
                 tree = r.string().removesuffix("_HalfFloat")
                 r.string()                 # instance parent
-                grid_pos, _block_pos, end_pos = r.unpack("qqq")
-                if not 0 < grid_pos <= end_pos <= size:
+                grid_pos, block_pos, end_pos = r.unpack("qqq")
+                # each grid lies after its descriptor, in order: never trust an offset
+                # that points backwards (it would make this loop read the same bytes forever)
+                if not f.tell() <= grid_pos <= block_pos <= end_pos:
+                    raise _Corrupt(f"grid {name!r} has offsets out of order "
+                                   f"({grid_pos}, {block_pos}, {end_pos})")
+                if end_pos > size:
                     raise _Corrupt(f"grid {name!r} ends past the end of the file")
                 f.seek(grid_pos)
                 r.unpack("I")              # per-grid compression flags
                 meta = _read_metamap(r)
                 grids.append(GridInfo(name, _value_type(tree), meta.get("class", "unknown"),
-                                      meta.get("file_voxel_count")))
+                                      meta.get("file_voxel_count"), str(creator), tuple(meta)))
                 f.seek(end_pos)
             return grids
         except (_Corrupt, struct.error, UnicodeError) as e:
@@ -149,12 +174,7 @@ def _parse_vdb(path: Path) -> list[GridInfo] | None:
 
 
 def _check_file(path) -> Path:
-    p = Path(path)
-    if not p.exists():
-        raise UserError("no such file", path=p, fix="check the path")
-    if p.is_dir():
-        raise UserError("is a directory, not a volume file", path=p, fix="give a .vdb or .npz file")
-    return p
+    return check_input(path, "volume file", fix="give a .vdb or .npz file")
 
 
 def list_grids(path) -> list[GridInfo]:
@@ -172,12 +192,45 @@ def list_grids(path) -> list[GridInfo]:
                         fix="re-save it with a current OpenVDB") from None
 
 
+def up_axis_hint(grids) -> tuple[str | None, str]:
+    """(axis, reason): 'z' for files that Blender wrote (Blender is Z-up; its Mantaflow
+    caches carry no 'creator' but a 'file_base_resolution' grid metadata entry), None when
+    the file does not say."""
+    creator = next((g.creator for g in grids if g.creator), "")
+    if "blender" in creator.lower():
+        return "z", f"written by {creator!r}"
+    if any("file_base_resolution" in g.metadata_keys for g in grids):
+        return "z", "a Blender (Mantaflow) cache: its grids carry 'file_base_resolution'"
+    return None, ""
+
+
 def _one_line(e: Exception) -> str:
     return f"{type(e).__name__}: {e}".replace("\n", " ").strip()
 
 
 def _listing(grids) -> str:
     return "available grids: " + ", ".join(g.describe() for g in grids)
+
+
+def check_transform(m, where="") -> str | None:
+    """Problem with an index-to-world matrix, or None: finite, affine (last row 0 0 0 1),
+    singular values in SCALE_RANGE and a condition number at most MAX_COND, so that its
+    inverse in the kernels' float32 arithmetic keeps its digits."""
+    m = np.asarray(m, np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        return "index_to_world is not a finite 4x4 matrix"
+    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+        return "index_to_world is not affine (its last row is not 0 0 0 1)"
+    sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+    if sv[-1] < SCALE_RANGE[0] or sv[0] > SCALE_RANGE[1]:
+        return (f"index_to_world scales voxels by {sv[-1]:.3g}..{sv[0]:.3g}, outside "
+                f"[{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
+    if sv[0] > MAX_COND * sv[-1]:
+        return (f"index_to_world is nearly singular (condition number {sv[0] / sv[-1]:.3g} "
+                f"> {MAX_COND:g})")
+    if np.abs(m[:3, 3]).max() > SCALE_RANGE[1]:
+        return f"index_to_world translates by more than {SCALE_RANGE[1]:g}"
+    return None
 
 
 def _pick(path, grids, name, default=False) -> GridInfo:
@@ -255,7 +308,12 @@ def _read_grid(vdb, path: Path, info: GridInfo):
                       "active voxels is treated as 0", stacklevel=3)
     lo, hi = (np.array(v, np.int64) for v in grid.evalActiveVoxelBoundingBox())
     box = None if np.any(lo > hi) else (lo, hi)
-    return grid, _index_to_world(grid.transform), box
+    m = _index_to_world(grid.transform)
+    problem = check_transform(m)
+    if problem:
+        raise UserError(f"grid {info.name!r}: {problem}", path=path,
+                        fix="resample the grid onto a well-conditioned linear transform")
+    return grid, m, box
 
 
 def _vdb_source(grid, box):
@@ -325,23 +383,28 @@ def _brick_view(a, nb):
                                            strides=(*(s * BRICK), *s), writeable=False)
 
 
-def _sanitise(a, own, stats):
+def _sanitise(a, own, stats, negative_ok=False):
     """Non-finite and negative values -> 0, counted inside the chunk's own voxels."""
     bad = ~np.isfinite(a)
     if bad.any():
         stats[0] += int(bad[own].sum())
         a[bad] = 0
+    if negative_ok:
+        return
     neg = a < 0
     if neg.any():
         stats[1] += int(neg[own].sum())
         a[neg] = 0
 
 
-def _build(label, sources, lo, hi, chunk=16, progress=None):
-    """Bricks from (read, is_zero) sources (density, then emission) over box lo..hi.
+def _build(label, sources, lo, hi, chunk=16, progress=None, passive=0):
+    """Bricks from (read, is_zero) sources (density, then emission, then the `passive`
+    ones: temperature) over box lo..hi. Passive sources are stored in the bricks the
+    others make, and may be negative.
 
     Works chunk^3 bricks at a time, so memory holds one chunk plus the kept bricks.
     """
+    n_active = len(sources) - passive
     origin, dims = _layout(lo, hi)
     if int(np.prod(dims.astype(np.int64))) > MAX_BRICKS:
         raise UserError(f"the active region ({hi - lo + 1} voxels) needs more than {MAX_BRICKS} "
@@ -367,16 +430,17 @@ def _build(label, sources, lo, hi, chunk=16, progress=None):
         sub = tuple(slice(int(max(a - v, 0)), int(max(min(b - v, o.stop), 0)))
                     for a, b, v, o in zip(box_lo, box_hi, v0, own))
         in_box = all(s.stop > s.start for s in sub)
-        if all(zero):
+        if all(zero[:n_active]):
             if in_box:
                 vmin, vmax = min(vmin, 0.0), max(vmax, 0.0)
             continue
         arrays = [np.zeros(tuple(shape), np.float32) if z else read(start, shape)
                   for (read, _), z in zip(sources, zero)]
         mask = np.zeros(tuple(nb), bool)
-        for a, st in zip(arrays, stats):
-            _sanitise(a, own, st)
-            mask |= _brick_view(a, nb).any(axis=(3, 4, 5))
+        for i, (a, st) in enumerate(zip(arrays, stats)):
+            _sanitise(a, own, st, negative_ok=i >= n_active)
+            if i < n_active:
+                mask |= _brick_view(a, nb).any(axis=(3, 4, 5))
         if in_box:
             vmin = min(vmin, float(arrays[0][sub].min()))
             vmax = max(vmax, float(arrays[0][sub].max()))
@@ -427,10 +491,15 @@ class Bricks:
     emission_max: np.ndarray | None = None
     grid_name: str = "density"
     emission_grid_name: str | None = None
+    temperature: np.ndarray | None = None      # float32 (n, 9, 9, 9), raw grid values
+    temperature_grid_name: str | None = None
     source: str = ""
     background: float = 0.0
     value_range: tuple = (0.0, 0.0)   # density min/max over the active box, sanitised
     active_voxels: int = 0
+    up_axis: str | None = None        # the up axis the file suggests (vdb.up_axis_hint)
+    up_axis_reason: str = ""
+    index_box: tuple | None = None    # inclusive VDB index box of the active voxels (lo, hi)
 
     @property
     def n_slots(self) -> int:
@@ -453,9 +522,9 @@ class Bricks:
         w = (self.local_to_world @ corners.T)[:3].T
         return w.min(axis=0), w.max(axis=0)
 
-    def sample_local(self, p, emission=False) -> np.ndarray:
+    def sample_local(self, p, emission=False, temperature=False) -> np.ndarray:
         """Trilinear value at local index coordinates p (N, 3); 0 outside the layout."""
-        vals = self.emission if emission else self.data
+        vals = self.temperature if temperature else self.emission if emission else self.data
         p = np.asarray(p, np.float64).reshape(-1, 3)
         out = np.zeros(len(p))
         ext = self.dims * BRICK
@@ -480,15 +549,16 @@ class Bricks:
         out[inside] = res
         return out
 
-    def sample_world(self, x, emission=False) -> np.ndarray:
+    def sample_world(self, x, emission=False, temperature=False) -> np.ndarray:
         x = np.asarray(x, np.float64).reshape(-1, 3)
         m = np.linalg.inv(self.local_to_world)
-        return self.sample_local(x @ m[:3, :3].T + m[:3, 3], emission)
+        return self.sample_local(x @ m[:3, :3].T + m[:3, 3], emission, temperature)
 
     @classmethod
     def from_dense(cls, values, index_to_world=None, origin=(0, 0, 0), emission=None,
-                   name="density", chunk=16) -> "Bricks":
-        """Bricks from a dense array: values[i, j, k] is VDB index origin + (i, j, k)."""
+                   name="density", chunk=16, temperature=None) -> "Bricks":
+        """Bricks from a dense array: values[i, j, k] is VDB index origin + (i, j, k);
+        emission and temperature (optional) are arrays of the same shape."""
         values = np.asarray(values, np.float32)
         if values.ndim != 3 or values.size == 0:
             raise ValueError(f"from_dense needs a non-empty 3-D array, got shape {values.shape}")
@@ -499,8 +569,14 @@ class Bricks:
             if emission.shape != values.shape:
                 raise ValueError(f"emission shape {emission.shape} != density {values.shape}")
             sources.append(_dense_source(emission, origin))
+        if temperature is not None:
+            temperature = np.asarray(temperature, np.float32)
+            if temperature.shape != values.shape:
+                raise ValueError(f"temperature shape {temperature.shape} != density {values.shape}")
+            sources.append(_dense_source(temperature, origin))
         hi = origin + np.array(values.shape) - 1
-        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk)
+        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk,
+                                                      passive=int(temperature is not None))
         _warn_sanitised("<dense>", name, stats[0])
         m = np.eye(4) if index_to_world is None else np.asarray(index_to_world, np.float64)
         if m.shape != (4, 4):
@@ -512,37 +588,70 @@ class Bricks:
             _warn_sanitised("<dense>", "emission", stats[1])
             b.emission, b.emission_max = out[1], _max_per_slot(out[1])
             b.emission_grid_name = "emission"
+        if temperature is not None:
+            _warn_sanitised("<dense>", "temperature", stats[-1])
+            b.temperature, b.temperature_grid_name = out[-1], "temperature"
         return b
 
     def save_npz(self, path):
-        """Write a brick cache atomically (temporary file, then rename)."""
-        path = Path(path)
-        arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(NPZ_VERSION),
+        """Write a brick cache atomically (volrender.atomic); version 2 only when it holds a
+        temperature grid, so older readers refuse what they would render in one colour."""
+        version = 2 if self.temperature is not None else 1
+        arrays = dict(format=np.array(NPZ_FORMAT), version=np.array(version),
                       origin=self.origin, dims=self.dims, table=self.table, data=self.data,
                       majorant=self.majorant, index_to_world=self.index_to_world,
                       grid_name=np.array(self.grid_name), source=np.array(self.source),
                       background=np.array(self.background, np.float64),
                       value_range=np.array(self.value_range, np.float64),
-                      active_voxels=np.array(self.active_voxels, np.int64))
+                      active_voxels=np.array(self.active_voxels, np.int64),
+                      up_axis=np.array(self.up_axis or ""), up_axis_reason=np.array(self.up_axis_reason))
+        if self.index_box is not None:
+            arrays["index_box"] = np.array(self.index_box, np.int64)
         if self.emission is not None:
             arrays.update(emission=self.emission, emission_max=self.emission_max,
                           emission_grid_name=np.array(self.emission_grid_name or ""))
-        try:
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        except OSError as e:
-            raise UserError(f"cannot write ({e.strerror})", path=path,
-                            fix="check that the folder exists and is writable") from None
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        if self.temperature is not None:
+            arrays.update(temperature=self.temperature,
+                          temperature_grid_name=np.array(self.temperature_grid_name or ""))
+        with atomic.replace(path, "brick cache") as f:
+            # np.savez's layout, with the archive closed on failure too (numpy leaves it
+            # to the garbage collector, which then prints a traceback of its own)
+            with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_STORED,
+                                 allowZip64=True) as zf:
+                for key, value in arrays.items():
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array(member, np.asanyarray(value),
+                                                  allow_pickle=False)
+
+
+def _check_npz_members(z, size):
+    """Every member's .npy header must agree with the member's stored size (a lying
+    header would make numpy allocate what it claims before reading)."""
+    fmt = np.lib.format
+    for info in z.zip.infolist():
+        if info.file_size > (1 << 40) or info.compress_size > size:
+            return f"member {info.filename!r} claims {info.file_size} bytes"
+        with z.zip.open(info) as f:
+            version = fmt.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = fmt.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, _, dtype = fmt.read_array_header_2_0(f)
+            else:
+                shape, _, dtype = fmt._read_array_header(f, version)
+            start = f.tell()
+        need = math.prod(shape) * dtype.itemsize
+        if need != info.file_size - start:
+            return (f"member {info.filename!r}: its header says shape {shape} of {dtype}, "
+                    f"{need} bytes, but it holds {info.file_size - start}")
+    return None
 
 
 def load_npz(path) -> Bricks:
-    """Read a brick cache written by Bricks.save_npz, validating it."""
+    """Read a brick cache written by Bricks.save_npz, validating it fully: sizes against
+    the file, dims against the table, table against the data, majorants against the
+    data, a well-conditioned transform; NaN/Inf and negative voxels become 0 with a
+    warning, as in a .vdb."""
     p = _check_file(path)
     fix = "convert the .vdb again (volrender convert)"
     try:
@@ -553,64 +662,111 @@ def load_npz(path) -> Bricks:
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
     with z:
         try:
+            problem = _check_npz_members(z, p.stat().st_size)
+            if problem:
+                raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
             if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
                 raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
-            if int(z["version"]) != NPZ_VERSION:
+            if int(z["version"]) not in NPZ_VERSIONS:
                 raise UserError(f"brick cache version {int(z['version'])} is not supported "
-                                f"(this volrender reads {NPZ_VERSION})", path=p, fix=fix)
-            b = Bricks(origin=z["origin"], dims=z["dims"], table=z["table"], data=z["data"],
+                                f"(this volrender reads {', '.join(map(str, NPZ_VERSIONS))})",
+                                path=p, fix=fix)
+            dims = z["dims"]
+            if dims.shape != (3,) or dims.dtype.kind not in "iu":
+                raise UserError(f"corrupt brick cache (dims of shape {dims.shape}, dtype "
+                                f"{dims.dtype})", path=p, fix=fix)
+            n_table = math.prod(int(d) for d in dims)
+            if min(int(d) for d in dims) <= 0 or n_table > MAX_BRICKS:
+                raise UserError(f"corrupt brick cache (dims {tuple(int(d) for d in dims)}: "
+                                f"{n_table} bricks, allowed 1..{MAX_BRICKS})", path=p, fix=fix)
+            b = Bricks(origin=z["origin"], dims=dims, table=z["table"], data=z["data"],
                        majorant=z["majorant"], index_to_world=z["index_to_world"],
                        grid_name=str(z["grid_name"]), source=str(z["source"]),
                        background=float(z["background"]),
                        value_range=tuple(float(v) for v in z["value_range"]),
                        active_voxels=int(z["active_voxels"]))
+            if "up_axis" in z.files:                     # optional: older caches lack it
+                b.up_axis = str(z["up_axis"]) or None
+                b.up_axis_reason = str(z["up_axis_reason"])
+            if "index_box" in z.files and z["index_box"].shape == (2, 3):
+                b.index_box = tuple(tuple(int(v) for v in row) for row in z["index_box"])
             if "emission" in z.files:
                 b.emission, b.emission_max = z["emission"], z["emission_max"]
                 b.emission_grid_name = str(z["emission_grid_name"])
-            problem = _validate(b)
-        except (KeyError, ValueError, TypeError, OSError, zipfile.BadZipFile) as e:
+            if "temperature" in z.files:
+                b.temperature = z["temperature"]
+                b.temperature_grid_name = str(z["temperature_grid_name"])
+            problem = _validate(b, p)
+        except (KeyError, ValueError, TypeError, OSError, EOFError, SyntaxError,
+                zipfile.BadZipFile) as e:
             raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
     if problem:
         raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
     return b
 
 
-def _validate(b: Bricks) -> str | None:
-    """Problem with a loaded cache, or None. Casts to the layout's dtypes."""
+def _validate(b: Bricks, label="<bricks>") -> str | None:
+    """Problem with a loaded cache, or None. Casts to the layout's dtypes, replaces
+    NaN/Inf and negative voxels by 0 (warning, as for a .vdb) and checks the majorants."""
     checks = [(b.origin, "iu", (3,)), (b.dims, "iu", (3,)), (b.index_to_world, "f", (4, 4)),
               (b.table, "iu", None), (b.data, "f", None), (b.majorant, "f", None)]
     for a, kinds, shape in checks:
         if a.dtype.kind not in kinds or (shape and a.shape != shape):
             return f"array of dtype {a.dtype} and shape {a.shape} where {kinds!r} {shape} expected"
     n = len(b.data)
-    if np.any(b.dims <= 0) or b.table.shape != (int(np.prod(b.dims.astype(np.int64))),):
+    n_table = math.prod(int(d) for d in b.dims)
+    if min(int(d) for d in b.dims) <= 0 or n_table > MAX_BRICKS or b.table.shape != (n_table,):
         return "table does not match dims"
+    if np.abs(b.origin.astype(np.float64)).max() > MAX_ORIGIN:
+        return f"origin {tuple(int(v) for v in b.origin)} is beyond VDB's int32 index range"
     if b.data.shape != (n, APRON, APRON, APRON) or b.majorant.shape != (n,):
         return f"data shape {b.data.shape} is not (n, {APRON}, {APRON}, {APRON})"
     if len(b.table) and (b.table.min() < -1 or b.table.max() >= n):
         return "table points past the data"
-    if not np.all(np.isfinite(b.index_to_world)) or np.linalg.det(b.index_to_world[:3, :3]) == 0:
-        return "index_to_world is not an invertible affine matrix"
+    if len(b.table) and np.count_nonzero(b.table >= 0) != len(np.unique(b.table[b.table >= 0])):
+        return "table points twice at the same brick"
+    problem = check_transform(b.index_to_world)
+    if problem:
+        return problem
     if b.emission is not None and (b.emission.shape != b.data.shape
                                    or b.emission_max.shape != (n,)):
         return "emission does not match data"
+    if b.temperature is not None and b.temperature.shape != b.data.shape:
+        return "temperature does not match data"
     b.origin, b.dims = b.origin.astype(np.int64), b.dims.astype(np.int32)
-    b.table, b.data = b.table.astype(np.int32), b.data.astype(np.float32)
+    b.table, b.data = b.table.astype(np.int32), np.array(b.data, np.float32)
     b.majorant = b.majorant.astype(np.float32)
+    arrays = [("density", b.data, b.majorant)]
     if b.emission is not None:
-        b.emission = b.emission.astype(np.float32)
+        b.emission = np.array(b.emission, np.float32)
         b.emission_max = b.emission_max.astype(np.float32)
+        arrays.append(("emission", b.emission, b.emission_max))
+    for name, data, top in arrays:
+        stats = [0, 0]
+        _sanitise(data, (slice(None),) * 4, stats)
+        _warn_sanitised(label, b.grid_name if name == "density" else (b.emission_grid_name or name),
+                        stats)
+        if any(stats):                  # the stored maxima saw the bad values: recompute
+            top[:] = _max_per_slot(data)
+        if not np.all(np.isfinite(top)) or (len(top) and top.min() < 0):
+            return f"{name} majorants are negative or not finite"
+        if np.any(top < _max_per_slot(data)):
+            return f"{name} majorants are below the largest value of their bricks"
+    if b.temperature is not None:
+        b.temperature = np.array(b.temperature, np.float32)
     return None
 
 
 # --------------------------------------------------------------------------- loading
 
-def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16) -> Bricks:
+def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
+                temperature_grid=None) -> Bricks:
     """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time."""
     p = _check_file(path)
     grids = list_grids(p)
     info = _pick(p, grids, grid, default=True)
     einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
+    tinfo = _pick(p, grids, temperature_grid) if temperature_grid is not None else None
     vdb = import_openvdb()
     g, m, box = _read_grid(vdb, p, info)
     if box is None:
@@ -631,18 +787,31 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16)
         else:
             lo, hi = np.minimum(lo, ebox[0]), np.maximum(hi, ebox[1])
             sources.append(_vdb_source(eg, ebox))
-    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress)
+    if tinfo is not None:
+        tg, tm, tbox = _read_grid(vdb, p, tinfo)
+        if not np.allclose(tm, m, rtol=1e-6, atol=1e-6 * _cbrt_det(m)):
+            raise UserError(f"temperature grid {tinfo.name!r} has a different transform from "
+                            f"{info.name!r}, which is unsupported", path=p,
+                            fix="resample it onto the density grid's transform")
+        sources.append(_zero_source() if tbox is None else _vdb_source(tg, tbox))
+    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
+                                                     passive=int(tinfo is not None))
     _warn_sanitised(p, info.name, stats[0])
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
                       stacklevel=2)
+    axis, why = up_axis_hint(grids)
     b = Bricks(origin, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=info.name,
                source=str(p), background=float(g.background), value_range=vrange,
-               active_voxels=int(g.activeVoxelCount()))
+               active_voxels=int(g.activeVoxelCount()), up_axis=axis, up_axis_reason=why,
+               index_box=(tuple(int(v) for v in box[0]), tuple(int(v) for v in box[1])))
     if einfo is not None:
         _warn_sanitised(p, einfo.name, stats[1])
         b.emission, b.emission_max = out[1], _max_per_slot(out[1])
         b.emission_grid_name = einfo.name
+    if tinfo is not None:
+        _warn_sanitised(p, tinfo.name, stats[-1])
+        b.temperature, b.temperature_grid_name = out[-1], tinfo.name
     return b
 
 
@@ -650,12 +819,12 @@ def _cbrt_det(m):
     return float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
 
 
-def load_volume(path, grid=None, emission_grid=None) -> Bricks:
+def load_volume(path, grid=None, emission_grid=None, temperature_grid=None) -> Bricks:
     """A .vdb grid or a .npz brick cache, by file suffix."""
     p = _check_file(path)
     suffix = p.suffix.lower()
     if suffix == ".vdb":
-        return load_bricks(p, grid, emission_grid)
+        return load_bricks(p, grid, emission_grid, temperature_grid=temperature_grid)
     if suffix == ".npz":
         b = load_npz(p)
         if grid is not None and grid != b.grid_name:
@@ -666,6 +835,67 @@ def load_volume(path, grid=None, emission_grid=None) -> Bricks:
                 else "no emission grid"
             raise UserError(f"this brick cache has {have}, not {emission_grid!r}", path=p,
                             fix=f"convert the .vdb again with emission grid {emission_grid!r}")
+        if temperature_grid is not None and temperature_grid != b.temperature_grid_name:
+            have = f"temperature grid {b.temperature_grid_name!r}" if b.temperature is not None \
+                else "no temperature grid"
+            raise UserError(f"this brick cache has {have}, not {temperature_grid!r}", path=p,
+                            fix="convert the .vdb again with --temperature-grid "
+                                f"{temperature_grid}")
         return b
     raise UserError(f"unsupported volume file type {suffix or '(no suffix)'!r}", path=p,
                     fix="give an OpenVDB .vdb file or a .npz brick cache")
+
+
+# --------------------------------------------------------------------------- bounds only
+
+def _layout_world_bounds(origin, dims, index_to_world):
+    ext = np.asarray(dims, np.float64) * BRICK
+    corners = np.array([[x, y, z, 1.0] for x in (0, ext[0]) for y in (0, ext[1]) for z in (0, ext[2])])
+    t = np.eye(4)
+    t[:3, 3] = origin
+    w = (np.asarray(index_to_world, np.float64) @ t @ corners.T)[:3].T
+    return w.min(axis=0), w.max(axis=0)
+
+
+def world_bounds(path, grid=None, emission_grid=None):
+    """(lo, hi, up-axis hint) of the brick layout a file would load into, read from grid
+    metadata (a .vdb's active boxes and transforms, a .npz's small arrays) without
+    loading any voxels: the same box Bricks.world_bounds() gives after loading."""
+    p = _check_file(path)
+    if p.suffix.lower() == ".npz":
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                origin, dims, m = z["origin"], z["dims"], z["index_to_world"]
+                axis = str(z["up_axis"]) or None if "up_axis" in z.files else None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+            raise UserError(f"not a readable brick cache ({_one_line(e)})", path=p,
+                            fix="convert the .vdb again (volrender convert)") from None
+        lo, hi = _layout_world_bounds(origin, dims, m)
+        return lo, hi, axis
+    grids = list_grids(p)
+    names = [_pick(p, grids, grid, default=True)]
+    if emission_grid is not None:
+        names.append(_pick(p, grids, emission_grid))
+    ov = import_openvdb()
+    box_lo, box_hi, m = None, None, None
+    for info in names:
+        try:
+            g = ov.readGridMetadata(str(p), info.name)
+        except Exception as e:
+            raise UserError(f"cannot read grid {info.name!r} ({_one_line(e)})", path=p,
+                            fix="the file may be truncated or corrupt; re-export it") from None
+        meta = g.metadata
+        if "file_bbox_min" not in meta:
+            continue
+        lo, hi = (np.array(meta[k], np.int64) for k in ("file_bbox_min", "file_bbox_max"))
+        if np.any(lo > hi):
+            continue
+        m = _index_to_world(g.transform) if m is None else m
+        box_lo = lo if box_lo is None else np.minimum(box_lo, lo)
+        box_hi = hi if box_hi is None else np.maximum(box_hi, hi)
+    if box_lo is None:
+        raise UserError(f"grid {names[0].name!r} is empty (0 active voxels)", path=p,
+                        fix="nothing to render; choose another grid or frame")
+    origin, dims = _layout(box_lo, box_hi)
+    lo, hi = _layout_world_bounds(origin, dims, m)
+    return lo, hi, up_axis_hint(grids)[0]

@@ -1,6 +1,7 @@
-"""Volumes: settings, the VolumeParams record and the render orchestration of the marcher and
-the tracker. Each work-item owns its pixel (no float atomics), so an image depends only on
-the scene, the settings and the seed."""
+"""Volumes: settings, the VolumeParams record and the render orchestration of the marcher
+(single scattering or its multiple-scattering octaves) and the path tracer (multiple
+scattering, unbiased; the tracker is it at max depth 1). Each work-item owns its pixel (no
+float atomics), so an image depends only on the scene, the settings and the seed."""
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import layout, lights as lights_mod
+from . import blackbody, layout, lights as lights_mod
 from .dispatch import Dispatch
 from .errors import UserError
 from .features import VolumeFeatures
@@ -19,9 +20,21 @@ from .settings import (MAX_VALUE, STRS, VEC, CommonSettings, boolean, floats, in
 G_MAX = 0.999          # |g| is clamped here: HG at |g| = 1 is a delta
 PIXELS_PER_LAUNCH = 1 << 16
 # march: jittered ray marching (biased by the step, low noise); track: delta/ratio
-# tracking on per-brick majorants (unbiased; step and shadow_step are unused).
-ESTIMATORS = ("march", "track")
+# tracking on per-brick majorants, single scattering (unbiased; step and shadow_step are
+# unused); path: path tracing, the same walks, up to max_depth scattering events.
+ESTIMATORS = ("march", "track", "path")
+MAX_DEPTH = 256        # path estimator's default depth: converged (< 0.1%) on the real files at albedo <= 0.99
+RR_DEPTH = 4           # path roulette from the 5th scattering event on
+MS_OCTAVES_MAX = 16
+# octave scales a, b, c: the best of bench error --fit-octaves (3 octaves; within 2% of the
+# best objective for 3..8 octaves), docs/error_time.md
+MS_SCALES = (0.2, 0.6, 0.5)
+# the shadow march of octave k stops once b^k exp(-a^k tau) < this (relative to the light)
+MS_CUTOFF = 1e-4
 AOVS = ("depth", "transmittance")
+# The finest march step, voxels: 50x the default's samples (bench error: finer steps buy
+# nothing at 1 spp); a ray also never takes more than layout.MAX_RAY_SAMPLES (check_steps).
+MIN_STEP = 0.01
 
 
 def _phase_ok(v):
@@ -49,8 +62,14 @@ class VolumeSettings(CommonSettings):
                                      show_default=False)
     density_scale: float = knob(1.0, "sigma_t = scale * grid value, per world unit",
                                 check=in_range(0, 1e30), toml=("volume", "density_scale"))
-    albedo: float = knob(0.9, "single-scattering albedo sigma_s / sigma_t",
-                         check=in_range(0, 1), toml=("volume", "albedo"))
+    albedo: tuple = knob((0.9,), "albedo sigma_s / sigma_t: one value, or R,G,B for a coloured "
+                         "medium", metavar="A|R,G,B", parse=floats(1, 3, "--albedo"),
+                         check=rgb(0, 1, n=(1, 3)), toml=("volume", "albedo"), kind=VEC)
+    sigma_t_scale: tuple = knob((1.0, 1.0, 1.0), "per-channel scale on sigma_t (tinted smoke: "
+                                "e.g. 0.8,1,1.3 lets red through and reddens the light behind)",
+                                metavar="R,G,B", parse=floats(1, 3, "--sigma-t-scale"),
+                                check=rgb(0, 1e30, n=(1, 3)), toml=("volume", "sigma_t_scale"),
+                                kind=VEC)
     phase: tuple = knob((0.6, -0.3, 0.8), "w*HG(g1) + (1-w)*HG(g2); one value = a single "
                         "lobe; g > 0 scatters forward; |g| clamped to 0.999", metavar="G1,G2,W",
                         parse=floats(1, 3, "--phase"), check=_phase_ok, toml=("volume", "phase"),
@@ -60,17 +79,43 @@ class VolumeSettings(CommonSettings):
                              check=rgb(0, MAX_VALUE, n=(1, 3)), toml=("volume", "background"), kind=VEC)
     emission_scale: float = knob(1.0, "emitted radiance per unit length per emission-grid value",
                                  check=in_range(0, MAX_VALUE), toml=("volume", "emission_scale"))
-    emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin",
-                                       check=in_range(100, 1e5),
+    emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin "
+                                       "(without --temperature-grid)", check=in_range(100, 1e5),
                                        toml=("volume", "emission_temperature"))
-    step: float = knob(0.5, "primary march step, voxels", check=in_range(1e-3, 1e4),
-                       toml=("volume", "step"))
-    shadow_step: float = knob(1.0, "shadow-ray march step, voxels", check=in_range(1e-3, 1e4),
-                              toml=("volume", "shadow_step"))
+    temperature_grid: str | None = knob(None, "grid whose values give each voxel's blackbody "
+                                        "colour, e.g. temperature (the emission grid gives the "
+                                        "intensity)", toml=("volume", "temperature_grid"),
+                                        kind=str, show_default=False)
+    temperature_scale: float = knob(1.0, "kelvin = offset + scale * temperature-grid value "
+                                    "(Blender: 1000, its 0..1 = 0..1000 K)",
+                                    check=in_range(-1e6, 1e6), toml=("volume", "temperature_scale"))
+    temperature_offset: float = knob(0.0, "kelvin at temperature-grid value 0",
+                                     check=in_range(-1e6, 1e6),
+                                     toml=("volume", "temperature_offset"))
+    step: float = knob(0.5, "primary march step, voxels",
+                       check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
+    shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
+                              check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
     estimator: str = knob("march", "march: ray marching with --step/--shadow-step (biased by the "
-                          "step, low noise); track: delta/ratio tracking on the brick majorants "
-                          "(unbiased, noisier; the reference)", check=one_of(ESTIMATORS),
+                          "step, low noise; single scattering, or --ms-octaves); track: delta/"
+                          "ratio tracking on the brick majorants, single scattering (unbiased, "
+                          "noisier; the march's reference); path: path tracing, multiple "
+                          "scattering up to --max-depth (unbiased)", check=one_of(ESTIMATORS),
                           choices=ESTIMATORS, toml=("volume", "estimator"))
+    max_depth: int = knob(MAX_DEPTH, "path estimator: scattering events per path (1 = single "
+                          "scattering); Russian roulette from the 5th on",
+                          check=in_range(1, 100000, integer=True), toml=("volume", "max_depth"))
+    ms_octaves: int = knob(1, "march: multiple-scattering octaves (Wrenninge et al. 2013); "
+                           "1 = single scattering", check=in_range(1, MS_OCTAVES_MAX, integer=True),
+                           toml=("volume", "ms_octaves"))
+    ms_octave_scales: tuple = knob(MS_SCALES, "octave k scales sigma_t by A^k, its light by B^k and "
+                                   "g by C^k (fitted by bench error to path-traced images)",
+                                   metavar="A,B,C",
+                                   parse=floats(3, name="--ms-octave-scales"),
+                                   check=rgb(0, 1, n=(3,)), toml=("volume", "ms_octave_scales"))
+    hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
+                          "lights it; --background is seen instead)", check=boolean,
+                          toml=("volume", "hide_env"))
     skip_empty: bool = knob(True, "march empty bricks too (the reference for empty-space skipping)",
                             check=boolean, flag="--no-skip", toml=("volume", "skip_empty"))
     aovs: tuple = knob((), "extra EXR layer (repeatable): depth -> Z (opacity-weighted mean "
@@ -78,12 +123,27 @@ class VolumeSettings(CommonSettings):
                        check=_aovs_ok, toml=("volume", "aov"), kind=STRS, show_default=False)
 
     def __post_init__(self):
+        for name in ("albedo", "sigma_t_scale"):
+            v = getattr(self, name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                v = (v,)
+            if isinstance(v, tuple) and len(v) == 1:
+                v = tuple(v) * 3
+            object.__setattr__(self, name, v)
         if len(self.phase) == 1:
             object.__setattr__(self, "phase", (float(self.phase[0]), 0.0, 1.0))
         if len(self.background) == 1:
             object.__setattr__(self, "background", tuple(self.background) * 3)
         object.__setattr__(self, "aovs", tuple(dict.fromkeys(self.aovs)))
         super().__post_init__()
+        if self.temperature_grid is not None and self.emission_grid is None:
+            raise UserError("--temperature-grid colours the emission, but no --emission-grid "
+                            "gives it", fix="add --emission-grid (e.g. flame)")
+
+    @property
+    def chromatic(self) -> bool:
+        """Whether the medium differs between channels (albedo or sigma_t scale)."""
+        return len(set(self.albedo)) > 1 or len(set(self.sigma_t_scale)) > 1
 
     @property
     def depth(self) -> bool:
@@ -98,21 +158,18 @@ class VolumeSettings(CommonSettings):
         return c1, c2, w
 
 
-def blackbody_rgb(kelvin: float) -> np.ndarray:
-    """Approximate linear-sRGB colour of a blackbody: Planck's law sampled at 610, 550
-    and 465 nm, normalised so the largest channel is 1."""
-    lam = np.array([610e-9, 550e-9, 465e-9])
-    h, c, k = 6.62607015e-34, 2.99792458e8, 1.380649e-23
-    with np.errstate(over="ignore"):
-        spectral = 1.0 / (lam ** 5 * np.expm1(h * c / (lam * k * kelvin)))
-    return spectral / spectral.max()
+def emission_color(settings: VolumeSettings) -> np.ndarray:
+    """rgb emitted per unit length per emission-grid value without a temperature grid:
+    emission_scale x the blackbody colour of emission_temperature (volrender.blackbody)."""
+    return settings.emission_scale * blackbody.rgb(settings.emission_temperature)
 
 
 def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
-    """Per-slot tracking rate (per world unit) for cl/track_volume.cl: density_scale x the
-    brick's maximum (which bounds its trilinear density), raised to one point per voxel in
-    bricks that emit, so emission where the density is zero is still sampled."""
-    mu = settings.density_scale * np.asarray(bricks.majorant, np.float64)
+    """Per-slot tracking rate (per world unit) for cl/path_volume.cl: density_scale x the
+    largest sigma_t scale x the brick's maximum (which bounds its trilinear density),
+    raised to one point per voxel in bricks that emit, so emission where the density is
+    zero is still sampled. The marcher skips the same empty bricks."""
+    mu = settings.density_scale * max(settings.sigma_t_scale) * np.asarray(bricks.majorant, np.float64)
     if bricks.emission is not None and bricks.emission_max is not None:
         emits = np.asarray(bricks.emission_max) > 0
         mu = np.where(emits, np.maximum(mu, 1.0 / bricks.voxel_size), mu)
@@ -128,13 +185,68 @@ def occupied_bricks(bricks) -> np.ndarray:
     return occ
 
 
-def volume_params(bricks, settings: VolumeSettings | None = None):
+def octave_tau_stop(settings: VolumeSettings) -> float:
+    """Grey shadow optical depth past which every octave's light is below MS_CUTOFF of
+    the light's (b^k exp(-a^k tau) < MS_CUTOFF for all k; at least the single-scattering
+    25), in every channel (divided by the smallest sigma_t scale)."""
+    a, b, _ = settings.ms_octave_scales
+    stop = 25.0
+    for k in range(1, settings.ms_octaves):
+        ak, bk = a ** k, b ** k
+        if bk > 0:
+            stop = max(stop, (math.log(bk) - math.log(MS_CUTOFF)) / max(ak, 1e-30))
+    if settings.chromatic:
+        stop /= max(min(settings.sigma_t_scale), 1e-30)
+    return float(min(stop, 1e30))
+
+
+def env_weights(texels) -> np.ndarray:
+    """Sampling weight per texel: the largest luminance among it and its 8 neighbours
+    (wrapping in u), which bounds the bilinear lookup over the texel's cell, so a small
+    bright spot is not under-sampled where it bleeds into its neighbours, times
+    sin(theta) at the row centre (the solid angle the texel covers)."""
+    t = np.asarray(texels, np.float64)
+    h = t.shape[0]
+    lum = np.maximum(t[..., :3] @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    m = np.maximum(lum, np.maximum(np.roll(lum, 1, axis=1), np.roll(lum, -1, axis=1)))
+    m = np.maximum(m, np.maximum(np.vstack([m[:1], m[:-1]]), np.vstack([m[1:], m[-1:]])))
+    return m * np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
+
+
+def env_distribution(texels) -> np.ndarray:
+    """float32 CDFs for cl/env.h vr_env_sample from env_weights: H + 1 row CDF values,
+    then per row W + 1 column CDF values. Rows without weight get a uniform column CDF."""
+    wts = env_weights(texels)
+    h, w = wts.shape
+    rows = wts.sum(axis=1)
+    total = rows.sum()
+    row_cdf = np.concatenate([[0.0], np.cumsum(rows)]) / (total if total > 0 else 1.0)
+    row_cdf[-1] = 1.0
+    col = np.concatenate([np.zeros((h, 1)), np.cumsum(wts, axis=1)], axis=1)
+    col = np.where(rows[:, None] > 0, col / np.where(rows > 0, rows, 1.0)[:, None],
+                   np.linspace(0.0, 1.0, w + 1)[None, :])
+    col[:, -1] = 1.0
+    return np.concatenate([row_cdf, col.ravel()]).astype(np.float32)
+
+
+def env_mode(environment) -> int:
+    """VR_ENV: 0 none (or black), 1 a uniform radiance, 2 a map."""
+    if environment is None or not np.any(environment.texels > 0):
+        return 0
+    return 1 if environment.uniform is not None else 2
+
+
+def volume_params(bricks, settings: VolumeSettings | None = None, environment=None):
     """(VolumeParams record, world -> local 4x4) for a Bricks volume and settings."""
     settings = settings or VolumeSettings()
     l2w = np.asarray(bricks.local_to_world, np.float64)
     w2l = np.linalg.inv(l2w)
     vs = float(bricks.voxel_size)
     g1, g2, w = settings.clamped_phase()
+    mode = env_mode(environment)
+    env_h, env_w = environment.texels.shape[:2] if mode == 2 else (0, 0)
+    n = blackbody.TABLE_SIZE
+    bb_a = (n - 1) / (1.0 / blackbody.T_MIN - 1.0 / blackbody.T_MAX)
     params = layout.record(
         "VolumeParams",
         world_to_local0=[*w2l[0, :3], 0], world_to_local1=[*w2l[1, :3], 0],
@@ -142,46 +254,92 @@ def volume_params(bricks, settings: VolumeSettings | None = None):
         local_to_world0=[*l2w[0, :3], 0], local_to_world1=[*l2w[1, :3], 0],
         local_to_world2=[*l2w[2, :3], 0],
         box_hi=[*(np.asarray(bricks.dims) * float(layout.BRICK)), 0], background=[*settings.background, 0],
-        emission_color=[*(settings.emission_scale * blackbody_rgb(settings.emission_temperature)), 0],
-        phase=[g1, g2, w, 0], dims=[*bricks.dims, 0], density_scale=settings.density_scale,
-        albedo=settings.albedo, step=settings.step * vs, shadow_step=settings.shadow_step * vs,
-        point_r2_min=(0.5 * vs) ** 2)
+        emission_color=[*emission_color(settings), 0],
+        phase=[g1, g2, w, 0], dims=[*bricks.dims, 0],
+        albedo_rgb=[*settings.albedo, 0], extinction=[*settings.sigma_t_scale, 0],
+        env_radiance=[*(environment.uniform if mode == 1 else (0, 0, 0)), 0],
+        ms=[*settings.ms_octave_scales, octave_tau_stop(settings)],
+        density_scale=settings.density_scale, albedo=settings.albedo[0],
+        step=settings.step * vs, shadow_step=settings.shadow_step * vs,
+        point_r2_min=(0.5 * vs) ** 2, env_width=env_w, env_height=env_h,
+        env_visible=0.0 if settings.hide_env else 1.0, emission_scale=settings.emission_scale,
+        temp_scale=settings.temperature_scale, temp_offset=settings.temperature_offset,
+        bb_a=bb_a, bb_b=-bb_a / blackbody.T_MAX, bb_n=n,
+        max_depth=1 if settings.estimator == "track" else settings.max_depth, rr_depth=RR_DEPTH)
     return params, w2l
 
 
-ENTRIES = {"march": "render_volume", "track": "track_volume"}
+ENTRIES = {"march": "render_volume", "track": "path_volume", "path": "path_volume"}
+
+
+def _env_arrays(environment, mode):
+    """(texels (H*W, 4), CDFs) for the kernels; one-element stand-ins without a map."""
+    if mode != 2:
+        return np.zeros((1, 4), np.float32), np.zeros(1, np.float32)
+    t = environment.texels
+    tex = np.zeros((t.shape[0] * t.shape[1], 4), np.float32)
+    tex[:, :3] = t.reshape(-1, 3)
+    return tex, env_distribution(t)
+
+
+def check_steps(bricks, settings):
+    """Refuse steps that would give a ray through this volume's box more samples than the
+    kernels take (layout.MAX_RAY_SAMPLES, where float32 sample indices stop resolving)."""
+    if settings.estimator != "march":
+        return
+    diag = float(np.linalg.norm(np.asarray(bricks.dims, np.float64) * layout.BRICK))
+    for name, step in (("step", settings.step), ("shadow_step", settings.shadow_step)):
+        if diag / step > layout.MAX_RAY_SAMPLES:
+            raise UserError(f"a ray through this volume ({diag:.0f} voxels across) would take "
+                            f"{diag / step:.3g} samples at {name} {step:g} voxels, more than "
+                            f"{layout.MAX_RAY_SAMPLES}",
+                            fix=f"give a {name} of at least {diag / layout.MAX_RAY_SAMPLES:.3g} "
+                                f"(--{name.replace('_', '-')}, or [volume].{name})")
 
 
 def plan(scene, device, variant=None):
-    """The launch of a volume scene (render.render runs it): the marcher or the tracker."""
+    """The launch of a volume scene (render.render runs it): the marcher or the path
+    tracer (track = path at max depth 1)."""
     from .render import Plan
     if variant is not None:
         raise UserError(f"the {variant!r} variant exists for glass only")
     bricks, settings = scene.content.bricks, scene.content.settings
+    check_steps(bricks, settings)
+    if settings.temperature_grid is not None and bricks.temperature is None:
+        raise UserError(f"--temperature-grid {settings.temperature_grid}: the volume holds no "
+                        "temperature grid", fix="load it with temperature_grid= (or convert the "
+                        ".vdb again with --temperature-grid)")
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
     features = VolumeFeatures.from_scene(scene, dispatch)
-    params, w2l = volume_params(bricks, settings)
+    params, w2l = volume_params(bricks, settings, scene.environment)
     emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
+    temperature = bricks.temperature if features.temperature else np.zeros(1, np.float32)
+    env, cdf = _env_arrays(scene.environment, features.env)
     inputs = [scene.camera.pack(w2l, settings.spp, settings.seed), params,
               lights_mod.pack(scene.lights, w2l), np.asarray(bricks.table, np.int32),
-              np.asarray(bricks.data, np.float32), np.asarray(emission, np.float32)]
+              np.asarray(bricks.data, np.float32), np.asarray(emission, np.float32),
+              np.asarray(temperature, np.float32), blackbody.table(), env, cdf]
     extra = []
-    if settings.estimator == "track":
+    if settings.estimator != "march":
         inputs.append(track_majorants(bricks, settings))
     else:                             # the occupied bricks, which only tiled culling reads
         occ = occupied_bricks(bricks) if features.tiled and features.skip_empty \
             else np.zeros((0, 4), np.int32)
         extra = [occ, np.int32(len(occ))]
     W, H = scene.camera.width, scene.camera.height
-    outputs = [("rgba", (H, W, 4)), ("depth", (H, W) if settings.depth else (1,))]
+    # depth: (sum, weight) per pixel while samples are split across launches, then
+    # (depth, weight); the layer is [..., 0]
+    outputs = [("rgba", (H, W, 4)), ("depth", (H, W, 2) if settings.depth else (1,))]
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
-                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs)
+                PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
+                info={"background": tuple(settings.background)})
 
 
 def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
     """Render Bricks with the given camera, lights and settings (a shortcut for tests and
-    benchmarks: render.render of the equivalent Scene). Returns render.Image.as_dict()."""
+    benchmarks: render.render of the equivalent Scene; settings.env is read here).
+    Returns render.Image.as_dict()."""
     from .render import render
     from .scene import Scene, VolumeContent
-    scene = Scene(camera, tuple(lights), VolumeContent(bricks, settings))
+    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
     return render(scene, device, progress=progress).as_dict()

@@ -1,0 +1,106 @@
+"""Launches split by rows and by samples (volrender/dispatch.py): any split gives the
+bit-identical image, for every kernel and its accumulators (rgba, depth, glass stats),
+and the progress bar counts every pixel-sample."""
+import numpy as np
+import pytest
+
+from volrender import dispatch, glass, points
+from volrender.camera import Camera
+from volrender.lights import PointLight, Sun
+from volrender.render import render
+from volrender.scene import GlassContent, Scene, VolumeContent
+from volrender.vdb import Bricks
+from volrender.volume import VolumeSettings
+
+# (rows, samples) per launch: every tile row and every sample its own launch; uneven
+SPLITS = [(1, 1), (9, 2), (40, 3)]
+
+
+def soft_ball(n=20):
+    i = np.indices((n, n, n)).astype(np.float64) - (n - 1) / 2
+    v = np.clip(1.0 - np.sqrt((i ** 2).sum(0)) / 8.0, 0.0, None).astype(np.float32)
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    m[:3, 3] = -(n - 1) / 2 * 0.1
+    return Bricks.from_dense(v, m, emission=v * 0.5)
+
+
+def renders(cl_device, scene, monkeypatch, variant=None):
+    whole = render(scene, cl_device, variant=variant)
+    out = []
+    for split in SPLITS:
+        monkeypatch.setattr(dispatch, "FIXED_LAUNCH", split)
+        out.append((split, render(scene, cl_device, variant=variant)))
+    monkeypatch.setattr(dispatch, "FIXED_LAUNCH", None)
+    return whole, out
+
+
+@pytest.mark.parametrize("estimator", ["march", "track"])
+@pytest.mark.parametrize("dispatch_kind", ["fragment", "tiled"])
+def test_volume_splits_are_bit_identical(cl_device, monkeypatch, estimator, dispatch_kind):
+    if estimator == "track" and dispatch_kind == "tiled":
+        pytest.skip("the tracker has one dispatch")
+    cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 21, 19)
+    s = VolumeSettings(density_scale=3.0, spp=5, seed=4, estimator=estimator, emission_grid="emission",
+                       aovs=("depth",), dispatch=dispatch_kind, tile=(4, 4), background=(0.1, 0.2, 0.3))
+    scene = Scene(cam, (Sun((0.2, -1.0, -0.4), 2.0), PointLight((0.5, 0.5, 0.5), 1.0)),
+                  VolumeContent(soft_ball(), s))
+    whole, split = renders(cl_device, scene, monkeypatch)
+    assert whole.rgba[..., 3].max() > 0.3
+    for how, img in split:
+        assert np.array_equal(img.rgba, whole.rgba), how
+        assert np.array_equal(img.aovs["depth"], whole.aovs["depth"], equal_nan=True), how
+
+
+@pytest.mark.parametrize("variant", [None, "uber", "stats"])
+def test_glass_splits_are_bit_identical(cl_device, monkeypatch, variant):
+    cloud = points.blob(120, seed=3)
+    cam = glass.default_camera(cloud, 19, 17)
+    s = glass.GlassSettings(spp=4, bounces=3)
+    scene = Scene(cam, (Sun((0.3, -1.0, -0.2), 3.0),), GlassContent(cloud, s))
+    whole, split = renders(cl_device, scene, monkeypatch, variant)
+    assert whole.rgba[..., 3].mean() > 0.1
+    for how, img in split:
+        assert np.array_equal(img.rgba, whole.rgba), (how, variant)
+
+
+def test_progress_counts_every_sample(cl_device, monkeypatch, capsys):
+    """The bar (forced on) ends at width x height x spp samples and all rows."""
+    monkeypatch.setattr(dispatch, "FIXED_LAUNCH", (8, 2))
+    cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 24)
+    scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=3)))
+    bars = []
+    real = dispatch.Progress
+
+    class Spy(real):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw, delay=0.0)
+            bars.append(self)
+    monkeypatch.setattr(dispatch, "Progress", Spy)
+    render(scene, cl_device, progress=True)
+    (bar,) = bars
+    assert bar.bar.n == bar.bar.total == 16 * 24 * 3
+    assert "rows 24/24" in capsys.readouterr().err
+
+
+def test_launches_adapt_to_the_target(cl_device, monkeypatch):
+    """With a tiny target every launch shrinks to one tile row and one sample; with a
+    huge one they grow (x8 at most per launch) to whole bands of every sample."""
+    sizes = []
+    real = dispatch.Progress.update
+
+    def spy(self, samples, rows=None):
+        sizes.append(samples)
+        return real(self, samples, rows)
+    monkeypatch.setattr(dispatch.Progress, "update", spy)
+    from volrender import volume
+    monkeypatch.setattr(volume, "PIXELS_PER_LAUNCH", 16 * 8)      # the first launch
+    cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 64)
+    scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=4)))
+    monkeypatch.setattr(dispatch, "TARGET_S", 1e-9)
+    render(scene, cl_device)
+    assert sizes == [16 * 8] * (8 * 4)
+    sizes.clear()
+    monkeypatch.setattr(dispatch, "TARGET_S", 1e9)
+    render(scene, cl_device)
+    assert sum(sizes) == 16 * 64 * 4 and len(sizes) <= 4 and sizes[1] > sizes[0]

@@ -1,0 +1,90 @@
+"""Multiple-scattering octaves in the marcher (cl/march.h): one octave is the single
+scattering of commit b93f561 bit for bit (tests/refs, rendered there), more octaves
+only add light, and the octave scales mean what they say."""
+import json
+
+import numpy as np
+import pytest
+
+from volrender import volume as volume_mod
+from volrender.camera import frame_bounds
+from volrender.errors import UserError
+from volrender.lights import Sun
+from volrender.volume import VolumeSettings, render_volume
+from conftest import ROOT
+
+REFS = ROOT / "tests" / "refs"
+
+
+def b93f561_blackbody(kelvin):
+    """The emission colour b93f561 used (Planck at three wavelengths), so its emitting
+    reference scenes stay comparable after the CIE colours replaced it."""
+    lam = np.array([610e-9, 550e-9, 465e-9])
+    h, c, k = 6.62607015e-34, 2.99792458e8, 1.380649e-23
+    spectral = 1.0 / (lam ** 5 * np.expm1(h * c / (lam * k * kelvin)))
+    return spectral / spectral.max()
+
+
+def test_one_octave_is_single_scattering_bit_for_bit(cl_device, monkeypatch):
+    import sys
+    sys.path.insert(0, str(REFS))
+    import march_scenes
+    meta = json.loads((REFS / "march_refs.json").read_text())
+    monkeypatch.setattr(volume_mod, "emission_color",
+                        lambda s: s.emission_scale * b93f561_blackbody(s.emission_temperature))
+    same_device = cl_device.name == meta["device"]
+    for name, b, cam, lights, kw in march_scenes.scenes():
+        got = march_scenes.render(cl_device, name, b, cam, lights, kw, ms_octaves=1)
+        for key, a in got.items():
+            ref = np.load(REFS / f"march_{name}_{key}.npy")
+            if same_device:
+                np.testing.assert_array_equal(a, ref, err_msg=f"{name} {key}")
+            else:        # another CPU or GPU: its own float rounding, nothing more
+                np.testing.assert_allclose(a, ref, rtol=1e-4, atol=1e-6, err_msg=f"{name} {key}")
+
+
+@pytest.fixture(scope="module")
+def demo():
+    from volrender import vdb
+    b = vdb.load_volume(ROOT / "scenes" / "demo_cloud.vdb")
+    return b, frame_bounds(*b.world_bounds(), 32, 24, fov=28.0), [Sun((-0.6, -1.0, -0.5), 10.0)]
+
+
+def test_more_octaves_never_darken(cl_device, demo):
+    b, cam, sun = demo
+    prev = None
+    for n in range(1, 6):
+        img = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=n, spp=2,
+                                                        env=(0.1, 0.15, 0.3)), cl_device)["rgba"]
+        if prev is not None:
+            assert np.all(img[..., :3] >= prev[..., :3] * (1 - 1e-5) - 1e-7), n
+            np.testing.assert_array_equal(img[..., 3], prev[..., 3])
+        prev = img
+    assert prev[..., 0].max() > 0
+
+
+def test_octave_scales_mean_what_they_say(cl_device, demo):
+    """b = 0: the extra octaves add nothing; a = b = c = 1: every octave repeats the
+    single scattering, so N octaves are N times it."""
+    b, cam, sun = demo
+    one = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0), cl_device)["rgba"]
+    off = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=4,
+                                                    ms_octave_scales=(0.5, 0.0, 0.5)),
+                        cl_device)["rgba"]
+    np.testing.assert_allclose(off, one, rtol=1e-5, atol=1e-7)
+    rep = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=3,
+                                                    ms_octave_scales=(1.0, 1.0, 1.0)),
+                        cl_device)["rgba"]
+    np.testing.assert_allclose(rep[..., :3], 3 * one[..., :3], rtol=1e-5, atol=1e-7)
+
+
+def test_octave_settings_are_checked():
+    with pytest.raises(UserError, match="ms-octaves"):
+        VolumeSettings(ms_octaves=0)
+    with pytest.raises(UserError, match="ms-octave-scales"):
+        VolumeSettings(ms_octave_scales=(0.5, 1.5, 0.5))
+    assert volume_mod.octave_tau_stop(VolumeSettings()) == 25.0
+    # octave k's light is below 1e-4 of the light's past the stop: b^k exp(-a^k tau) < 1e-4
+    s = VolumeSettings(ms_octaves=4, ms_octave_scales=(0.5, 0.5, 0.5))
+    stop = volume_mod.octave_tau_stop(s)
+    assert all(0.5 ** k * np.exp(-0.5 ** k * stop) <= 1.0001e-4 for k in range(4))

@@ -1,0 +1,181 @@
+"""Frame sequences: patterns, one camera, Dask workers giving the serial bytes, failures
+that lose nothing, a worker killed mid-run, resuming."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+import volrender
+from volrender import cli, image, sequence, vdb
+from volrender.errors import UserError
+from conftest import ROOT
+
+DEMO = ROOT / "scenes" / "demo_cloud.vdb"
+SIZE = (40, 30)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """Six .npz frames of the demo cloud drifting right and up (different transforms)."""
+    d = tmp_path_factory.mktemp("frames")
+    b = vdb.load_volume(DEMO)
+    for f in range(1, 7):
+        m = b.index_to_world.copy()
+        m[:3, 3] += [0.2 * f, 0.08 * f, 0.0]
+        vdb.Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
+                   grid_name=b.grid_name).save_npz(d / f"cloud_{f:04d}.npz")
+    return d
+
+
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=40,
+                                       env={"POCL_MAX_PTHREAD_COUNT": "1"})
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def _render(frames, out, **kw):
+    out.mkdir(exist_ok=True)
+    return volrender.render_sequence(str(frames / "cloud_####.npz"), str(out / "f_####.exr"),
+                                     frames="1-6", size=SIZE, density_scale=5.0, **kw)
+
+
+@pytest.fixture(scope="module")
+def serial(frames, tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    r = _render(frames, out, workers=0)
+    assert [rec["status"] for rec in r.records] == ["ok"] * 6
+    return out
+
+
+def _same_files(a, b):
+    for f in range(1, 7):
+        assert (a / f"f_{f:04d}.exr").read_bytes() == (b / f"f_{f:04d}.exr").read_bytes(), f
+
+
+def test_serial_frames_share_one_camera_framing_the_union(frames, serial):
+    import OpenEXR
+    heads = [OpenEXR.File(str(serial / f"f_{f:04d}.exr")).header() for f in range(1, 7)]
+    for h in heads[1:]:
+        for k in ("volrender:origin", "volrender:target", "volrender:fov"):
+            np.testing.assert_array_equal(h[k], heads[0][k])
+    # the target is the centre of the union of every frame's bounds
+    boxes = [vdb.load_volume(frames / f"cloud_{f:04d}.npz").world_bounds() for f in range(1, 7)]
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    np.testing.assert_allclose(heads[0]["volrender:target"], 0.5 * (lo + hi), rtol=1e-6)
+    # and the cloud moves in the picture: frames differ
+    a, b = (image.read_image(serial / f"f_{f:04d}.exr") for f in (1, 6))
+    assert np.abs(a - b).max() > 0.1
+    rec = json.loads((serial / "f.sequence.json").read_text())
+    assert [r["frame"] for r in rec["frames"]] == list(range(1, 7)) and rec["failed"] == []
+    assert all(r["status"] == "ok" and r["seconds"] > 0 for r in rec["frames"])
+
+
+def test_two_dask_workers_give_the_serial_bytes(frames, serial, client, tmp_path):
+    r = _render(frames, tmp_path, client=client, chunk=2)
+    assert r.workers == 2 and not r.failed
+    assert {rec["worker"] for rec in r.records} <= {"0", "1"}
+    _same_files(serial, tmp_path)
+
+
+def test_a_killed_worker_has_its_frames_retried(frames, serial, client, tmp_path):
+    marker = tmp_path / "killed-once"
+    client.run(sequence.set_env, sequence.KILL_HOOK, str(marker))
+    try:
+        r = _render(frames, tmp_path / "out", client=client, chunk=1)
+    finally:
+        client.run(sequence.set_env, sequence.KILL_HOOK, None)
+    assert marker.exists()                      # a worker really died on its first task
+    assert not r.failed and len(r.records) == 6
+    _same_files(serial, tmp_path / "out")
+    assert not [p for p in (tmp_path / "out").iterdir() if ".tmp" in p.name]
+
+
+def test_a_truncated_frame_fails_alone(frames, tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    for f in range(1, 5):
+        data = DEMO.read_bytes()
+        (src / f"v_{f:04d}.vdb").write_bytes(data if f != 3 else data[: len(data) // 2])
+    out = tmp_path / "out"
+    out.mkdir()
+    code = cli.main(["render", str(src / "v_####.vdb"), "--frames", "1-4", "-o",
+                     str(out / "v_####.png"), "--size", "24x18", "--workers", "0", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "frame 3" in err and "v_0003.vdb" in err and "frames failed: 3" in err
+    assert sorted(p.name for p in out.glob("*.png")) == ["v_0001.png", "v_0002.png", "v_0004.png"]
+
+
+def test_skip_existing_renders_only_the_missing_frames(frames, serial, tmp_path):
+    out = tmp_path / "resume"
+    out.mkdir()
+    for f in (1, 2, 5):
+        (out / f"f_{f:04d}.exr").write_bytes((serial / f"f_{f:04d}.exr").read_bytes())
+    before = {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
+    r = _render(frames, out, workers=0, skip_existing=True)
+    status = {rec["frame"]: rec["status"] for rec in r.records}
+    assert status == {1: "skipped", 2: "skipped", 3: "ok", 4: "ok", 5: "skipped", 6: "ok"}
+    assert before == {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
+    _same_files(serial, out)
+
+
+@pytest.mark.parametrize("text, frame, path", [
+    ("a/smoke_####.vdb", 7, "a/smoke_0007.vdb"),
+    ("smoke.#.vdb", 12, "smoke.12.vdb"),
+    ("smoke_%04d.vdb", 7, "smoke_0007.vdb"),
+    ("smoke_%d.vdb", 7, "smoke_7.vdb"),
+    ("smoke_%3d.vdb", 7, "smoke_007.vdb"),
+])
+def test_numbered_patterns(text, frame, path):
+    assert sequence.is_pattern(text)
+    assert str(sequence.parse_pattern(text).path(frame)) == path
+
+
+def test_globs_take_the_last_digits(tmp_path):
+    for name in ("s2_0003.vdb", "s2_0010.vdb", "s2_x.vdb"):
+        (tmp_path / name).write_bytes(b"")
+    p = sequence.parse_pattern(str(tmp_path / "s2_*.vdb"))
+    assert p.glob and sorted(p.matches()) == [3, 10]
+
+
+@pytest.mark.parametrize("text, frames", [
+    ("1-5", [1, 2, 3, 4, 5]), ("1-9:4", [1, 5, 9]), ("7", [7]), ("1-3,10,2", [1, 2, 3, 10]),
+    ("-2-1", [-2, -1, 0, 1]),
+])
+def test_frame_ranges(text, frames):
+    assert sequence.parse_frames(text) == frames
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda: sequence.parse_frames("5-1"), ["empty"]),
+    (lambda: sequence.parse_frames("a-b"), ["A-B"]),
+    (lambda: sequence.parse_frames("1-2:0"), ["STEP"]),
+    (lambda: sequence.parse_pattern("a_##_##.vdb"), ["2 frame numbers"]),
+    (lambda: sequence.parse_pattern("plain.vdb"), ["no frame number"]),
+    (lambda: sequence.parse_pattern("o_*.exr", output=True), ["glob"]),
+])
+def test_bad_patterns_are_one_line_errors(call, words):
+    with pytest.raises(UserError) as e:
+        call()
+    assert "\n" not in str(e.value) and all(w in str(e.value) for w in words)
+
+
+def test_missing_frames_are_named_before_anything_renders(frames, tmp_path):
+    with pytest.raises(UserError, match=r"2 of 8 frames are missing: 7 .*cloud_0007.npz.*, 8 "):
+        volrender.render_sequence(str(frames / "cloud_####.npz"), str(tmp_path / "f_####.exr"),
+                                  frames="1-8", workers=0)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sequence_options_on_one_file_are_an_error(tmp_path, capsys):
+    code = cli.main(["render", str(DEMO), "-o", str(tmp_path / "o.png"), "--workers", "2"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--workers applies to sequences only" in err

@@ -1,0 +1,456 @@
+"""Frame sequences: one camera for the whole animation, frames as Dask tasks.
+
+    volrender render 'smoke_####.vdb' -o 'out/smoke_####.exr' --frames 1-240
+    volrender.render_sequence("smoke_####.vdb", "out/smoke_####.exr", frames="1-240")
+
+Patterns: `####` (any number of #: zero-padded to that width), `%04d` / `%d` (printf),
+or a glob (`smoke_*.vdb`: the frame number is the last run of digits in each name).
+`--frames A-B[:STEP]` (also `N`, and comma-separated lists) picks frames; missing input
+frames are named before anything renders. The camera is resolved once, from the union
+of every frame's bounds read from the files' metadata (no voxels loaded), or from the
+options / `--camera`; the other options (density scale, exposure, ...) are the same for
+every frame.
+
+Frames run as Dask tasks (`chunk` frames each, so a worker builds its programs once):
+`workers=N` starts a LocalCluster on this machine (default: one worker per GPU, else one
+per group of 8 CPU cores), `scheduler="tcp://HOST:8786"` submits to an existing cluster
+(`dask scheduler` / `dask worker tcp://HOST:8786` on a shared filesystem), `workers=0`
+renders in this process. Each worker uses `device`, or on a multi-GPU host one GPU per
+worker. Every frame is written atomically; a frame that fails is reported with its
+number and file while the others complete; a worker that dies has its tasks retried on
+another. A JSON record (per frame: input, output, seconds, worker, device, status) is
+written beside the outputs.
+"""
+from __future__ import annotations
+
+import glob as globmod
+import logging
+import json
+import os
+import re
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import UserError
+
+_HASHES = re.compile(r"#+")
+_PRINTF = re.compile(r"%(0?)(\d*)d")
+_GLOB = re.compile(r"[*?\[]")
+CPU_CORES_PER_WORKER = 8        # default LocalCluster size on CPUs: one worker per 8 cores
+KILL_HOOK = "VOLRENDER_TEST_KILL_WORKER_ONCE"   # tests: a marker file; the first task dies
+
+
+# --------------------------------------------------------------------------- patterns
+
+@dataclass(frozen=True)
+class Pattern:
+    """A frame-numbered path: `prefix` + frame (zero-padded to `width`) + `suffix`, or a glob."""
+    text: str
+    prefix: str = ""
+    suffix: str = ""
+    width: int = 0
+    glob: bool = False
+
+    def path(self, frame: int) -> Path:
+        if self.glob:
+            raise ValueError("a glob names no single frame")
+        return Path(f"{self.prefix}{frame:0{self.width}d}{self.suffix}")
+
+    def matches(self) -> dict[int, Path]:
+        """{frame: path} of the files a glob matches; a file's frame is the last run of
+        digits in what the wildcards matched (files without one are not frames)."""
+        rx = re.compile(_glob_regex(Path(self.text).name))
+        out = {}
+        for name in sorted(globmod.glob(self.text)):
+            m = rx.fullmatch(Path(name).name)
+            digits = re.findall(r"\d+", "".join(g or "" for g in m.groups())) if m else []
+            if digits:
+                out.setdefault(int(digits[-1]), Path(name))
+        return out
+
+
+def _glob_regex(pattern: str) -> str:
+    """A regex for a glob with one capturing group per wildcard (*, ?, [...])."""
+    out, i = [], 0
+    while i < len(pattern):
+        c = pattern[i]
+        if c == "*":
+            out.append("(.*)")
+        elif c == "?":
+            out.append("(.)")
+        elif c == "[":
+            start = i + 1 + (pattern[i + 1:i + 2] == "!")
+            j = pattern.find("]", start + 1)
+            if j < 0:
+                out.append(re.escape(c))
+            else:
+                body = pattern[i + 1:j]
+                body = "^" + body[1:] if body.startswith("!") else body
+                out.append(f"([{body}])")
+                i = j
+        else:
+            out.append(re.escape(c))
+        i += 1
+    return "".join(out)
+
+
+def is_pattern(text: str) -> bool:
+    return bool(_HASHES.search(text) or _PRINTF.search(text) or _GLOB.search(Path(text).name))
+
+
+def parse_pattern(text: str, *, output=False) -> Pattern:
+    """A Pattern from `####`, `%04d` or (inputs only) a glob; one frame token only."""
+    text = str(text)
+    tokens = _HASHES.findall(text) + [m.group(0) for m in _PRINTF.finditer(text)]
+    if len(tokens) > 1:
+        raise UserError(f"the pattern {text!r} has {len(tokens)} frame numbers",
+                        fix="use one #### (or one %04d) per pattern")
+    if tokens:
+        m = _HASHES.search(text)
+        if m:
+            return Pattern(text, text[:m.start()], text[m.end():], len(m.group(0)))
+        m = _PRINTF.search(text)
+        width = int(m.group(2) or 0) if m.group(1) == "0" or m.group(2) else 0
+        return Pattern(text, text[:m.start()], text[m.end():], width)
+    if _GLOB.search(Path(text).name):
+        if output:
+            raise UserError(f"the output {text!r} is a glob", fix="name output frames with #### or %04d")
+        return Pattern(text, glob=True)
+    raise UserError(f"{text!r} has no frame number",
+                    fix="mark it with #### (any number of #), %04d, or a quoted glob")
+
+
+def parse_frames(text: str) -> list[int]:
+    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers."""
+    frames = []
+    for part in str(text).split(","):
+        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?::\s*(\d+)\s*)?)?", part)
+        if not m:
+            raise UserError(f"--frames: cannot read {part.strip()!r}",
+                            fix="give A-B[:STEP], N, or a comma-separated list, e.g. 1-240:2")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        step = int(m.group(3) or 1)
+        if b < a or step < 1:
+            raise UserError(f"--frames: {part.strip()!r} is empty", fix="give A-B with A <= B and STEP >= 1")
+        if (b - a) // step > 1_000_000:
+            raise UserError(f"--frames: {part.strip()!r} has more than a million frames")
+        frames.extend(range(a, b + 1, step))
+    return sorted(set(frames))
+
+
+def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
+    """{frame: input path} for the frames asked for; every one must exist."""
+    if pattern.glob:
+        found = pattern.matches()
+        if not found:
+            raise UserError(f"no file matches {pattern.text!r}", fix="check the pattern (quote it)")
+        wanted = frames if frames is not None else sorted(found)
+        missing = [f for f in wanted if f not in found]
+        paths = {f: found[f] for f in wanted if f in found}
+    else:
+        if frames is None:
+            raise UserError(f"{pattern.text!r} needs --frames A-B to say which frames",
+                            fix="give --frames, e.g. --frames 1-240")
+        paths = {f: pattern.path(f) for f in frames}
+        missing = [f for f, p in paths.items() if not p.is_file()]
+    if missing:
+        shown = ", ".join(f"{f} ({paths.get(f, pattern.text)})" if not pattern.glob else str(f)
+                          for f in missing[:8])
+        more = f" and {len(missing) - 8} more" if len(missing) > 8 else ""
+        raise UserError(f"{len(missing)} of {len(frames or paths)} frames are missing: {shown}{more}",
+                        path=pattern.text, fix="provide them, or pick the frames that exist with --frames")
+    return paths
+
+
+# --------------------------------------------------------------------------- one camera
+
+def sequence_camera(paths, overrides):
+    """(camera, {frame: error}): the options' camera framed on the union of every frame's
+    bounds (from metadata), so nothing jumps from frame to frame; frames whose metadata
+    cannot be read are left out of the union and returned as failed."""
+    import numpy as np
+    from . import vdb
+    from .scene import request
+    first = next(iter(paths.values()))
+    req = request(first, **overrides)
+    if req.kind != "volume":
+        raise UserError("sequences render volumes (.vdb, .npz)", path=first,
+                        fix="give a pattern of volume files")
+    lo, hi, hint, bad = np.full(3, np.inf), np.full(3, -np.inf), None, {}
+    for frame, path in paths.items():
+        try:
+            a, b, h = vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
+        except UserError as exc:
+            bad[frame] = str(exc)
+            continue
+        lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+        hint = hint or h
+    if not bad.keys() < paths.keys():
+        raise UserError(f"no frame of the sequence can be read (frame {min(bad)}: {bad[min(bad)]})")
+    return req.view.camera(lo, hi, hint), bad
+
+
+def camera_overrides(camera) -> dict:
+    return {"origin": tuple(camera.origin), "target": tuple(camera.target),
+            "up": tuple(camera.up), "fov": camera.fov, "size": (camera.width, camera.height)}
+
+
+# --------------------------------------------------------------------------- the tasks
+
+def render_chunk(jobs, overrides, save_kw, skip_existing=False):
+    """Render [(frame, input, output)] in this process: one record per frame. A frame
+    that fails is recorded, not raised, so the others of the chunk still render."""
+    from .render import render
+    from .scene import load_scene
+    hook = os.environ.get(KILL_HOOK)
+    if hook:
+        try:
+            os.close(os.open(hook, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            os.kill(os.getpid(), signal.SIGKILL)          # tests: this worker dies once
+        except FileExistsError:
+            pass
+    worker = _worker_name()
+    records = []
+    for frame, src, out in jobs:
+        rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
+               "pid": os.getpid()}
+        t0 = time.perf_counter()
+        try:
+            if skip_existing and Path(out).is_file() and Path(out).stat().st_size > 0:
+                rec.update(status="skipped", seconds=0.0)
+                records.append(rec)
+                continue
+            scene = load_scene(src, **overrides)
+            t1 = time.perf_counter()
+            img = render(scene, os.environ.get("VOLRENDER_DEVICE") or None)
+            t2 = time.perf_counter()
+            img.save(out, **save_kw)
+            t3 = time.perf_counter()
+            rec.update(status="ok", device=img.device, load_s=t1 - t0,
+                       setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
+                       render_s=t2 - t1, write_s=t3 - t2)
+        except UserError as exc:
+            rec.update(status="failed", error=str(exc))
+        except MemoryError:
+            rec.update(status="failed", error="out of host memory")
+        rec["seconds"] = time.perf_counter() - t0
+        records.append(rec)
+    return records
+
+
+def set_env(name: str, value: str | None):
+    """Set (None: remove) an environment variable in this process: `client.run(set_env,
+    ...)` does it on every worker (an os.environ method would be pickled with a copy)."""
+    if value is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = value
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+        return str(get_worker().name)
+    except (ImportError, ValueError):
+        return "local"
+
+
+class DevicePerWorker:
+    """Dask worker plugin: worker `name` (an int in a LocalCluster) renders on GPU
+    `name % len(specs)`, by setting $VOLRENDER_DEVICE before any task runs."""
+    name = "volrender-device"
+
+    def __init__(self, specs):
+        self.specs = list(specs)
+
+    def setup(self, worker):
+        try:
+            i = int(worker.name)
+        except (TypeError, ValueError):
+            i = abs(hash(worker.name))
+        os.environ["VOLRENDER_DEVICE"] = self.specs[i % len(self.specs)]
+
+
+def gpu_specs() -> list[str]:
+    """'P:D' of every GPU OpenCL lists (empty without one)."""
+    import pyopencl as cl
+    from .device import all_devices
+    return [f"{i}:{j}" for i, j, _, d in all_devices() if d.type & cl.device_type.GPU]
+
+
+def default_workers(device=None) -> int:
+    if device is None:
+        n = len(gpu_specs())
+        if n:
+            return n
+    return max(1, (os.cpu_count() or 1) // CPU_CORES_PER_WORKER)
+
+
+# --------------------------------------------------------------------------- the sequence
+
+@dataclass
+class SequenceResult:
+    records: list = field(default_factory=list)   # one per frame, in frame order
+    wall_s: float = 0.0
+    workers: int = 0
+    record_path: Path | None = None
+
+    @property
+    def failed(self) -> list:
+        return [r for r in self.records if r["status"] == "failed"]
+
+    @property
+    def fps(self) -> float:
+        done = sum(r["status"] == "ok" for r in self.records)
+        return done / self.wall_s if self.wall_s > 0 else 0.0
+
+
+def record_path(output: Pattern) -> Path:
+    """Where the JSON record goes: beside the outputs, named after the pattern."""
+    stem = Path(output.prefix).name.rstrip("._-") or "frames"
+    return Path(output.prefix).parent / f"{stem}.sequence.json"
+
+
+def render_sequence(pattern, output, frames=None, client=None, *, workers=None, scheduler=None,
+                    chunk=None, skip_existing=False, device=None, progress=None, exposure=0.0,
+                    tonemap="filmic", **overrides) -> SequenceResult:
+    """Render every frame of `pattern` to `output` (see the module docstring). `client`: a
+    dask.distributed.Client to use (else one is created from `scheduler` or `workers`).
+    Raises UserError before rendering for bad patterns and missing frames; failed frames
+    are in the result's `failed` (the others are written)."""
+    from . import image
+    src = parse_pattern(pattern)
+    dst = parse_pattern(output, output=True)
+    frame_list = parse_frames(frames) if isinstance(frames, str) else (
+        sorted(set(int(f) for f in frames)) if frames is not None else None)
+    paths = frame_inputs(src, frame_list)
+    if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
+        raise UserError(f"--chunk must be an integer >= 1, got {chunk!r}")
+    outs = {f: dst.path(f) for f in paths}
+    for f, out in outs.items():
+        image.check_output(out, overrides.get("aov", ()))
+    clash = {Path(p).resolve() for p in paths.values()} & {o.resolve() for o in outs.values()}
+    if clash:
+        raise UserError(f"an output frame is also an input: {sorted(clash)[0]}",
+                        fix="write the frames somewhere else")
+    camera, bad = sequence_camera(paths, overrides)
+    frame_kw = {**overrides, **camera_overrides(camera)}
+    frame_kw.pop("camera", None)
+    save_kw = {"exposure": exposure, "tonemap": tonemap}
+    jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
+    failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
+               "error": err, "seconds": 0.0} for f, err in bad.items()]
+    t0 = time.perf_counter()
+    own = None
+    if client is None and (workers == 0 and scheduler is None):
+        records = _serial(jobs, frame_kw, save_kw, skip_existing, progress, device)
+        n_workers = 0
+    else:
+        if client is None:
+            own = _start_client(workers, scheduler, device)
+            client = own[0]
+        try:
+            n_workers = len(client.scheduler_info().get("workers", {})) or 1
+            k = chunk or max(1, min(8, len(jobs) // (2 * n_workers) or 1))
+            records = _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k)
+        finally:
+            if own is not None:
+                _stop_client(*own)
+    result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
+                            time.perf_counter() - t0, n_workers)
+    result.record_path = _write_record(dst, result, pattern, output)
+    return result
+
+
+def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device):
+    from .progress import Progress
+    if device is not None:
+        os.environ["VOLRENDER_DEVICE"] = device
+    bar = Progress(len(jobs), "frames", progress)
+    records = []
+    try:
+        for job in jobs:
+            records += render_chunk([job], frame_kw, save_kw, skip_existing)
+            bar.update()
+    finally:
+        bar.close()
+    return records
+
+
+def _start_client(workers, scheduler, device):
+    from distributed import Client, LocalCluster
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise UserError(f"cannot reach the Dask scheduler {scheduler} ({exc})",
+                            fix="start it with `dask scheduler` and its workers with "
+                                f"`dask worker {scheduler}`") from None
+        if device is not None:
+            client.run(set_env, "VOLRENDER_DEVICE", device)
+        return client, None
+    for name in ("distributed", "distributed.scheduler", "distributed.nanny", "distributed.core"):
+        logging.getLogger(name).setLevel(logging.ERROR)    # the cluster's chatter
+    n = workers or default_workers(device)
+    env = {}
+    gpus = [] if device is not None else gpu_specs()
+    if device is not None:
+        env["VOLRENDER_DEVICE"] = device
+    elif not gpus:                                # PoCL: share the cores between workers
+        env["POCL_MAX_PTHREAD_COUNT"] = str(max(1, (os.cpu_count() or 1) // n))
+    if os.environ.get(KILL_HOOK):
+        env[KILL_HOOK] = os.environ[KILL_HOOK]
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address=None, env=env, silence_logs=logging.ERROR)
+    client = Client(cluster)
+    if gpus:
+        client.register_plugin(DevicePerWorker(gpus))
+    return client, cluster
+
+
+def _stop_client(client, cluster):
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
+    from distributed import as_completed
+    from .progress import Progress
+    chunks = [jobs[i:i + k] for i in range(0, len(jobs), k)]
+    futures = [client.submit(render_chunk, c, frame_kw, save_kw, skip_existing, pure=False,
+                             retries=2, key=f"volrender-frames-{c[0][0]}-{c[-1][0]}-{os.getpid()}")
+               for c in chunks]
+    bar = Progress(len(jobs), "frames", progress)
+    records = []
+    try:
+        for fut in as_completed(futures):
+            try:
+                recs = fut.result()
+            except Exception as exc:                 # the task itself failed, not a frame
+                c = chunks[futures.index(fut)]
+                recs = [{"frame": f, "input": str(s), "output": str(o), "status": "failed",
+                         "error": f"the worker failed ({type(exc).__name__}: {exc})".replace("\n", " "),
+                         "seconds": 0.0} for f, s, o in c]
+            records += recs
+            bar.update(len(recs))
+    finally:
+        bar.close()
+    return records
+
+
+def _write_record(dst, result, pattern, output):
+    from .atomic import write_bytes
+    path = record_path(dst)
+    payload = {"input": str(pattern), "output": str(output), "wall_s": result.wall_s,
+               "workers": result.workers, "fps": result.fps,
+               "failed": [r["frame"] for r in result.failed], "frames": result.records}
+    try:
+        return write_bytes(path, json.dumps(payload, indent=1).encode(), "sequence record")
+    except UserError as exc:
+        print(f"volrender: warning: {exc}", file=sys.stderr)
+        return None
