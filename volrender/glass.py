@@ -54,8 +54,8 @@ class GlassSettings(CommonSettings):
                       toml=("render", "accel"))
     use_tree: bool = knob(True, "brute force over all spheres, the reference (= --accel none)",
                           check=boolean, flag="--no-tree", toml=("render", "tree"))
-    cell_size: float | None = knob(None, "support-cell edge, world units (default: a quarter "
-                                   "of the median radius plus half the blend)",
+    cell_size: float | None = knob(None, "support-cell edge, world units (default: (median "
+                                   "radius + blend / 2) / 4, grown to fit the device's budget)",
                                    check=in_range(0, MAX_EXTENT, allow_none=True),
                                    toml=("render", "cell_size"), kind=NUM, show_default=False)
     cell_skip: bool = knob(True, "support cells: list every cell instead of letting rays skip "
