@@ -452,7 +452,8 @@ def glass_settings(quick, isolated):
                   dict(epsilon=1e-5, max_steps=1024, bounces=8)),
                  ("preset", "final, plain steps: eps 1e-5, 512 steps, 8 bounces, relax 1",
                   dict(epsilon=1e-5, max_steps=512, bounces=8, relax=1.0)),
-                 ("tree vs brute", "defaults, brute force", dict(use_tree=False))]
+                 ("tree vs brute", "defaults, brute force", dict(use_tree=False)),
+                 ("tree vs brute", "defaults, tree walk", dict(accel="tree"))]
     if isolated:
         ref = {k: v for k, v in GLASS_REF.items() if k != "use_tree"}
         rows += [("alone: epsilon", f"epsilon {e:g} alone", {**ref, "epsilon": e}) for e in eps]
@@ -460,13 +461,14 @@ def glass_settings(quick, isolated):
                  for n in (*steps, 1024)]
         rows += [("alone: bounces", f"bounces {n} alone", {**ref, "bounces": n}) for n in bounces]
         rows += [("alone: relax", f"relax {w:g} alone", {**ref, "relax": w}) for w in (1.3, 1.6, 1.9)]
-        rows += [("tree vs brute", "reference knobs, tree", dict(ref))]
+        rows += [("tree vs brute", "reference knobs, tree", dict(ref, accel="tree")),
+                 ("tree vs brute", "reference knobs, cells", dict(ref, accel="grid"))]
     return rows
 
 
 def describe_glass(s: glass.GlassSettings) -> dict:
     return {"epsilon": s.epsilon, "max_steps": s.max_steps, "bounces": s.bounces,
-            "relax": s.relax, "use_tree": s.use_tree, "spp": s.spp}
+            "relax": s.relax, "accel": s.accel, "spp": s.spp}
 
 
 def run_glass(dev, width, height, args, record):

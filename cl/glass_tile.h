@@ -68,8 +68,8 @@ inline int glass_build_tile(__constant Camera* cam, __constant GlassParams* gp,
                 idx[at] = i;                                                  \
         }                                                                     \
     }
-#if VR_TREE
-    /* one subtree per work-item from the level with about a group's worth of nodes */
+#if VR_TREE || VR_GRID
+    /* the tree (the cells' builder is there too): one subtree per work-item from the level with about a group's worth of nodes */
     int level = 1;
     while (level < gsize && level < gp->first_leaf)
         level <<= 1;

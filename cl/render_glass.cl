@@ -1,14 +1,15 @@
 /* Molten-glass point clouds: one work-item per pixel follows one path per sample through
    up to `bounces` surface events of the smooth union of spheres (render frame).
    Inputs: Camera, GlassParams, lights, spheres (tree order), tree nodes, environment,
-   per-sphere colours. Output: rgba, alpha = coverage of the primary ray.
-   Flags: VR_TREE, VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_REFRACTION, VR_ABSORPTION,
+   per-sphere colours, support cells (bricks, cells, lists, runs: cl/cells.h). Output:
+   rgba, alpha = coverage of the primary ray.
+   Flags: VR_TREE, VR_GRID, VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_REFRACTION, VR_ABSORPTION,
           VR_GLOW, VR_ENV_MAP, VR_COLORS, VR_TILED (+ VR_TILE_W, VR_TILE_H, VR_TILE_CAP),
           VR_UBER (every feature compiled in, chosen at run time by GlassParams.uber and
           the light counts in GlassParams: the kernel-specialisation baseline),
           VR_STATS (diagnostics: rgb holds the field evaluations, node tests and sphere
           tests per pixel, summed over its samples). */
-#if !defined(VR_TREE) || !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || \
+#if !defined(VR_TREE) || !defined(VR_GRID) || !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || \
     !defined(VR_SHADOWS) || !defined(VR_REFRACTION) || !defined(VR_ABSORPTION) || \
     !defined(VR_GLOW) || !defined(VR_ENV_MAP) || !defined(VR_COLORS) || \
     !defined(VR_TILED) || !defined(VR_UBER) || !defined(VR_STATS)
@@ -32,8 +33,10 @@ __kernel
 void render_glass(__constant Camera* cam, __constant GlassParams* gp,
                   __constant Light* lights, __global const float4* restrict spheres,
                   __global const TreeNode* restrict nodes, __global const float4* env,
-                  __global const float4* restrict colors, __global float4* out, int y0,
-                  int s0, int s1)
+                  __global const float4* restrict colors, __global const int2* restrict bricks,
+                  __global const int2* restrict cells, __global const int4* restrict lists,
+                  __global const int2* restrict runs, __global float4* out, int y0, int s0,
+                  int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
 #if VR_TILED
@@ -56,6 +59,19 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
     sc.k = gp->blend;
 #if VR_COLORS
     sc.colors = colors;
+#endif
+#if VR_GRID
+    sc.bricks = bricks;
+    sc.cells = cells;
+    sc.lists = lists;
+    sc.runs = runs;
+    sc.grid_lo = gp->grid_lo.xyz;
+    sc.cell = gp->grid_lo.w;
+    sc.inv_cell = gp->grid_inv;
+    sc.nudge = gp->grid_nudge;
+    sc.dims = gp->grid_dims.xyz;
+    sc.bdims = gp->brick_dims.xyz;
+    sc.max_skips = gp->grid_skips;
 #endif
 #if VR_TILED
     sc.tile = tile;

@@ -1,18 +1,22 @@
-/* Smooth union of spheres, tree traversal and sphere tracing.
+/* Smooth union of spheres, its acceleration (tree walk or support cells) and sphere tracing.
    Field: d_i = |x - c_i| - r_i, m = min_i d_i, h_i = max(0, 1 - (d_i - m)/k),
    S = sum_i h_i^2 (the nearest sphere gives 1), F = m - (k/2) ln S: a plain sum, so
    independent of visiting order. For two spheres F is C1 across the seam (slopes 1/2 and
    1/2 where d_a = d_b); the bulge over the plain union is at most (k/2) ln N (N spheres
    at equal distance), instead of growing linearly with N as a sum of pairwise smins does.
    Support: sphere i matters only where d_i < m + k.
-   Flags: VR_TREE; VR_TILED (a work-group's sphere list in local memory, exact wherever
-   m + k <= its margin, see render_glass.cl); VR_COLORS (per-sphere colours, blended with
-   the weights h_i^2 / S). */
+   Flags: VR_TREE (walk the partition tree), VR_GRID (fold the point's support-cell list,
+   cl/cells.h; rays skip cells away from the surface), neither: brute force; VR_TILED (a
+   work-group's sphere list in local memory, exact wherever m + k <= its margin, see
+   render_glass.cl); VR_COLORS (per-sphere colours, blended with the weights h_i^2 / S). */
 #ifndef VR_SDF_H
 #define VR_SDF_H
 
-#if !defined(VR_TREE) || !defined(VR_TILED) || !defined(VR_COLORS)
-#error "sdf.h: VR_TREE, VR_TILED or VR_COLORS is missing (see volrender/features.py)"
+#if !defined(VR_TREE) || !defined(VR_GRID) || !defined(VR_TILED) || !defined(VR_COLORS)
+#error "sdf.h: VR_TREE, VR_GRID, VR_TILED or VR_COLORS is missing (see volrender/features.py)"
+#endif
+#if VR_TREE && VR_GRID
+#error "sdf.h: VR_TREE and VR_GRID exclude each other"
 #endif
 
 #ifndef VR_TREE_STACK
@@ -40,8 +44,20 @@ typedef struct {
     float3 tile_eye;                  /* the frustum: x - eye on the inner side of 4 planes */
     float3 tile_pl[4];
 #endif
+#if VR_GRID
+    __global const int2* bricks;      /* cl/cells.h */
+    __global const int2* cells;
+    __global const int4* lists;       /* (start, count, core start, core count) into runs */
+    __global const int2* runs;        /* (first sphere, count), ascending per list */
+    float3 grid_lo;                   /* min corner of cell (0, 0, 0) */
+    float cell, inv_cell;             /* cell edge and its inverse */
+    float nudge;                      /* step past a skipped cell's exit face */
+    int3 dims, bdims;                 /* cells and bricks per axis */
+    int max_skips;                    /* skips per ray segment */
+#endif
 #if VR_STATS
-    int3* stats;                      /* counters: evaluations, node tests, sphere tests */
+    int3* stats;                      /* counters: evaluations, node tests (cell lookups with
+                                         VR_GRID), sphere tests */
 #endif
 } SdfScene;
 
@@ -53,6 +69,10 @@ typedef struct {
     float3 color; /* sum_i h_i^2 c_i / S */
 #endif
 } SdfSample;
+
+#if VR_GRID
+#include "cells.h"
+#endif
 
 /* sqrt(dot) rather than length(): length() guards against overflow by rescaling, which
    made the field ~1.5x slower on the H200 and PoCL; the host refuses scenes large enough
@@ -92,8 +112,9 @@ inline float sdf_node_bound(const SdfScene* sc, int node, float3 x)
 #endif
 
 /* Pass 1: the nearest sphere, m = min_i d_i (returned) and its index *arg (-1: none).
-   The traversal visits the nearer child first and prunes against the running m. */
-inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int* arg)
+   The traversal visits the nearer child first and prunes against the running m; with
+   VR_GRID it scans the cell's core list. */
+inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, int* arg)
 {
     float m = INFINITY;
     int a = -1;
@@ -111,7 +132,13 @@ inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int* arg)
         return m;
     }
 #endif
-#if VR_TREE
+#if VR_GRID
+    for (int j = list.z; j < list.z + list.w; ++j) {     /* the core holds the nearest */
+        int2 r = sc->runs[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            SDF_NEAREST(sc->spheres[i], i)
+    }
+#elif VR_TREE
     int stack[VR_TREE_STACK];
     float sb[VR_TREE_STACK];
     int sp = 0;
@@ -175,7 +202,7 @@ typedef struct {
    H200 two passes ran x1.4 faster than one gathering a private candidate list (which
    spilled to local memory). Starting pass 2 from the previous step's nearest sphere
    instead of pass 1 cost more: along a ray the nearest sphere changes at 80% of steps. */
-inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_tile)
+inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_tile, int4 list)
 {
     float thr = m + sc->k, inv_k = 1.0f / sc->k;
     float s1 = 0.0f, s2 = 0.0f;
@@ -187,7 +214,13 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
     } else
 #endif
     {
-#if VR_TREE
+#if VR_GRID
+    for (int j = list.x; j < list.x + list.y; ++j) {
+        int2 r = sc->runs[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            SDF_ACCUMULATE(sc->spheres[i], i)
+    }
+#elif VR_TREE
     int stack[VR_TREE_STACK];
     int sp = 0;
     int node = sdf_node_bound(sc, 1, x) < thr ? 1 : 0;
@@ -236,8 +269,9 @@ inline int sdf_in_tile(const SdfScene* sc, float3 x)
 #endif
 }
 
-/* F, its gradient bound at the point and its analytic gradient at x (render frame). */
-inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
+/* F, its gradient bound at the point and its analytic gradient at x (render frame); with
+   VR_GRID from the lists of x's cell (cl/cells.h). */
+inline SdfSample sdf_eval_in(const SdfScene* sc, float3 x, int4 list)
 {
     SdfSample r;
     r.lip = 1.0f;
@@ -249,13 +283,18 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
     ++sc->stats->x;
 #endif
     int a, in_tile = sdf_in_tile(sc, x);
+#if VR_GRID && VR_TILED
+    /* with cells the tile's list serves only where it is the shorter (fewer spheres than
+       the cell's list has runs) */
+    in_tile = in_tile && sc->tile_n < list.y;
+#endif
     float m;
     /* the list serves when every sphere off it (d_i > margin) is beyond m + k */
     if (in_tile)
-        m = sdf_nearest(sc, x, 1, &a);
+        m = sdf_nearest(sc, x, 1, list, &a);
     int use_tile = in_tile && m + sc->k <= SDF_TILE_MARGIN(sc);
     if (!use_tile)
-        m = sdf_nearest(sc, x, 0, &a);
+        m = sdf_nearest(sc, x, 0, list, &a);
     r.f = m;
     if (a < 0)
         return r;
@@ -267,7 +306,7 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
     /* k -> 0, or k below m's precision: the plain union */
     if (!(sc->k > VR_BLEND_MIN) || !(m + sc->k > m))
         return r;
-    SdfSums u = sdf_blend_sums(sc, x, m, use_tile);
+    SdfSums u = sdf_blend_sums(sc, x, m, use_tile, list);
     float s1 = u.s1, s2 = u.s2;
     float3 g = u.g, col = u.col;
     s2 = fmax(s2, 1.0f);                   /* the argmin's h = 1 is in the sums */
@@ -286,19 +325,88 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
     return r;
 }
 
+/* A skippable cell's sample: only the bound (its sign is F's), no gradient. */
+inline SdfSample sdf_bound_sample(float bound)
+{
+    SdfSample r;
+    r.f = bound;
+    r.lip = 1.0f;
+    r.grad = (float3)(0.0f);
+#if VR_COLORS
+    r.color = (float3)(0.0f);
+#endif
+    return r;
+}
+
+/* F at any point x (render frame): see sdf_eval_in; in a skippable cell, its bound. */
+inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
+{
+#if VR_GRID
+    SdfCell c = sdf_cell(sc, x);
+    if (c.code < 0)
+        return sdf_bound_sample(c.bound);
+    return sdf_eval_in(sc, x, sc->lists[c.code]);
+#else
+    return sdf_eval_in(sc, x, (int4)(0));
+#endif
+}
+
+/* With VR_GRID: the sample at o + t d for a march on `side`, or a skip. Returns 1 with *s
+   set; 0 when the cell is skipped (*t moved past its exit, *skips counted). A cell of the
+   other side means the surface lies behind: its bound sample (side * F < 0) is a hit. */
+#if VR_GRID
+inline int sdf_step_sample(const SdfScene* sc, float3 o, float3 d, float3 inv_d, float side,
+                           float* t, int* skips, SdfSample* s, float* bound, float* t_exit)
+{
+    SdfCell c = sdf_cell(sc, o + *t * d);
+    if (c.code >= 0) {
+        *s = sdf_eval_in(sc, o + *t * d, sc->lists[c.code]);
+        return 1;
+    }
+    if (!sdf_cell_skips(&c, side)) {
+        *s = sdf_bound_sample(c.bound);
+        return 1;
+    }
+    ++*skips;
+    *bound = c.bound;
+    *t = sdf_cell_exit(sc, &c, o, inv_d, *t);
+    *t_exit = *t;
+    return 0;
+}
+#endif
+
 /* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
    Hit when side * F < eps * (base + t); safe step r = (side * F) / lip. With relax w > 1
    the step is w r (over-relaxed sphere tracing); when the safe balls of two consecutive
    points do not overlap (r + r_prev < step) the step went too far: go back to the plain
-   step and stay at w = 1. No surface is skipped either way. Returns 1 on a hit with *t
-   and *s at the hit; else 0 with *t where marching stopped (<= t1). */
+   step and stay at w = 1. No surface is skipped either way. With VR_GRID, cells of the
+   ray's side are crossed without evaluations (they hold no hit: |F| > tau there); a skip
+   restarts the relaxation and counts against max_skips, not max_steps. Returns 1 on a hit
+   with *t and *s at the hit; else 0 with *t where marching stopped (<= t1). */
 inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
                      float eps, float base, int max_steps, float relax, float* t_out,
                      SdfSample* s_out)
 {
     float t = t0, w = relax, step = 0.0f, r_prev = 0.0f;
-    for (int i = 0; i < max_steps && t <= t1; ++i) {
-        SdfSample s = sdf_eval(sc, o + t * d);
+#if VR_GRID
+    float3 inv_d = 1.0f / d;
+    int skips = 0;
+#endif
+    for (int i = 0; i < max_steps && t <= t1;) {
+        SdfSample s;
+#if VR_GRID
+        float bound, t_exit;
+        if (!sdf_step_sample(sc, o, d, inv_d, side, &t, &skips, &s, &bound, &t_exit)) {
+            step = 0.0f;
+            r_prev = 0.0f;
+            if (skips > sc->max_skips)
+                break;
+            continue;
+        }
+#else
+        s = sdf_eval(sc, o + t * d);
+#endif
+        ++i;
         float f = side * s.f;
         float r = f / s.lip;
         if (w > 1.0f && r + r_prev < step) {

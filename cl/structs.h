@@ -8,6 +8,9 @@
 #define VR_MAX_LIGHTS 64
 #define VR_MAX_RAY_SAMPLES 16777216
 #define VR_SAMPLE_MAX 1e+33f
+#define VR_CELL_BRICK 8
+#define VR_CELL_OUTSIDE -1
+#define VR_CELL_INSIDE -2
 #define VR_BIT_SHADOWS 1
 #define VR_BIT_REFRACTION 2
 #define VR_BIT_ABSORPTION 4
@@ -76,7 +79,7 @@ typedef struct {  /* 32 bytes */
     int count;
 } TreeNode;
 
-typedef struct {  /* 144 bytes */
+typedef struct {  /* 208 bytes */
     float4 box_lo;
     float4 box_hi;
     float4 absorption;
@@ -101,6 +104,25 @@ typedef struct {  /* 144 bytes */
     int n_points;
     float relax;
     float _pad0;
+    float4 grid_lo;
+    int4 grid_dims;
+    int4 brick_dims;
+    float grid_inv;
+    float grid_nudge;
+    int grid_skips;
+    float _pad1;
 } GlassParams;
+
+typedef struct {  /* 48 bytes */
+    float4 grid_lo;
+    float blend;
+    float pad;
+    float tau;
+    int n_spheres;
+    int first_leaf;
+    int box_cells;
+    int _pad0;
+    int _pad1;
+} CellBuild;
 
 #endif

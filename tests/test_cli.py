@@ -217,7 +217,7 @@ def test_render_point_inputs_and_scene(tmp_path, capsys):
 
 def test_no_tree_matches_tree_through_the_cli(tmp_path, capsys):
     a, b = tmp_path / "a.npy", tmp_path / "b.npy"
-    assert run(capsys, "render", "blob:500", "-o", a, *SMALL, "--bounces", "2")[0] == 0
+    assert run(capsys, "render", "blob:500", "-o", a, *SMALL, "--bounces", "2", "--accel", "tree")[0] == 0
     assert run(capsys, "render", "blob:500", "-o", b, *SMALL, "--bounces", "2", "--no-tree")[0] == 0
     np.testing.assert_allclose(np.load(a), np.load(b), atol=2e-3)
 

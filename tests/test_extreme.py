@@ -445,26 +445,32 @@ def test_huge_blend_is_finite(cl_device, white_env, k):
 
 
 @pytest.mark.parametrize("s", [1e-6, 1e3])
-def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s):
+@pytest.mark.parametrize("accel", ["grid", "tree"])
+def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s, accel):
     """The whole scene scaled by s (radii 1e-6 or 1e3 around a unit cloud): epsilon is
-    relative, suns and the procedural sky depend on direction only, so with absorption
-    and glow per unit length scaled by 1/s the image is the same. Refraction paths are
-    chaotic (see test_glass): all coverage agrees, nearly all pixels to 2e-3."""
+    relative, suns and the procedural sky depend on direction only, and absorption and glow
+    are per cloud radius by default, so the image is the same; with them in world units
+    (material_unit 1) they must be scaled by 1/s for that. Refraction paths are chaotic (see
+    test_glass): all coverage agrees, nearly all pixels to 2e-3."""
     base = points.blob(80, seed=23)
     r0 = 0.12
-    kw = dict(blend=0.1, bounces=3, radius=r0)
+    kw = dict(blend=0.1, bounces=3, radius=r0, accel=accel)
     cam = glass.default_camera(base, GSIZE, GSIZE, radius=r0)
     sun = [Sun((0.3, -1.0, -0.2), 3.0)]
     ref = grender(cl_device, base, glass.GlassSettings(**kw), cam, sun)
     big = PointCloud(base.centers * s)
-    got = grender(cl_device, big,
-                  glass.GlassSettings(blend=0.1 * s, bounces=3, radius=r0 * s,
-                                      absorption=tuple(np.array((0.15, 0.6, 1.6)) / s),
-                                      glow=0.6 / s), scaled_cam(cam, s), sun)
-    finite(got)
-    assert ref[..., 3].mean() > 0.1
-    np.testing.assert_array_equal(got[..., 3], ref[..., 3])
-    assert (np.abs(got - ref).max(-1) <= 2e-3).mean() >= 0.97     # measured: all within 4e-5
+    scaled = dict(kw, blend=0.1 * s, radius=r0 * s)
+    got = grender(cl_device, big, glass.GlassSettings(**scaled), scaled_cam(cam, s), sun)
+    unit = glass.material_unit(glass.pack_scene(base, glass.GlassSettings(**kw), device=cl_device),
+                               glass.GlassSettings())
+    world = grender(cl_device, big, glass.GlassSettings(
+        **scaled, material_unit=1.0, absorption=tuple(np.array((0.25, 1.0, 2.7)) / (unit * s)),
+        glow=1.0 / (unit * s)), scaled_cam(cam, s), sun)
+    for img in (got, world):
+        finite(img)
+        assert ref[..., 3].mean() > 0.1
+        np.testing.assert_array_equal(img[..., 3], ref[..., 3])
+        assert (np.abs(img - ref).max(-1) <= 2e-3).mean() >= 0.97   # measured: all within 4e-5
 
 
 @pytest.mark.parametrize("r", [1e-6, 1e3])
@@ -486,9 +492,10 @@ def test_tiny_and_huge_radii_on_a_unit_cloud(cl_device, white_env, r):
 
 
 def test_a_million_coincident_points(cl_device, monkeypatch):
-    """1e6 spheres at one point: the tree the renderer builds still splits evenly and is
-    valid, and the render (a few pixels: every field evaluation visits all 1e6 spheres)
-    is finite and covers the centre."""
+    """1e6 spheres at one point: the support cells give way to the tree walk (every cell
+    near the point would list and scan all of them); the tree the renderer builds still
+    splits evenly and is valid, and the render (a few pixels: every field evaluation visits
+    all 1e6 spheres) is finite and covers the centre."""
     n = 1_000_000
     c = np.full((n, 3), 0.5)
     built = []
@@ -501,8 +508,10 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     monkeypatch.setattr(tree_mod, "build", spy)
     cloud = PointCloud(c, np.full(n, 0.3))
     cam = Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.5), (0.0, 1.0, 0.0), 20.0, 3, 3)
-    img = glass.render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1,
-                                                                  max_steps=32), cl_device)["rgba"]
+    r = glass.render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32),
+                            cl_device)
+    img = r["rgba"]
+    assert r["accel"] == "tree" and "centres in one brick" in r["note"]   # cells give way
     finite(img)
     assert img[1, 1, 3] == 1.0
     (t,) = built

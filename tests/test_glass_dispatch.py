@@ -26,11 +26,11 @@ def _agree(a, b, frac=1.0):
     assert close.mean() >= frac, f"{(~close).sum()} of {close.size} pixels differ"
 
 
-@pytest.mark.parametrize("use_tree", [True, False])
+@pytest.mark.parametrize("accel", glass.ACCELS)
 @pytest.mark.parametrize("tile", [(8, 8), (16, 4), (1, 1), (5, 3)])
-def test_tiled_matches_fragment(cl_device, use_tree, tile):
+def test_tiled_matches_fragment(cl_device, accel, tile):
     cloud = points.blob(300, seed=3)
-    base = glass.GlassSettings(bounces=2, use_tree=use_tree, blend=0.12)
+    base = glass.GlassSettings(bounces=2, accel=accel, blend=0.12)
     a = _render(cl_device, cloud, base)                     # 24x20: not a multiple of 16x8
     b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "dispatch": "tiled",
                                                           "tile": tile}))
@@ -50,22 +50,31 @@ def test_fragment_blocks_do_not_change_the_image(cl_device):
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("use_tree", [True, False])
-def test_stats_count_the_field_work(cl_device, use_tree):
+@pytest.mark.parametrize("accel", glass.ACCELS)
+def test_stats_count_the_field_work(cl_device, accel):
     """Diagnostics: brute force tests every sphere twice per evaluation (nearest, then
-    the sums); the tree tests fewer spheres plus some nodes; coverage is unchanged."""
+    the sums); the tree tests fewer spheres plus some nodes; the cells look up one cell
+    per evaluation or skip, and test at most the longest list plus its core per
+    evaluation; coverage is unchanged."""
     cloud = points.blob(200, seed=3)
-    base = glass.GlassSettings(bounces=2, blend=0.12, use_tree=use_tree, dispatch="fragment")
+    base = glass.GlassSettings(bounces=2, blend=0.12, accel=accel, dispatch="fragment")
     img = _render(cl_device, cloud, base)
     st = _render(cl_device, cloud, base, variant="stats")
     np.testing.assert_array_equal(st[..., 3], img[..., 3])
     evals, nodes, tests = st[..., 0], st[..., 1], st[..., 2]
-    assert (evals >= 1).all() and evals.max() > 10
-    if use_tree:
+    assert evals.max() > 10
+    if accel == "tree":
+        assert (evals >= 1).all()
         assert nodes.sum() > 0 and tests.sum() < 2 * len(cloud.centers) * evals.sum() / 4
-    else:
-        assert nodes.sum() == 0
+    elif accel == "none":
+        assert (evals >= 1).all() and nodes.sum() == 0
         np.testing.assert_array_equal(tests, 2 * len(cloud.centers) * evals)
+    else:
+        grid = glass.pack_scene(cloud, base, device=cl_device).cells
+        longest = int((grid.lengths() + grid.lengths(core=True)).max())
+        assert (nodes >= evals).all() and nodes.sum() > evals.sum()   # lookups, skips
+        assert (tests <= longest * evals).all() and tests.sum() > 0
+        assert (evals[img[..., 3] == 0] == 0).mean() > 0.5   # most misses cross only skips
 
 
 def test_tiled_list_overflow_falls_back(cl_device):

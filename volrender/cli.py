@@ -196,6 +196,9 @@ def build_parser():
     t.add_argument("--blend", type=_float("--blend"), default=0.0,
                    help="inflate node boxes by this margin (default: 0)")
     t.add_argument("--grid", default=None, help="volume grid name (default: 'density')")
+    t.add_argument("--cells", action="store_true",
+                   help="points: draw the glass support cells that hold a list, coloured by "
+                        "list length, instead of the tree")
     lv = t.add_mutually_exclusive_group()
     lv.add_argument("--depth", type=_int("--depth"), default=None, help="show only this level")
     lv.add_argument("--leaves", action="store_true", help="show only the leaves")
@@ -258,8 +261,7 @@ def describe(scene) -> str:
     s = scene.settings
     if scene.kind == "volume":
         return f"{s.spp} spp"
-    return (f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, "
-            f"{'tree' if s.use_tree else 'no tree'}")
+    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {s.accel}"
 
 
 def look_problems(img, scene) -> list[str]:
@@ -381,7 +383,7 @@ def cmd_tree(args):
                 screenshot=args.screenshot, export=args.export, show=args.show,
                 window_size=args.window_size)
     t = inspect.inspect_input(args.input, leaf_size=args.leaf_size, radius=args.radius,
-                              blend=args.blend, grid=args.grid, **view)
+                              blend=args.blend, grid=args.grid, cells=args.cells, **view)
     done = [p for p in (args.screenshot, args.export) if p]
     if done:
         print(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})", file=sys.stderr)

@@ -66,7 +66,8 @@ class VolumeFeatures:
 
 @dataclass(frozen=True)
 class GlassFeatures:
-    tree: bool = True          # partition tree traversal (False: brute force over all spheres)
+    tree: bool = True          # the field walks the partition tree
+    grid: bool = False         # the field folds support-cell lists (cl/cells.h); neither: brute force
     n_suns: int = 0
     n_points: int = 0
     shadows: bool = True       # sphere-traced hard shadows toward lights
@@ -92,17 +93,22 @@ class GlassFeatures:
         n_suns, n_points = counts(scene.lights)
         s = scene.content.settings
         refr = s.refraction
-        tree = s.use_tree and len(packed.spheres) > 0
+        tree = packed.accel == "tree"
+        grid = packed.accel == "grid"
         tiled = dispatch.tiled
         tiling = dict(tiled=tiled, tile_w=dispatch.tile[0] if tiled else 0,
                       tile_h=dispatch.tile[1] if tiled else 0,
                       tile_cap=GLASS_TILE_CAP if tiled else 0,
-                      tree_stack=max(2, int(packed.first_leaf).bit_length()),
+                      # the stack serves the tree walks (the field's, or the tile lists'):
+                      # elsewhere a constant, so one program serves every sphere count
+                      tree_stack=max(2, int(packed.first_leaf).bit_length())
+                      if tree or (tiled and grid) else 2,
                       stats=variant == "stats")
         if variant == "uber":
-            return cls(tree=tree, shadows=True, refraction=True, absorption=True, glow=True,
+            return cls(tree=tree, grid=grid, shadows=True, refraction=True, absorption=True,
+                       glow=True,
                        env_map=True, colors=True, uber=True, **tiling)
-        return cls(tree=tree, n_suns=n_suns, n_points=n_points,
+        return cls(tree=tree, grid=grid, n_suns=n_suns, n_points=n_points,
                    shadows=s.shadows and n_suns + n_points > 0, refraction=refr,
                    absorption=refr and any(a > 0 for a in s.absorption),
                    glow=refr and s.glow > 0, env_map=scene.environment is not None,

@@ -13,48 +13,75 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import layout, lights as lights_mod, tree as tree_mod
+from . import cells as cells_mod, layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
 from .dispatch import Dispatch
 from .errors import UserError
 from .features import GlassFeatures
-from .settings import MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, rgb
+from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, one_of,
+                       rgb)
 
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
+SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
+SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
+ACCELS = ("grid", "tree", "none")
 
 
 @dataclass(frozen=True)
 class GlassSettings(CommonSettings):
     """Molten-glass look and tracing knobs (defaults, ranges and CLI/scene names:
-    settings.knob). Lengths are world units."""
+    settings.knob). Lengths are world units, except that absorption and glow are per
+    material_unit (default: the cloud's bounding radius)."""
     radius: float | None = knob(None, "sphere radius for every point (default: the file's "
-                                "radii, else half the median neighbour spacing)",
+                                "radii, else half the median nearest-neighbour spacing)",
                                 check=in_range(0, MAX_EXTENT, allow_none=True),
                                 toml=("points", "radius"), kind=NUM, show_default=False)
     blend: float | None = knob(None, "smooth-union width k; 0 = plain union (default: twice "
-                               "the median radius)", check=in_range(0, MAX_EXTENT, allow_none=True),
+                               "the median radius; for points without radii, three times "
+                               "the 90th percentile of the nearest-neighbour spacings, so a "
+                               "scan melts into one surface)",
+                               check=in_range(0, MAX_EXTENT, allow_none=True),
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))
-    use_tree: bool = knob(True, "brute force over all spheres (the reference)", check=boolean,
-                          flag="--no-tree", toml=("render", "tree"))
+    accel: str = knob("grid", "how the field finds the spheres near a point: grid = support "
+                      "cells (each lists the spheres that can matter in it; rays skip cells away "
+                      "from the surface), tree = walk the partition tree, none = brute force "
+                      "over all spheres (the reference)", check=one_of(ACCELS), choices=ACCELS,
+                      toml=("render", "accel"))
+    use_tree: bool = knob(True, "brute force over all spheres, the reference (= --accel none)",
+                          check=boolean, flag="--no-tree", toml=("render", "tree"))
+    cell_size: float | None = knob(None, "support-cell edge, world units (default: (median "
+                                   "radius + blend / 2) / 4, grown to fit the device's budget)",
+                                   check=in_range(0, MAX_EXTENT, allow_none=True),
+                                   toml=("render", "cell_size"), kind=NUM, show_default=False)
+    cell_skip: bool = knob(True, "support cells: list every cell instead of letting rays skip "
+                           "those away from the surface (the same field; tests, benchmarks)",
+                           check=boolean, flag="--no-cell-skip", toml=("render", "cell_skip"))
     bounces: int = knob(6, "surface events per path", check=in_range(1, 64, integer=True),
                         toml=("render", "bounces"))
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
                       toml=("material", "ior"))
-    absorption: tuple = knob((0.15, 0.6, 1.6), "Beer-Lambert coefficient inside glass, per unit "
-                             "length", metavar="R,G,B", parse=floats(3, name="--absorption"),
-                             check=rgb(0, MAX_VALUE), toml=("material", "absorption"))
+    absorption: tuple = knob((0.25, 1.0, 2.7), "Beer-Lambert coefficient inside glass, per "
+                             "--material-unit of length", metavar="R,G,B",
+                             parse=floats(3, name="--absorption"), check=rgb(0, MAX_VALUE),
+                             toml=("material", "absorption"))
     color: tuple = knob((1.0, 0.42, 0.12), "colour of the glow (and the tint of opaque spheres)",
                         metavar="R,G,B", parse=floats(3, name="--color"), check=rgb(0, MAX_VALUE),
                         toml=("material", "color"))
     reflectivity: float = knob(1.0, "scale on the Fresnel reflection", check=in_range(0, MAX_VALUE),
                                toml=("material", "reflectivity"))
-    glow: float = knob(0.6, "hot-glass emission per unit length inside glass",
+    glow: float = knob(1.0, "hot-glass emission per --material-unit of length inside glass",
                        check=in_range(0, MAX_VALUE), toml=("material", "glow"))
+    material_unit: float | None = knob(None, "the length absorption and glow are given per, "
+                                       "world units (default: the cloud's bounding radius, so "
+                                       "the material looks the same at any scale; 1 = per "
+                                       "world unit)", check=in_range(1e-30, MAX_EXTENT,
+                                                                     allow_none=True),
+                                       toml=("material", "unit"), kind=NUM, show_default=False)
     shininess: float = knob(200.0, "Blinn-Phong exponent of the highlights",
                             check=in_range(1, 1e5), toml=("material", "shininess"))
     epsilon: float = knob(1e-4, "relative hit threshold (times the path length) and ray offset",
@@ -74,6 +101,11 @@ class GlassSettings(CommonSettings):
                               toml=("render", "point_colors"))
     # env (the environment) is a CommonSettings knob: volumes read it too
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.use_tree is False and self.accel != "none":   # --no-tree means --accel none
+            object.__setattr__(self, "accel", "none")
+
 
 @dataclass(frozen=True)
 class GlassScene:
@@ -89,6 +121,9 @@ class GlassScene:
     tree_ms: float
     colors: np.ndarray | None = None   # float32 (N, 4) rgb per sphere, tree order
     margin: float = 0.0     # tiled dispatch: list spheres within this of a tile's frustum
+    accel: str = "none"     # what the kernel uses: grid, tree or none
+    cells: object = None    # cells.Cells with accel grid
+    note: str = ""          # why accel differs from the settings' (a fallback)
 
 
 def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
@@ -125,8 +160,12 @@ def _outward(a, down: bool):
     return np.where(np.isfinite(a32), step, a32)
 
 
-def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
-    """Spheres and tree in the render frame; builds the tree only when use_tree."""
+def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
+               samples=None) -> GlassScene:
+    """Spheres, tree and support cells in the render frame. The tree is built for accel
+    tree and grid (it builds the cells); eye (world) sets the cells' skip threshold
+    (cells.threshold); device: where the cells are built (default: the default device);
+    samples (pixels x spp) sets the automatic cell edge's budget (cells.cell_budget)."""
     centers = np.asarray(cloud.centers, np.float64)
     n = len(centers)
     radii = sphere_radii(cloud, settings) if n else np.zeros(0)
@@ -142,7 +181,8 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
     lo, hi = sphere_bounds(cloud, radii)
     centre = 0.5 * (lo + hi)
     order = np.arange(n)
-    if settings.use_tree:
+    accel = settings.accel
+    if accel in ("tree", "grid"):
         t0 = time.perf_counter()
         tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0)
         tree_ms = 1e3 * (time.perf_counter() - t0)
@@ -179,8 +219,42 @@ def pack_scene(cloud, settings: GlassSettings) -> GlassScene:
                         fix="rescale the points (or lower the blend: --blend, or [render].blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
+    grid, note = None, ""
+    if accel == "grid":
+        grid, note = _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale,
+                                  settings, None if eye is None else np.asarray(eye) - centre,
+                                  device, samples)
+        if grid is None:
+            accel = "tree"
     return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
-                      colors, margin)
+                      colors, margin, accel, grid, note)
+
+
+def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings, eye,
+                 device, samples=None):
+    """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
+    if device is None:
+        from .render import get_device
+        device = get_device(None)
+    cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
+    budget = None if settings.cell_size else cells_mod.cell_budget(device, samples)
+    tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
+                              len(spheres))
+    force = []
+    if eye is not None and np.all(eye >= box_lo) and np.all(eye <= box_hi):
+        force.append(eye)
+    try:
+        return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau, device,
+                               force=force, classify=settings.cell_skip,
+                               max_cells=budget), ""
+    except cells_mod.TooLarge as exc:
+        return None, f"support cells too large ({exc}): using the tree walk"
+
+
+def material_unit(packed: GlassScene, settings: GlassSettings) -> float:
+    """World length that absorption and glow are per: settings.material_unit, else the
+    cloud's bounding radius (packed.scale), so a 15 cm scan and a 3-unit gather look alike."""
+    return float(settings.material_unit) if settings.material_unit else float(packed.scale)
 
 
 def dispatch_for(settings: GlassSettings, device) -> Dispatch:
@@ -238,7 +312,9 @@ def plan(scene, device, variant=None):
     compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
     from .render import Plan
     cloud, settings = scene.content.cloud, scene.content.settings
-    packed = pack_scene(cloud, settings)
+    cam = scene.camera
+    packed = pack_scene(cloud, settings, eye=cam.origin, device=device,
+                        samples=cam.width * cam.height * settings.spp)
     dispatch = dispatch_for(settings, device)
     features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
     n_suns, n_points = lights_mod.counts(scene.lights)
@@ -246,22 +322,46 @@ def plan(scene, device, variant=None):
     w2f[:3, 3] = -packed.centre
     env, env_w, env_h = _env_texels(scene.environment)
     bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
+    unit = material_unit(packed, settings)
     params = layout.record(
         "GlassParams", box_lo=[*packed.box_lo, 0], box_hi=[*packed.box_hi, 0],
-        absorption=[*settings.absorption, 0], color=[*settings.color, 0],
+        absorption=[*(np.asarray(settings.absorption) / unit), 0], color=[*settings.color, 0],
         blend=packed.blend, ior=settings.ior, reflectivity=settings.reflectivity,
-        glow=settings.glow, epsilon=settings.epsilon, shininess=settings.shininess,
+        glow=settings.glow / unit, epsilon=settings.epsilon, shininess=settings.shininess,
         scale=packed.scale, n_spheres=len(packed.spheres), first_leaf=packed.first_leaf,
         bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
         env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
+    spheres, grid_arrays = kernel_arrays(packed, params)
+    info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
+    if packed.cells is not None:
+        info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.stats())
+    if packed.note:
+        info["note"] = packed.note
     inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
-              lights_mod.pack(scene.lights, w2f), packed.spheres, packed.nodes, env, colors]
+              lights_mod.pack(scene.lights, w2f), spheres, packed.nodes, env, colors,
+              *grid_arrays]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
-                PIXELS_PER_LAUNCH, info={"tree_ms": packed.tree_ms})
+                PIXELS_PER_LAUNCH, info=info)
+
+
+def kernel_arrays(packed: GlassScene, params):
+    """The spheres and the four support-cell arrays the kernel reads (cl/cells.h), with the
+    grid's fields of the GlassParams record `params` set; stand-ins without cells."""
+    grid = packed.cells
+    if grid is None:
+        return packed.spheres, [np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int32),
+                                np.zeros((1, 4), np.int32), np.zeros((1, 2), np.int32)]
+    params["grid_lo"] = [*grid.lo, grid.cell]
+    params["grid_dims"] = [*grid.dims, 0]
+    params["brick_dims"] = [*grid.bdims, 0]
+    params["grid_inv"] = np.float32(1.0 / grid.cell)
+    params["grid_nudge"] = 1e-3 * grid.cell
+    params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
+    return packed.spheres, [grid.bricks, grid.cells, grid.lists, grid.runs]
 
 
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,

@@ -1,4 +1,4 @@
-"""pyvista views of the sphere tree and of the volume bricks.
+"""pyvista views of the sphere tree, the glass support cells and the volume bricks.
 
 Build blocks for a notebook::
 
@@ -30,10 +30,12 @@ from .errors import UserError
 from .points import default_radius  # noqa: F401  (re-exported for notebooks)
 
 __all__ = ["tree_boxes", "points_mesh", "brick_boxes", "tree_stats", "n_boxes",
-           "leaf_of_points", "show_tree", "show_bricks", "inspect_input",
+           "leaf_of_points", "show_tree", "show_bricks", "inspect_input", "cell_boxes",
+           "show_cells", "MAX_CELL_BOXES",
            "default_radius", "show_cloud", "SCREENSHOT_SUFFIXES", "EXPORT_SUFFIXES"]
 
 SCREENSHOT_SUFFIXES = (".png",)
+MAX_CELL_BOXES = 100_000      # more listed cells are drawn as points at their centres
 EXPORT_SUFFIXES = (".vtm", ".vtk", ".vtp")
 
 # The 12 edges of a box whose corners are numbered by bits (x, y, z) = (c&1, c&2, c&4).
@@ -433,6 +435,91 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
     return boxes
 
 
+def _listed_cells(grid):
+    """(integer cell coordinates (M, 3), list lengths (M,)) of the cells with a list."""
+    from .cells import B, B3
+    blocks = np.nonzero(grid.bricks[:, 0] >= 0)[0]
+    brick_of = np.empty(len(blocks), np.int64)
+    brick_of[grid.bricks[blocks, 0]] = blocks
+    idx = np.nonzero(grid.cells[:, 0] >= 0)[0]
+    b = brick_of[idx // B3]
+    l = idx % B3
+    bd = grid.bdims
+    q = np.stack([(b % bd[0]) * B + l % B, ((b // bd[0]) % bd[1]) * B + (l // B) % B,
+                  (b // (bd[0] * bd[1])) * B + l // (B * B)], axis=1)
+    return q, grid.lengths()[grid.cells[idx, 0]]
+
+
+def cell_boxes(grid, centre=(0.0, 0.0, 0.0)):
+    """Wireframe boxes of the support cells that hold a list (volrender.cells.Cells), in
+    world space (render frame + centre), with cell arrays ``spheres`` (list length) and
+    ``core`` (spheres that can be the nearest)."""
+    q, n = _listed_cells(grid)
+    lo, hi = grid.box(q)
+    c = np.asarray(centre, np.float64)
+    core = grid.lengths(core=True)[grid.cells[grid.cells[:, 0] >= 0, 0]]
+    return _wireframes(_aabb_corners(lo + c, hi + c), {"spheres": n, "core": core})
+
+
+def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export=None,
+               show=False, window_size=(1024, 768), point_size=3.0):
+    """Draw the support cells that hold a list, coloured by list length, over the points.
+
+    Parameters
+    ----------
+    grid : volrender.cells.Cells
+    centers : (N, 3) array
+        The sphere centres (world).
+    centre : (3,) array
+        The render frame's origin in world space (glass.GlassScene.centre).
+    screenshot, export, show, window_size, point_size
+        As in :func:`show_tree`; a ``.vtm`` export holds one block, ``cells``. Beyond
+        MAX_CELL_BOXES cells the view draws each cell as a point at its centre (the
+        export keeps every box).
+
+    Returns
+    -------
+    pyvista.PolyData
+        The boxes (as :func:`cell_boxes`).
+    """
+    pv = _pv()
+    screenshot, export = _check_outputs(screenshot, export, show)
+    boxes = cell_boxes(grid, centre)
+    if export is not None:
+        _export(export, pv.MultiBlock({"cells": boxes}), boxes)
+    if not (show or screenshot):
+        return boxes
+    q, n = _listed_cells(grid)
+    st = grid.stats()
+    p = _plotter(show, window_size)
+    bar = {"title": "spheres on the list", "vertical": True, "position_x": 0.88,
+           "position_y": 0.1}
+    clim = [0, max(int(n.max()) if len(n) else 1, 1)]
+    if len(q) > MAX_CELL_BOXES:
+        lo, hi = grid.box(q)
+        mids = pv.PolyData(0.5 * (lo + hi) + np.asarray(centre, np.float64))
+        mids.point_data["spheres"] = n
+        p.add_mesh(mids, scalars="spheres", cmap="plasma", clim=clim, point_size=point_size,
+                   scalar_bar_args=bar)
+        drawn = "centres"
+    else:
+        if boxes.n_points:
+            p.add_mesh(boxes, scalars="spheres", cmap="plasma", clim=clim, line_width=1.0,
+                       opacity=0.7, scalar_bar_args=bar)
+        p.add_mesh(pv.PolyData(np.asarray(centers, np.float64)), color="white",
+                   point_size=point_size)
+        drawn = "boxes"
+    p.add_text(f"{st['cells_listed']} cells with lists ({drawn}), edge {st['cell']:.4g}\n"
+               f"list {st['list_mean']:.1f} spheres on average (max {st['list_max']}), core "
+               f"{st['core_mean']:.1f}\n{st['cells_outside'] + st['cells_inside']} cells and "
+               f"{st['bricks_outside'] + st['bricks_inside']} bricks skipped\n"
+               f"{st['bytes'] / max(len(centers), 1):.0f} bytes per sphere",
+               position="upper_left", font_size=9)
+    p.view_isometric()
+    _finish(p, screenshot, show)
+    return boxes
+
+
 # --------------------------------------------------------------------------- files
 
 def _show_cloud(cloud, radii, opts):
@@ -463,7 +550,7 @@ def show_cloud(cloud, *, leaf_size=16, radius=None, blend=0.0, depth=None, leave
 
 def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, depth=None,
                   leaves=False, max_depth=None, screenshot=None, export=None, show=False,
-                  window_size=(1024, 768)):
+                  window_size=(1024, 768), cells=False):
     """View any render input: a volume's bricks, or a point cloud's tree.
 
     Parameters
@@ -485,10 +572,13 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
         Grid name in a ``.vdb`` file (default: the density grid).
     depth, leaves, max_depth, screenshot, export, show, window_size
         As in :func:`show_tree` / :func:`show_bricks`.
+    cells : bool
+        Points: draw the renderer's support cells (:func:`show_cells`, built with the
+        renderer's blend and cell size on the default device) instead of the tree.
 
     Returns
     -------
-    volrender.tree.Tree or volrender.vdb.Bricks
+    volrender.tree.Tree, volrender.cells.Cells or volrender.vdb.Bricks
         What was shown.
     """
     from .glass import sphere_radii
@@ -500,6 +590,16 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
         show_bricks(scene.content.bricks, **output)
         return scene.content.bricks
     cloud, settings = scene.content.cloud, scene.content.settings
+    if cells:
+        import dataclasses
+        from .glass import pack_scene
+        packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"),
+                            eye=scene.camera.origin)
+        if packed.cells is None:
+            raise UserError(packed.note or "no support cells for this cloud",
+                            fix="view the tree instead (drop --cells)")
+        show_cells(packed.cells, cloud.centers, packed.centre, **output)
+        return packed.cells
     opts = dict(leaf_size=settings.leaf_size, blend=blend, output=output,
                 view=dict(depth=depth, leaves=leaves, max_depth=max_depth))
     return _show_cloud(cloud, sphere_radii(cloud, settings), opts)

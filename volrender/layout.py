@@ -36,9 +36,12 @@ MAX_RAY_SAMPLES = 1 << 24
 # One sample's radiance is clamped to this (NaN, reachable only through an overflow the
 # knobs' ranges exclude, reads 0): a sum over 65536 samples stays finite in float32.
 SAMPLE_MAX = 1e33
+CELL_BRICK = 8             # glass support cells: a brick holds CELL_BRICK^3 cells (cells.py)
+CELL_OUTSIDE, CELL_INSIDE = -1, -2   # codes of skippable cells and bricks (cl/cells.h)
 CONSTANTS = {"BRICK": BRICK, "APRON": APRON, "BRICK_VALUES": APRON ** 3,
              "MAX_LIGHTS": MAX_LIGHTS, "MAX_RAY_SAMPLES": MAX_RAY_SAMPLES,
-             "SAMPLE_MAX": SAMPLE_MAX,
+             "SAMPLE_MAX": SAMPLE_MAX, "CELL_BRICK": CELL_BRICK,
+             "CELL_OUTSIDE": CELL_OUTSIDE, "CELL_INSIDE": CELL_INSIDE,
              **{f"BIT_{k.upper()}": v for k, v in UBER_BITS.items()}}
 
 STRUCTS: dict[str, list[tuple[str, str]]] = {
@@ -129,6 +132,26 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("n_points", "int"),
         ("relax", "float"),              # over-relaxed sphere tracing factor, 1 = off
         ("_pad0", "float"),
+        # support cells (volrender/cells.py, cl/cells.h), unused without them
+        ("grid_lo", "float4"),           # xyz: the grid's min corner (render frame); w: cell size
+        ("grid_dims", "int4"),           # cells per axis
+        ("brick_dims", "int4"),          # bricks (CELL_BRICK^3 cells) per axis
+        ("grid_inv", "float"),           # 1 / cell size
+        ("grid_nudge", "float"),         # step past a skipped cell's exit face, world units
+        ("grid_skips", "int"),           # most skips per ray segment
+        ("_pad1", "float"),
+    ],
+    # Support-cell builder (cl/build_cells.cl): boxes are cells or bricks of the grid.
+    "CellBuild": [
+        ("grid_lo", "float4"),           # xyz: min corner (render frame); w: cell size
+        ("blend", "float"),              # k
+        ("pad", "float"),                # lists keep spheres with lo_i <= U + k + pad (rounding)
+        ("tau", "float"),                # skippable: field bound beyond +-tau (> every hit threshold)
+        ("n_spheres", "int"),
+        ("first_leaf", "int"),
+        ("box_cells", "int"),            # edge of a box in cells: CELL_BRICK (bricks) or 1 (cells)
+        ("_pad0", "int"),
+        ("_pad1", "int"),
     ],
 }
 

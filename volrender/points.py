@@ -643,36 +643,28 @@ def generate(name: str, n: int, seed: int = 0) -> PointCloud:
     return GENERATORS[name](n, seed)
 
 
-def default_radius(centers, fallback: float = 0.5) -> float:
-    """Half the median nearest-neighbour spacing of the points, estimated cheaply.
-
-    Each point's nearest neighbour is searched only among the (at most 8) points of
-    its leaf in a median tree, so this is O(N) after the O(N log N) build and slightly
-    over-estimates the true spacing.  Coincident points are left out of the median.
-    Returns ``fallback`` when no spacing can be measured (a single point, or all
-    points coincident).
-    """
-    from .tree import build
+def nn_distances(centers) -> np.ndarray:
+    """Distance from each point to its nearest neighbour (exact: a k-d tree,
+    scipy.spatial.cKDTree). Points that coincide with another say nothing of the spacing
+    and are left out."""
+    from scipy.spatial import cKDTree
     centers = np.asarray(centers, np.float64)
     if len(centers) < 2:
-        return float(fallback)
-    t = build(centers, 0.0, leaf_size=8)
-    leaves = np.arange(t.first_leaf, t.n_nodes)
-    cnt = t.count[leaves]
-    k = int(cnt.max())
-    # leaves as (leaves, k, 3) padded with NaN; pairwise distances within each leaf,
-    # a chunk of leaves at a time to bound the memory
-    pad = np.full((len(leaves), k, 3), np.nan)
-    slot = np.arange(len(t.order)) - np.repeat(t.start[leaves], cnt)
-    pad[np.repeat(np.arange(len(leaves)), cnt), slot] = centers[t.order]
-    pad = pad[cnt >= 2]
-    nn = []
-    for c in range(0, len(pad), 16384):
-        q = pad[c:c + 16384]
-        d = np.sqrt(((q[:, :, None, :] - q[:, None, :, :]) ** 2).sum(axis=-1))
-        d[:, np.arange(k), np.arange(k)] = np.inf
-        nn.append(np.where(np.isnan(d), np.inf, d).min(axis=2).ravel())
-    nn = np.concatenate(nn) if nn else np.zeros(0)
-    nn = nn[np.isfinite(nn) & (nn > 0)]           # duplicates say nothing of spacing
-    med = float(np.median(nn)) if nn.size else 0.0
+        return np.zeros(0)
+    d, _ = cKDTree(centers).query(centers, k=2, workers=-1)
+    nn = d[:, 1]
+    return nn[np.isfinite(nn) & (nn > 0)]
+
+
+def nn_spacing(centers, percentile=50) -> float:
+    """A percentile (default: the median) of nn_distances, 0 when no two points differ."""
+    nn = nn_distances(centers)
+    return float(np.percentile(nn, percentile)) if nn.size else 0.0
+
+
+def default_radius(centers, fallback: float = 0.5) -> float:
+    """Half the median nearest-neighbour spacing of the points (nn_spacing), or
+    ``fallback`` when no spacing can be measured (a single point, or all points
+    coincident)."""
+    med = nn_spacing(centers)
     return 0.5 * med if med > 0 else float(fallback)

@@ -481,6 +481,24 @@ def _lights(given, doc, path=None):
     return None                           # the defaults, turned to the up axis by load()
 
 
+def _scan_defaults(cloud, settings):
+    """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
+    spacings: radius half the median, blend glass.SCAN_BLEND times the SCAN_PERCENTILE-th
+    percentile (neighbours melt into one surface, also where the scan is sparser). Returns
+    (settings, note)."""
+    from . import points
+    from .glass import SCAN_BLEND, SCAN_PERCENTILE
+    nn = points.nn_distances(cloud.centers)
+    s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
+    radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
+    blend = settings.blend if settings.blend is not None else \
+        (SCAN_BLEND * far if far > 0 else 2.0 * radius)
+    settings = dataclasses.replace(settings, radius=radius, blend=blend)
+    return settings, (f"{len(cloud.centers)} points without radii, nearest-neighbour spacing "
+                      f"{s:.4g} (median), {far:.4g} ({SCAN_PERCENTILE}th percentile): radius "
+                      f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
+
+
 def _environment(path, where):
     """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
     if isinstance(path, tuple):
@@ -546,11 +564,9 @@ class Request:
                 cloud = generated_cloud(self.source, settings.seed)
             else:
                 cloud = points.load_points(self.source)
-            if settings.radius is None and cloud.radii is None:
-                radius = points.default_radius(cloud.centers)
-                settings = dataclasses.replace(settings, radius=radius)
-                notes.append(f"{len(cloud.centers)} points without radii: using radius "
-                             f"{radius:.4g} (half the median neighbour spacing); set --radius")
+            if cloud.radii is None and (settings.radius is None or settings.blend is None):
+                settings, note = _scan_defaults(cloud, settings)
+                notes.append(note)
             content = GlassContent(cloud, settings)
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])

@@ -1,0 +1,408 @@
+/* Support-cell builder (volrender/cells.py drives it; cl/cells.h reads the result).
+   A box B (a cell, or a brick of CELL_BRICK^3 cells) is classified from the spheres, found
+   through the partition tree (render frame, tree order). For sphere i:
+     lo_i = min_{x in B} |x - c_i| - r_i,   hi_i = max_{x in B} |x - c_i| - r_i.
+   M = min_i lo_i <= m(x) <= U = min_i hi_i for every x in B (m = min_i d_i).
+   List: every i with lo_i <= U + k. Sphere i matters at x only where d_i(x) < m(x) + k, and
+   then lo_i <= d_i(x) < m(x) + k <= U + k: the list holds every sphere that can matter
+   anywhere in B (the nearest one included), so folding it gives the brute-force field.
+   Core list: every i with lo_i <= U. The nearest sphere at x has lo_a <= d_a(x) = m(x) <= U,
+   so the core alone gives m (the field's first pass), and is much shorter.
+   Field bounds over B (F = m - (k/2) ln S, S = sum_i h_i^2, h_i = (1 - (d_i - m)/k)_+):
+     since lo_i <= d_i <= hi_i, for the m of any x in B:
+       S <= Shi(m) = sum_list (1 - (lo_i - m)/k)_+^2   (>= 1 for m >= M),
+       S >= Slo(m) = max(1, sum_list (1 - (hi_i - m)/k)_+^2),
+     both non-decreasing in m. On a partition M = t_0 < ... < t_J = U, for m in [t_j, t_j+1]:
+       F >= t_j - (k/2) ln Shi(t_j+1)   and   F <= t_j+1 - (k/2) ln Slo(t_j),
+     so L = min_j (t_j - (k/2) ln Shi(t_j+1)) <= F <= max_j (t_j+1 - (k/2) ln Slo(t_j)) = UF.
+   B is skippable outside when L > tau and inside when UF < -tau (tau: above every hit
+   threshold and rounding error). A cheap first test for bricks: S <= N (list length),
+   so L0 = M - (k/2) ln N is a bound too, and N is counted from whole subtrees.
+   k <= VR_BLEND_MIN (plain union): L = M, UF = U.
+   Lists are stored as runs (first, count) of consecutive sphere indices, ascending (the
+   walk visits the leaves left to right; spheres are in tree order, so neighbours are runs).
+   Kernels: build_classify (class, run counts, bound, U per box: bricks, then the octants of
+   the boxes left unclassified, down to single cells), build_fill (the runs). */
+#include "common.h"
+#include "structs.h"
+
+#ifndef VR_TREE_STACK
+#error "build_cells.cl: VR_TREE_STACK is missing (see volrender/cells.py)"
+#endif
+#define CB_J 4                 /* sub-intervals of [M, U] for the field bounds */
+#define VR_BLEND_MIN 1e-20f
+
+/* distance between boxes a and b (0 when they meet) */
+inline float cb_gap(float3 alo, float3 ahi, float3 blo, float3 bhi)
+{
+    float3 g = fmax(fmax(blo - ahi, alo - bhi), (float3)(0.0f));
+    return sqrt(dot(g, g));
+}
+
+/* an upper bound of dist(c, B) over the points c of node box N */
+inline float cb_far_gap(float3 blo, float3 bhi, float3 nlo, float3 nhi)
+{
+    float3 g = fmax(fmax(blo - nlo, nhi - bhi), (float3)(0.0f));
+    return sqrt(dot(g, g));
+}
+
+inline void cb_sphere(float4 s, float3 lo, float3 hi, float* dlo, float* dhi)
+{
+    float3 c = s.xyz;
+    float3 g = fmax(fmax(lo - c, c - hi), (float3)(0.0f));
+    float3 f = fmax(fabs(c - lo), fabs(c - hi));
+    *dlo = sqrt(dot(g, g)) - s.w;
+    *dhi = sqrt(dot(f, f)) - s.w;
+}
+
+inline void cb_node(__global const TreeNode* nodes, int node, float3* lo, float3* hi)
+{
+    __global const float4* nd = (__global const float4*)(nodes + node);
+    *lo = nd[0].xyz;
+    *hi = nd[1].xyz;
+}
+
+/* lower bound of lo_i (and hi_i) over a node's spheres: the box gap, -inf when they meet */
+inline float cb_bound(__global const TreeNode* nodes, int node, float3 lo, float3 hi)
+{
+    float3 nlo, nhi;
+    cb_node(nodes, node, &nlo, &nhi);
+    float g = cb_gap(lo, hi, nlo, nhi);
+    return g > 0.0f ? g * 0.999999f : -INFINITY;
+}
+
+/* M = min lo_i and U = min hi_i over all spheres (nearest first, pruned against U >= M) */
+inline void cb_nearest(__global const float4* sp, __global const TreeNode* nodes, int first_leaf,
+                       float3 lo, float3 hi, float* M, float* U)
+{
+    float m = INFINITY, u = INFINITY;
+    int stack[VR_TREE_STACK];
+    float sb[VR_TREE_STACK];
+    int top = 0, node = 1;
+    while (node) {
+        if (node >= first_leaf) {
+            __global const TreeNode* nd = nodes + node;
+            for (int i = nd->start; i < nd->start + nd->count; ++i) {
+                float a, b;
+                cb_sphere(sp[i], lo, hi, &a, &b);
+                m = fmin(m, a);
+                u = fmin(u, b);
+            }
+            node = 0;
+        } else {
+            int c0 = 2 * node, c1 = c0 + 1;
+            float b0 = cb_bound(nodes, c0, lo, hi), b1 = cb_bound(nodes, c1, lo, hi);
+            if (b1 < b0) { int cs = c0; c0 = c1; c1 = cs; float bt = b0; b0 = b1; b1 = bt; }
+            node = 0;
+            if (b0 < u) {
+                node = c0;
+                if (b1 < u) { stack[top] = c1; sb[top] = b1; ++top; }
+            }
+        }
+        while (!node && top > 0) {
+            --top;
+            if (sb[top] < u)
+                node = stack[top];
+        }
+    }
+    *M = m;
+    *U = u;
+}
+
+/* Number of spheres with lo_i <= thr, over-counted: whole subtrees within thr are added
+   without visiting them (an upper bound of the list length). */
+inline int cb_count(__global const TreeNode* nodes, int first_leaf, float3 lo, float3 hi, float thr)
+{
+    int stack[VR_TREE_STACK];
+    int top = 0, node = 1, n = 0;
+    while (node) {
+        float3 nlo, nhi;
+        cb_node(nodes, node, &nlo, &nhi);
+        int next = 0;
+        if (cb_bound(nodes, node, lo, hi) <= thr) {
+            if (node >= first_leaf || cb_far_gap(lo, hi, nlo, nhi) <= thr) {
+                n += nodes[node].count;
+            } else {
+                stack[top++] = 2 * node + 1;
+                next = 2 * node;
+            }
+        }
+        node = next ? next : (top > 0 ? stack[--top] : 0);
+    }
+    return n;
+}
+
+typedef struct {
+    float k, inv_k, thr;        /* blend (0: plain union), its inverse, list threshold */
+    float t[CB_J + 1];          /* the partition of [M, U] */
+    float shi[CB_J], slo[CB_J]; /* Shi(t_j+1), Slo(t_j) */
+    float core;                 /* core threshold U + pad */
+    int n, nc;                  /* runs on the list and on the core */
+    int first, last;            /* the list's open run */
+    int firstc, lastc;          /* the core's open run */
+} CbAcc;
+
+inline CbAcc cb_start(__constant CellBuild* cb, float M, float U)
+{
+    CbAcc a;
+    int blended = cb->blend > VR_BLEND_MIN;
+    a.k = blended ? cb->blend : 0.0f;
+    a.inv_k = blended ? 1.0f / cb->blend : 0.0f;
+    a.thr = U + a.k + cb->pad;
+    a.core = U + cb->pad;
+    for (int j = 0; j <= CB_J; ++j)
+        a.t[j] = j == CB_J ? U : M + (U - M) * ((float)j / (float)CB_J);
+    for (int j = 0; j < CB_J; ++j) { a.shi[j] = 0.0f; a.slo[j] = 0.0f; }
+    a.n = 0;
+    a.nc = 0;
+    a.first = a.last = -2;
+    a.firstc = a.lastc = -2;
+    return a;
+}
+
+/* Where cb_add writes: the list's runs at runs[0, cap) and the core's at core[0, core_cap).
+   A run (first, count) is consecutive sphere indices; spheres arrive in ascending order. */
+typedef struct {
+    __global int2* runs;
+    int cap;
+    __global int2* core;
+    int core_cap;
+} CbOut;
+
+/* Count (and with runs, write) sphere i into a run list: *n runs so far, the last one
+   starting at *first and ending at *last (written when the next run starts) */
+inline void cb_run(__global int2* runs, int cap, int* n, int* first, int* last, int i)
+{
+    if (i == *last + 1 && *n > 0) {
+        *last = i;
+        return;
+    }
+    if (runs && *n > 0 && *n <= cap)
+        runs[*n - 1] = (int2)(*first, *last - *first + 1);
+    ++*n;
+    *first = i;
+    *last = i;
+}
+
+inline void cb_run_end(__global int2* runs, int cap, int n, int first, int last)
+{
+    if (runs && n > 0 && n <= cap)
+        runs[n - 1] = (int2)(first, last - first + 1);
+}
+
+/* one candidate sphere i: on the list when lo_i <= thr, on the core when lo_i <= U + pad;
+   the bounds' sums only when counting (w == 0: the fill pass needs the runs alone) */
+inline void cb_add(CbAcc* a, float4 s, int i, float3 lo, float3 hi, const CbOut* w)
+{
+    float dlo, dhi;
+    cb_sphere(s, lo, hi, &dlo, &dhi);
+    if (dlo <= a->thr) {
+        cb_run(w ? w->runs : 0, w ? w->cap : 0, &a->n, &a->first, &a->last, i);
+        if (dlo <= a->core)
+            cb_run(w ? w->core : 0, w ? w->core_cap : 0, &a->nc, &a->firstc, &a->lastc, i);
+        if (w)
+            return;
+        for (int j = 0; j < CB_J; ++j) {
+            float ha = fmax(1.0f - (dlo - a->t[j + 1]) * a->inv_k, 0.0f);
+            float hb = fmax(1.0f - (dhi - a->t[j]) * a->inv_k, 0.0f);
+            a->shi[j] += ha * ha;
+            a->slo[j] += hb * hb;
+        }
+    }
+}
+
+/* L and UF from the sums; empty runs fill written lists' unused tails */
+inline float2 cb_finish(__constant CellBuild* cb, CbAcc* a, float M, float U, const CbOut* w)
+{
+    if (w) {
+        cb_run_end(w->runs, w->cap, a->n, a->first, a->last);
+        cb_run_end(w->core, w->core_cap, a->nc, a->firstc, a->lastc);
+        for (int j = a->n; j < w->cap; ++j)
+            w->runs[j] = (int2)(0, 0);
+        for (int j = a->nc; j < w->core_cap; ++j)
+            w->core[j] = (int2)(0, 0);
+    }
+    if (a->k == 0.0f)
+        return (float2)(M, U);
+    float lower = INFINITY, upper = -INFINITY;
+    for (int j = 0; j < CB_J; ++j) {
+        lower = fmin(lower, a->t[j] - 0.5f * a->k * log(fmax(a->shi[j], 1.0f)));
+        upper = fmax(upper, a->t[j + 1] - 0.5f * a->k * log(fmax(a->slo[j], 1.0f)));
+    }
+    return (float2)(lower, upper);
+}
+
+/* The list of box [lo, hi] from the tree: (n, bounds) with cb_finish's bounds */
+inline CbAcc cb_list_tree(__constant CellBuild* cb, __global const float4* sp,
+                          __global const TreeNode* nodes, float3 lo, float3 hi, float M, float U,
+                          const CbOut* w)
+{
+    CbAcc a = cb_start(cb, M, U);
+    int stack[VR_TREE_STACK];
+    int top = 0;
+    int node = cb_bound(nodes, 1, lo, hi) <= a.thr ? 1 : 0;
+    while (node) {
+        if (node >= cb->first_leaf) {
+            __global const TreeNode* nd = nodes + node;
+            for (int i = nd->start; i < nd->start + nd->count; ++i)
+                cb_add(&a, sp[i], i, lo, hi, w);
+            node = 0;
+        } else {
+            int c0 = 2 * node, c1 = c0 + 1;
+            int in0 = cb_bound(nodes, c0, lo, hi) <= a.thr;
+            int in1 = cb_bound(nodes, c1, lo, hi) <= a.thr;
+            node = in0 ? c0 : (in1 ? c1 : 0);
+            if (in0 && in1)
+                stack[top++] = c1;
+        }
+        if (!node && top > 0)
+            node = stack[--top];
+    }
+    return a;
+}
+
+/* M and U, then the list, from candidate runs: a parent box P's list holds every sphere
+   that can be on a sub-box C's list (lo_i(P) <= lo_i(C) <= U(C) + k <= U(P) + k), and P's
+   core the minimisers of M(C) and U(C) (lo_j(P) <= lo_j(C) <= hi_j(C) = U(C) <= U(P)) */
+inline void cb_nearest_of(__global const float4* sp, __global const int2* cand, int nc, float3 lo,
+                          float3 hi, float* M, float* U)
+{
+    float m = INFINITY, u = INFINITY;
+    for (int j = 0; j < nc; ++j) {
+        int2 r = cand[j];
+        for (int i = r.x; i < r.x + r.y; ++i) {
+            float a, b;
+            cb_sphere(sp[i], lo, hi, &a, &b);
+            m = fmin(m, a);
+            u = fmin(u, b);
+        }
+    }
+    *M = m;
+    *U = u;
+}
+
+inline CbAcc cb_list_of(__constant CellBuild* cb, __global const float4* sp,
+                        __global const int2* cand, int nc, float3 lo, float3 hi, float M, float U,
+                        const CbOut* w)
+{
+    CbAcc a = cb_start(cb, M, U);
+    for (int j = 0; j < nc; ++j) {
+        int2 r = cand[j];
+        for (int i = r.x; i < r.x + r.y; ++i)
+            cb_add(&a, sp[i], i, lo, hi, w);
+    }
+    return a;
+}
+
+/* box of work-item gid: origins[gid] (in cells), box_cells cells on a side */
+inline void cb_box(__constant CellBuild* cb, __global const int4* origins, int gid, float3* lo,
+                   float3* hi)
+{
+    int4 o = origins[gid];
+    float h = cb->grid_lo.w;
+    *lo = cb->grid_lo.xyz + convert_float3(o.xyz) * h;
+    *hi = cb->grid_lo.xyz + convert_float3(o.xyz + cb->box_cells) * h;
+}
+
+/* class of a box from M, U, the list's and core's run counts and the bounds:
+   VR_CELL_OUTSIDE (bound = L), VR_CELL_INSIDE (bound = UF) or 0 (the list is needed) */
+inline int4 cb_classify(__constant CellBuild* cb, float M, float U, int n, int nc, float2 b)
+{
+    int cls = 0;
+    float bound = 0.0f;
+    if (b.x > cb->tau) {
+        cls = VR_CELL_OUTSIDE;
+        bound = b.x;
+    } else if (b.y < -cb->tau) {
+        cls = VR_CELL_INSIDE;
+        bound = b.y;
+    }
+    return (int4)(cls, n, cls ? as_int(bound) : nc, as_int(U));
+}
+
+/* out[gid] = (class, list runs, bound bits or (class 0) core runs, U bits) of box
+   origins[gid], from the tree */
+__kernel void build_classify(__constant CellBuild* cb, __global const float4* restrict sp,
+                             __global const TreeNode* restrict nodes,
+                             __global const int4* restrict origins, __global int4* out, int n_boxes)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_boxes)
+        return;
+    float3 lo, hi;
+    cb_box(cb, origins, gid, &lo, &hi);
+    float M, U;
+    cb_nearest(sp, nodes, cb->first_leaf, lo, hi, &M, &U);
+    float k = cb->blend > VR_BLEND_MIN ? cb->blend : 0.0f;
+    if (U < -cb->tau) {                      /* inside one sphere */
+        out[gid] = (int4)(VR_CELL_INSIDE, 0, as_int(U), as_int(U));
+        return;
+    }
+    if (cb->box_cells > 1) {                 /* larger boxes: the counting bound first */
+        int nc = cb_count(nodes, cb->first_leaf, lo, hi, U + k + cb->pad);
+        float l0 = M - 0.5f * k * log((float)max(nc, 1));
+        if (l0 > cb->tau) {
+            out[gid] = (int4)(VR_CELL_OUTSIDE, nc, as_int(l0), as_int(U));
+            return;
+        }
+    }
+    CbAcc a = cb_list_tree(cb, sp, nodes, lo, hi, M, U, 0);
+    out[gid] = cb_classify(cb, M, U, a.n, a.nc, cb_finish(cb, &a, M, U, 0));
+}
+
+/* The same for sub-boxes origins[gid] of parent boxes parent[gid], from the parent's list
+   and core: cand[lists[parent[gid]]] */
+__kernel void build_classify_sub(__constant CellBuild* cb, __global const float4* restrict sp,
+                                 __global const int2* restrict cand,
+                                 __global const int4* restrict lists,
+                                 __global const int* restrict parent,
+                                 __global const int4* restrict origins, __global int4* out,
+                                 int n_boxes)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_boxes)
+        return;
+    float3 lo, hi;
+    cb_box(cb, origins, gid, &lo, &hi);
+    int4 pl = lists[parent[gid]];
+    float M, U;
+    cb_nearest_of(sp, cand + pl.z, pl.w, lo, hi, &M, &U);
+    if (U < -cb->tau) {
+        out[gid] = (int4)(VR_CELL_INSIDE, 0, as_int(U), as_int(U));
+        return;
+    }
+    CbAcc a = cb_list_of(cb, sp, cand + pl.x, pl.y, lo, hi, M, U, 0);
+    out[gid] = cb_classify(cb, M, U, a.n, a.nc, cb_finish(cb, &a, M, U, 0));
+}
+
+/* The list and core of each box origins[j] (thresholds upper[j] + k + pad and upper[j] +
+   pad), written as runs at runs[l.x, l.x + l.y) and runs[l.z, l.z + l.w), l = lists[j];
+   from the tree (from_tree), or from the list of parent box parent[j],
+   cand[cand_lists[parent[j]]] */
+__kernel void build_fill(__constant CellBuild* cb, __global const float4* restrict sp,
+                         __global const TreeNode* restrict nodes,
+                         __global const int2* restrict cand,
+                         __global const int4* restrict cand_lists,
+                         __global const int* restrict parent,
+                         __global const int4* restrict origins,
+                         __global const float* restrict upper,
+                         __global const int4* restrict lists, __global int2* runs, int n_boxes,
+                         int from_tree)
+{
+    int j = get_global_id(0);
+    if (j >= n_boxes)
+        return;
+    float3 lo, hi;
+    cb_box(cb, origins, j, &lo, &hi);
+    float U = upper[j];                 /* membership needs U only (M sets the bounds) */
+    int4 l = lists[j];
+    CbOut w = { runs + l.x, l.y, runs + l.z, l.w };
+    CbAcc a;
+    if (from_tree) {
+        a = cb_list_tree(cb, sp, nodes, lo, hi, U, U, &w);
+    } else {
+        int4 pl = cand_lists[parent[j]];
+        a = cb_list_of(cb, sp, cand + pl.x, pl.y, lo, hi, U, U, &w);
+    }
+    cb_finish(cb, &a, U, U, &w);
+}

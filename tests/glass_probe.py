@@ -1,0 +1,172 @@
+"""Probe kernels for the glass field (cl/sdf.h) with any acceleration: the field and its
+gradient bound at points, sphere tracing along rays, Fresnel/Snell. Shared by the glass,
+cells and extreme-case tests."""
+import numpy as np
+import pyopencl as cl
+
+from volrender import glass, layout
+
+SOURCE = """
+#include "common.h"
+#include "structs.h"
+#include "sdf.h"
+#include "glass.h"
+
+inline SdfScene probe_scene(__global const float4* spheres, __global const TreeNode* nodes,
+                            __constant GlassParams* gp, __global const int2* bricks,
+                            __global const int2* cells, __global const int4* lists,
+                            __global const int2* runs)
+{
+    SdfScene sc;
+    sc.spheres = spheres;
+    sc.nodes = nodes;
+    sc.n_spheres = gp->n_spheres;
+    sc.first_leaf = gp->first_leaf;
+    sc.k = gp->blend;
+#if VR_GRID
+    sc.bricks = bricks;
+    sc.cells = cells;
+    sc.lists = lists;
+    sc.runs = runs;
+    sc.grid_lo = gp->grid_lo.xyz;
+    sc.cell = gp->grid_lo.w;
+    sc.inv_cell = gp->grid_inv;
+    sc.nudge = gp->grid_nudge;
+    sc.dims = gp->grid_dims.xyz;
+    sc.bdims = gp->brick_dims.xyz;
+    sc.max_skips = gp->grid_skips;
+#endif
+    return sc;
+}
+
+#define PROBE_ARGS __global const float4* spheres, __global const TreeNode* nodes, \\
+    __constant GlassParams* gp, __global const int2* bricks, __global const int2* cells, \\
+    __global const int4* lists, __global const int2* runs
+#define PROBE_SCENE probe_scene(spheres, nodes, gp, bricks, cells, lists, runs)
+
+/* out: grad xyz, F */
+__kernel void field(PROBE_ARGS, __global const float4* pts, __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = PROBE_SCENE;
+    SdfSample s = sdf_eval(&sc, pts[i].xyz);
+    out[i] = (float4)(s.grad, s.f);
+}
+
+/* out: |grad|, lip, F */
+__kernel void lip(PROBE_ARGS, __global const float4* pts, __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = PROBE_SCENE;
+    SdfSample s = sdf_eval(&sc, pts[i].xyz);
+    out[i] = (float4)(length(s.grad), s.lip, s.f, 0.0f);
+}
+
+/* o.w: side (+1 outside, -1 inside glass); d.w: relax. out: unit normal, t (-1: no hit) */
+__kernel void trace(PROBE_ARGS, __global const float4* o, __global const float4* d,
+                    __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = PROBE_SCENE;
+    float t;
+    SdfSample s;
+    float side = o[i].w != 0.0f ? o[i].w : 1.0f, relax = d[i].w != 0.0f ? d[i].w : 1.0f;
+    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, side, gp->epsilon, 1.0f, 1024,
+                        relax, &t, &s);
+    float gl = length(s.grad);
+    float3 g = gl > 0.0f ? s.grad / gl : (float3)(0.0f);
+    out[i] = hit ? (float4)(g, t) : (float4)(0.0f, 0.0f, 0.0f, -1.0f);
+}
+
+/* in: incident direction xyz, eta w; normal +z. out: refracted xyz (0 on TIR), Fresnel w */
+__kernel void optics(__global const float4* in, __global float4* out)
+{
+    int i = get_global_id(0);
+    float3 d = in[i].xyz, n = (float3)(0.0f, 0.0f, 1.0f), t = (float3)(0.0f);
+    float eta = in[i].w;
+    if (!glass_refract(d, n, eta, &t))
+        t = (float3)(0.0f);
+    out[i] = (float4)(t, glass_fresnel(-dot(d, n), eta));
+}
+"""
+
+_PROGRAMS = {}
+
+
+def f4(a, w=0.0):
+    """float32 (N, 4) of (N, 3) with w as the 4th column."""
+    out = np.zeros((len(a), 4), np.float32)
+    out[:, :3] = a
+    out[:, 3] = w
+    return out
+
+
+class Probe:
+    """The probe kernels over one packed scene (glass.pack_scene)."""
+
+    def __init__(self, dev, cloud, settings, eye=None):
+        self.dev = dev
+        self.settings = settings
+        self.scene = glass.pack_scene(cloud, settings, eye=eye, device=dev)
+        p = self.scene
+        flags = {"VR_TREE": int(p.accel == "tree"), "VR_GRID": int(p.accel == "grid"),
+                 "VR_TILED": 0, "VR_COLORS": 0,
+                 "VR_TREE_STACK": max(2, int(p.first_leaf).bit_length())}
+        key = (id(dev), tuple(sorted(flags.items())))
+        if key not in _PROGRAMS:
+            prg = dev.build(SOURCE, flags, "glass probe")
+            _PROGRAMS[key] = {n: cl.Kernel(prg, n) for n in ("field", "lip", "trace", "optics")}
+        self.kernels = _PROGRAMS[key]
+        params = layout.record("GlassParams", blend=p.blend, n_spheres=len(p.spheres),
+                               first_leaf=p.first_leaf, epsilon=settings.epsilon)
+        spheres, grid = glass.kernel_arrays(p, params)
+        mf = cl.mem_flags
+        self.bufs = [cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(a))
+                     for a in (spheres, p.nodes, params, *grid)]
+
+    def _run(self, name, *arrays, n_out):
+        mf = cl.mem_flags
+        ctx = self.dev.context
+        extra = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+                 for a in arrays]
+        out = np.zeros((n_out, 4), np.float32)
+        d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+        self.kernels[name](self.dev.queue, (n_out,), None, *self.bufs, *extra, d_out)
+        cl.enqueue_copy(self.dev.queue, out, d_out)
+        return out
+
+    def field(self, x):
+        """(F, gradient) at world points x (M, 3)."""
+        out = self._run("field", f4(np.asarray(x) - self.scene.centre), n_out=len(x))
+        return out[:, 3], out[:, :3]
+
+    def lip(self, x):
+        """(|grad F|, gradient bound, F) at world points x."""
+        out = self._run("lip", f4(np.asarray(x) - self.scene.centre), n_out=len(x))
+        return out[:, 0], out[:, 1], out[:, 2]
+
+    def trace(self, o, d, side=1.0, relax=1.0):
+        """(t or -1, unit normal) of sphere tracing world rays o + t d (threshold: the
+        settings' epsilon times (1 + t))."""
+        out = self._run("trace", f4(np.asarray(o) - self.scene.centre, side), f4(d, relax),
+                        n_out=len(o))
+        return out[:, 3], out[:, :3]
+
+
+def optics(dev, d, eta):
+    """Refracted directions (0 on TIR) and Fresnel reflectance for normal +z."""
+    from volrender.points import PointCloud
+    key = next((k for k in _PROGRAMS if k[0] == id(dev)), None)
+    if key is None:
+        Probe(dev, PointCloud(np.zeros((1, 3)), np.ones(1)), glass.GlassSettings(accel="none"))
+        key = next(k for k in _PROGRAMS if k[0] == id(dev))
+    inp = np.zeros((len(d), 4), np.float32)
+    inp[:, :3], inp[:, 3] = d, eta
+    mf = cl.mem_flags
+    d_in = cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=inp)
+    out = np.zeros_like(inp)
+    d_out = cl.Buffer(dev.context, mf.WRITE_ONLY, out.nbytes)
+    _PROGRAMS[key]["optics"](dev.queue, (len(d),), None, d_in, d_out)
+    cl.enqueue_copy(dev.queue, out, d_out)
+    return out

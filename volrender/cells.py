@@ -1,0 +1,529 @@
+"""Support cells: the glass field's second acceleration structure (cl/cells.h reads it).
+
+A sparse world-space grid over the clip box (render frame), cells of edge `cell` in bricks
+of CELL_BRICK^3. Every cell the surface can pass through lists every sphere that can
+contribute to the field anywhere inside it (ascending sphere index, so a fold over the
+list sums in brute force's order); cells and whole bricks wholly outside the glass carry a
+lower bound of the field and cells wholly inside an upper one, and rays of that side cross
+them without evaluating anything. Bounds and lists are derived in cl/build_cells.cl's
+banner and docs/DESIGN.md; `oracle` below is the same construction in numpy (float64,
+brute force over all spheres) for tests.
+
+The build runs on the render device (cl/build_cells.cl), walking the partition tree
+(volrender/tree.py) for boxes of up to 16 bricks, then classifying the octants of the boxes
+left unclassified from their parent's list, down to cells; each level's lists are counted,
+prefix-summed here and written by a second pass. `host_lists` is the numpy alternative
+(vectorised tree queries; x10 slower per cell, measured in docs/DESIGN.md).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import layout
+
+B = layout.CELL_BRICK
+B3 = B ** 3
+OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
+MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
+MAX_ITEMS = 1 << 27           # list runs (8 bytes each, 1 GiB); beyond: the tree walk
+MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk
+MAX_BRICK_SPHERES = 1 << 16   # sphere centres in one brick; beyond (coincident points): the
+                              # tree walk, since every cell near them would scan them all
+CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
+PAD = 1e-5                    # list threshold and bound margins, relative to the extent
+J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
+# automatic cell edge: at most this many cells in the bricks the surface passes through
+# (build's max_cells, cell_budget): on CPUs 32 per pixel sample within [2^18, 2^24] (a
+# cell's build costs about what a few pixels do on PoCL), CPU_CELLS without a sample count
+CPU_CELLS = 1 << 20
+CPU_CELLS_PER_SAMPLE = 32
+CPU_CELLS_MIN = 1 << 18
+GPU_CELLS = 1 << 24
+
+
+class TooLarge(Exception):
+    """The lists would not fit (MAX_ITEMS): use the tree walk."""
+
+
+@dataclass(frozen=True, eq=False)
+class Cells:
+    lo: np.ndarray            # float32 (3,): min corner of cell (0, 0, 0), render frame
+    cell: float               # cell edge, world units
+    dims: np.ndarray          # int (3,): cells per axis
+    bdims: np.ndarray         # int (3,): bricks per axis
+    bricks: np.ndarray        # int32 (n_bricks, 2): code, bound bits (cl/cells.h)
+    cells: np.ndarray         # int32 (n_blocks * B^3, 2): code, bound bits
+    lists: np.ndarray         # int32 (n_lists, 4): list start, count, core start, count
+                              # in runs (core: the spheres that can be the nearest)
+    runs: np.ndarray          # int32 (n_runs, 2): first sphere, count of consecutive sphere
+                              # indices (tree order), ascending within a list
+    tau: float                # skippable cells have |F| > tau
+    pad: float                # lists hold lo_i <= U + k + pad
+    build_ms: float
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists, self.runs))
+
+    def lengths(self, core=False):
+        """Spheres on each list (or core)."""
+        start, count = (self.lists[:, 2], self.lists[:, 3]) if core else \
+            (self.lists[:, 0], self.lists[:, 1])
+        c = np.concatenate([[0], np.cumsum(self.runs[:, 1], dtype=np.int64)])
+        return c[start + count] - c[start]
+
+    def stats(self) -> dict:
+        """Counts for reports and benchmarks."""
+        codes = self.cells[:, 0]
+        bcodes = self.bricks[:, 0]
+        n = self.lengths()
+        nc = self.lengths(core=True)
+        return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
+                "bricks": int(len(bcodes)), "mixed_bricks": int((bcodes >= 0).sum()),
+                "bricks_outside": int((bcodes == OUTSIDE).sum()),
+                "bricks_inside": int((bcodes == INSIDE).sum()),
+                "cells_listed": int(len(self.lists)),
+                "cells_outside": int((codes == OUTSIDE).sum()),
+                "cells_inside": int((codes == INSIDE).sum()),
+                "list_mean": float(n.mean()) if len(n) else 0.0,
+                "list_max": int(n.max()) if len(n) else 0,
+                "core_mean": float(nc.mean()) if len(nc) else 0.0,
+                "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)),
+                "bytes": int(self.nbytes), "build_ms": self.build_ms}
+
+    def box(self, q):
+        """(lo, hi) float64 of the cells with integer coordinates q (..., 3)."""
+        q = np.asarray(q, np.float64)
+        lo = self.lo.astype(np.float64)
+        return lo + q * self.cell, lo + (q + 1) * self.cell
+
+    def locate(self, x):
+        """Integer cell coordinates of render-frame points x (M, 3), clamped (cl/cells.h)."""
+        g = np.floor((np.asarray(x, np.float32) - self.lo) * np.float32(1.0 / self.cell))
+        return np.clip(g, 0, self.dims - 1).astype(np.int64)
+
+    def lookup(self, q):
+        """For cell coordinates q (M, 3): (code, bound, list of sphere indices or None); the
+        cores are `core(code)`."""
+        q = np.asarray(q, np.int64).reshape(-1, 3)
+        b = q // B
+        bi = (b[:, 2] * self.bdims[1] + b[:, 1]) * self.bdims[0] + b[:, 0]
+        e = self.bricks[bi]
+        code = e[:, 0].copy()
+        bound = e[:, 1].view(np.float32).astype(np.float64)
+        mixed = code >= 0
+        l = q[mixed] - b[mixed] * B
+        v = self.cells[e[mixed, 0] * B3 + (l[:, 2] * B + l[:, 1]) * B + l[:, 0]]
+        code[mixed] = v[:, 0]
+        bound[mixed] = v[:, 1].view(np.float32)
+        lists = [None] * len(q)
+        for j in np.nonzero(code >= 0)[0]:
+            s, n = self.lists[code[j], :2]
+            lists[j] = _expand(self.runs[s:s + n])
+        return code, bound, lists
+
+    def core(self, code):
+        """The core list (the spheres that can be nearest) of listed cell `code`."""
+        s, n = self.lists[code, 2:]
+        return _expand(self.runs[s:s + n])
+
+
+def _expand(runs):
+    """Sphere indices of runs (first, count)."""
+    if len(runs) == 0:
+        return np.zeros(0, np.int64)
+    return np.concatenate([np.arange(a, a + c) for a, c in runs])
+
+
+def auto_cell_size(radii, blend) -> float:
+    """The cell edge chosen from the spheres: CELL_FACTOR * (median radius + blend / 2)."""
+    r = float(np.median(radii)) if len(radii) else 0.0
+    return CELL_FACTOR * (r + 0.5 * float(blend))
+
+
+def cell_budget(device, samples=None) -> int:
+    """Most cells the automatic cell edge lets the surface's bricks hold. GPUs: GPU_CELLS
+    (the build is a small part of a frame). CPUs, where building a cell costs about what a
+    few pixels do: CPU_CELLS_PER_SAMPLE per pixel sample (pixels x spp), within
+    [CPU_CELLS_MIN, GPU_CELLS]; CPU_CELLS without a sample count."""
+    from .dispatch import is_gpu
+    if is_gpu(device):
+        return GPU_CELLS
+    if samples is None:
+        return CPU_CELLS
+    return int(min(max(CPU_CELLS_PER_SAMPLE * samples, CPU_CELLS_MIN), GPU_CELLS))
+
+
+def grid_shape(box_lo, box_hi, cell):
+    """(cell, dims, bdims) covering [box_lo, box_hi]; the edge grows until the brick
+    table fits MAX_BRICKS (and is never 0)."""
+    ext = np.maximum(np.asarray(box_hi, np.float64) - np.asarray(box_lo, np.float64), 0.0)
+    size = float(ext.max())
+    if not cell > 0 or not math.isfinite(cell):
+        cell = size / 64 if size > 0 else 1.0
+    cell = max(cell, size * 2.0 ** -20, 1e-30)
+    while True:
+        dims = np.maximum(np.ceil(ext / cell).astype(np.int64), 1)
+        bdims = -(-dims // B)
+        if int(bdims.prod()) <= MAX_BRICKS:
+            return float(cell), dims, bdims
+        cell *= 1.25
+
+
+def threshold(epsilon, bounces, scale, box_lo, box_hi, eye=None, blend=0.0, n=1) -> float:
+    """tau: above every hit threshold eps * (base + t) a render can test (cl/shade_glass.h:
+    base + t is at most the hit floor plus the eye's distance to the far side of the box plus
+    one box diagonal per segment and one for the shadow ray), and above float32 rounding of
+    the field."""
+    lo, hi = np.asarray(box_lo, np.float64), np.asarray(box_hi, np.float64)
+    diag = float(np.linalg.norm(hi - lo))
+    if eye is None:
+        far = 4.0 * diag
+    else:
+        corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                            for c in (lo[2], hi[2])])
+        far = float(np.linalg.norm(corners - np.asarray(eye, np.float64), axis=1).max())
+    t_max = 1e-2 * scale + far + (bounces + 2) * diag
+    extent = float(np.abs(np.concatenate([lo, hi])).max())
+    rounding = PAD * (extent + blend * (1.0 + math.log(max(n, 1))))
+    return 2.0 * epsilon * t_max + rounding
+
+
+def _round_up(n, m=64):
+    return max(m, -(-n // m) * m)
+
+
+def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
+          force=(), classify=True, max_cells=None) -> Cells:
+    """Support cells over [box_lo, box_hi] (render frame) for float32 `spheres` (N, 4, tree
+    order) and their TreeNode records, on `device` (a volrender.device.Device).
+    force: render-frame points whose cells get a list whatever their class (the eye: its
+    first sample reads the colour there). classify=False lists every cell (tests).
+    max_cells: when the bricks the surface passes through hold more cells than this, the
+    cell edge grows (first from an estimate by occupied bricks, then by (cells /
+    max_cells)^0.5 with the brick pass redone) until they fit."""
+    import pyopencl as cl
+
+    t0 = time.perf_counter()
+    n = len(spheres)
+    lo = np.asarray(box_lo, np.float32)
+    extent = float(np.abs(np.concatenate([np.asarray(box_lo, np.float64),
+                                          np.asarray(box_hi, np.float64)])).max())
+    pad = PAD * (extent + blend)
+    tau_run = float(tau) if classify else 3e38
+    flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
+    k_tree = device.kernel("build_cells", flags, "build_classify")
+    k_sub = device.kernel("build_cells", flags, "build_classify_sub")
+    k_fill = device.kernel("build_cells", flags, "build_fill")
+    ctx, queue = device.context, device.queue
+    mf = cl.mem_flags
+    max_runs = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 8)
+
+    def buf(a):
+        a = np.ascontiguousarray(a)
+        if a.nbytes == 0:
+            a = np.zeros((1,) + a.shape[1:], a.dtype)
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
+
+    d_sp, d_nodes = buf(spheres), buf(nodes)
+    none_i = buf(np.zeros(1, np.int32))
+    none_i4 = buf(np.zeros((1, 4), np.int32))
+
+    def prm(size, open_=False):
+        p = params.copy()
+        p["box_cells"] = size
+        if open_:
+            p["tau"] = np.float32(3e38)
+        return buf(p)
+
+    def classify(origins, size, cand=None, cand_lists=None, parents=None, open_=False):
+        """(class, count, core count or bound bits, U bits) per box, from the tree or (cand)
+        the lists of parent boxes parents (default: box j // 8); open_: class 0 always."""
+        out = np.empty((len(origins), 4), np.int32)
+        if len(origins):
+            d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+            g = (_round_up(len(origins)),)
+            if cand is None:
+                k_tree(queue, g, None, prm(size, open_), d_sp, d_nodes, buf(origins), d_out,
+                       np.int32(len(origins)))
+            else:
+                if parents is None:
+                    parents = np.arange(len(origins)) // 8
+                k_sub(queue, g, None, prm(size, open_), d_sp, cand, cand_lists,
+                      buf(parents.astype(np.int32)), buf(origins), d_out, np.int32(len(origins)))
+            cl.enqueue_copy(queue, out, d_out)
+        return out
+
+    def fill(origins, size, out, parent=None, cand=None, cand_lists=None):
+        """The lists of boxes: device runs, host (start, count, core start, core count)
+        int32 in runs, total runs. Each box's core follows its list."""
+        counts = out[:, 1].astype(np.int64)
+        core = out[:, 2].astype(np.int64)
+        total = int(counts.sum() + core.sum())
+        if total > max_runs:
+            raise TooLarge(f"over {max_runs} list runs")
+        if size == B and len(counts) and counts.max() > MAX_LIST:
+            raise TooLarge(f"a brick's list holds {counts.max()} runs")
+        lists = np.zeros((len(origins), 4), np.int32)
+        ends = np.cumsum(counts + core)
+        lists[:, 0] = ends - counts - core
+        lists[:, 1] = counts
+        lists[:, 2] = ends - core
+        lists[:, 3] = core
+        d_runs = cl.Buffer(ctx, mf.READ_WRITE, 8 * max(total, 1))
+        if len(origins):
+            from_tree = cand is None
+            k_fill(queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
+                   none_i if from_tree else cand, none_i4 if from_tree else cand_lists,
+                   none_i if from_tree else buf(parent.astype(np.int32)), buf(origins),
+                   buf(out[:, 3].view(np.float32)), buf(lists), d_runs, np.int32(len(origins)),
+                   np.int32(from_tree))
+        return d_runs, lists, total
+
+    def force_open(origins, size, out, cand=None, cand_lists=None):
+        """Keep forced cells' boxes unclassified down to the cell level (their class,
+        counts and U redone without classifying)."""
+        hit = np.zeros(len(origins), bool)
+        for q in forced:
+            hit |= np.all((origins[:, :3] <= q) & (q < origins[:, :3] + size), axis=1)
+        j = np.nonzero(hit & (out[:, 0] != 0))[0]
+        if len(j):
+            out[j] = classify(origins[j], size, cand, cand_lists, j // 8, open_=True)
+
+    if max_cells is not None:
+        cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
+    cell = grid_shape(box_lo, box_hi, cell)[0]
+    crowd = int(_occupancy(np.asarray(spheres[:, :3], np.float64) - lo, B * cell).max())
+    if crowd > MAX_BRICK_SPHERES:
+        raise TooLarge(f"{crowd} sphere centres in one brick")
+    while True:
+        cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
+        params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
+                               tau=tau_run, n_spheres=n, first_leaf=first_leaf, box_cells=B)
+        forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0,
+                          dims - 1).astype(np.int64) for p in force]
+        bricks, (origins, out, cand, lists) = _bricks(classify, fill, force_open, buf, bdims)
+        mixed = np.nonzero(bricks[:, 0] == 0)[0]
+        if max_cells is None or len(mixed) * B3 <= max_cells or len(mixed) <= 1:
+            break
+        cell *= max(1.1, (len(mixed) * B3 / max_cells) ** 0.5)
+    # the octants of unclassified boxes, each from its parent's list, down to cells
+    block_of = np.full(len(bricks), -1, np.int64)
+    block_of[mixed] = np.arange(len(mixed))
+    ccls = np.zeros(len(mixed) * B3, np.int32)       # the mixed bricks' cells
+    cbound = np.zeros(len(mixed) * B3, np.int32)
+    size = B
+    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
+    while size > 1:
+        size //= 2
+        origins = (origins[:, None, :] + size * octants[None]).reshape(-1, 4)
+        d_lists = buf(lists)
+        out = classify(origins, size, cand, d_lists)
+        force_open(origins, size, out, cand, d_lists)
+        cls = out[:, 0].copy()
+        # paint the classified boxes into their bricks' blocks
+        done = np.nonzero(cls != 0)[0]
+        o = origins[done, :3].astype(np.int64)
+        span = np.arange(size)
+        sub = (span[:, None, None] * B * B + span[None, :, None] * B + span[None, None, :]).ravel()
+        at = (_block_cell(o, block_of, bdims)[:, None] + sub[None]).ravel()
+        ccls[at] = np.repeat(cls[done], len(sub))
+        cbound[at] = np.repeat(out[done, 2], len(sub))
+        keep = np.nonzero(cls == 0)[0]
+        origins = origins[keep]
+        cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
+    runs = np.empty((max(total, 1), 2), np.int32)
+    cl.enqueue_copy(queue, runs, cand)
+    runs = runs[:total]
+    # the tables the renderer reads
+    sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
+    bricks[mixed, 0] = np.arange(len(mixed))
+    bricks[mixed, 1] = 0
+    cells = np.empty((len(ccls), 2), np.int32)
+    cells[:, 0] = ccls
+    cells[:, 1] = cbound
+    cells[sel, 0] = np.arange(len(sel))
+    cells[sel, 1] = 0
+    return Cells(lo, cell, dims, bdims, bricks, cells, lists, runs, float(tau), pad,
+                 1e3 * (time.perf_counter() - t0))
+
+
+TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
+
+
+def _bricks(classify, fill, force_open, buf, bdims):
+    """Classify every brick: boxes of 2^t bricks from the tree first (t: the smallest with
+    at most TOP_BOXES of them), then the octants of the unclassified ones from their
+    parents' lists, down to bricks. Returns the brick table (class or 0, bound bits) and the
+    mixed bricks' (origins, classify output, device list runs, lists), in the order of
+    np.nonzero(table[:, 0] == 0)."""
+    t = 0
+    while t < 4 and int(np.prod(-(-bdims // (1 << t)))) > TOP_BOXES:
+        t += 1
+    size = B << t
+    tdims = -(-bdims // (1 << t))
+    tz, ty, tx = np.meshgrid(*(np.arange(v) for v in tdims[::-1]), indexing="ij")
+    origins = np.zeros((tx.size, 4), np.int32)
+    origins[:, 0], origins[:, 1], origins[:, 2] = tx.ravel() * size, ty.ravel() * size, \
+        tz.ravel() * size
+    out = classify(origins, size)
+    force_open(origins, size, out)
+    table = np.full((int(np.prod(bdims)), 2), -99, np.int32)
+    cand = d_lists = None
+    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
+    while True:
+        cls = out[:, 0]
+        # paint the classified boxes' bricks (clipped to the grid)
+        nb = size // B
+        done = np.nonzero(cls != 0)[0]
+        span = np.arange(nb)
+        sub = np.stack(np.meshgrid(span, span, span, indexing="ij"), -1).reshape(-1, 3)
+        q = (origins[done, None, :3] // B + sub[None]).reshape(-1, 3)
+        ok = np.all(q < bdims, axis=1)
+        at = _brick_index(q[ok], bdims)
+        table[at, 0] = np.repeat(cls[done], len(sub))[ok]
+        table[at, 1] = np.repeat(out[done, 2], len(sub))[ok]
+        keep = np.nonzero(cls == 0)[0]
+        inside = np.all(origins[keep, :3] // B < bdims, axis=1)   # boxes past the grid: dropped
+        keep = keep[inside]
+        if size == B:
+            # the mixed bricks in table order, with their lists
+            order = np.argsort(_brick_index(origins[keep, :3] // B, bdims), kind="stable")
+            keep = keep[order]
+            table[_brick_index(origins[keep, :3] // B, bdims)] = 0
+            assert (table[:, 0] != -99).all(), "a brick was left unclassified"
+            parents = None if cand is None else keep // 8
+            c2, lists2, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
+            return table, (origins[keep], out[keep], c2, lists2)
+        parents = None if cand is None else keep // 8
+        cand, lists, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
+        size //= 2
+        origins = (origins[keep][:, None, :] + size * octants[None]).reshape(-1, 4)
+        d_lists = buf(lists)
+        out = classify(origins, size, cand, d_lists)
+        force_open(origins, size, out, cand, d_lists)
+
+
+def _occupancy(c, edge):
+    """Sphere centres per occupied box of edge `edge` (c relative to the grid's corner)."""
+    q = np.floor(c / edge).astype(np.int64)
+    q -= q.min(axis=0)
+    span = q.max(axis=0) + 1
+    key = (q[:, 2] * span[1] + q[:, 1]) * span[0] + q[:, 0]
+    return np.unique(key, return_counts=True)[1]
+
+
+def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
+    """The cell edge, grown until the bricks that hold a sphere centre, with their
+    neighbours within the blend, hold at most max_cells cells (a cheap estimate of the
+    bricks the surface passes through, before any is classified)."""
+    c = np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
+    r = float(np.max(spheres[:, 3])) if len(spheres) else 0.0
+    for _ in range(60):
+        edge = B * max(cell, 1e-30)
+        occupied = len(_occupancy(c, edge))
+        grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
+        if occupied * min(grow, 3.0) ** 2 * B3 <= max_cells:
+            return cell
+        cell *= 1.25
+    return cell
+
+
+def _block_cell(q, block_of, bdims):
+    """Index in the cell table of cells q (M, 3) of mixed bricks."""
+    b = q // B
+    local = q - b * B
+    return block_of[_brick_index(b, bdims)] * B3 + (local[:, 2] * B + local[:, 1]) * B + local[:, 0]
+
+
+def _brick_index(b, bdims):
+    return (b[:, 2] * bdims[1] + b[:, 1]) * bdims[0] + b[:, 0]
+
+
+# --------------------------------------------------------------------------- numpy oracle
+
+def box_distances(centres, radii, lo, hi):
+    """lo_i and hi_i (float64, (M, N)) of N spheres against M boxes [lo, hi] (M, 3)."""
+    c = np.asarray(centres, np.float64)[None]
+    lo, hi = np.asarray(lo, np.float64)[:, None], np.asarray(hi, np.float64)[:, None]
+    g = np.maximum(np.maximum(lo - c, c - hi), 0.0)
+    f = np.maximum(np.abs(c - lo), np.abs(c - hi))
+    r = np.asarray(radii, np.float64)[None]
+    return np.linalg.norm(g, axis=2) - r, np.linalg.norm(f, axis=2) - r
+
+
+def oracle(centres, radii, blend, lo, hi):
+    """The construction of cl/build_cells.cl in float64 over all spheres, for boxes
+    [lo, hi] (M, 3): (member (M, N) bool: lo_i <= U + k, lower L (M,), upper UF (M,))."""
+    dlo, dhi = box_distances(centres, radii, lo, hi)
+    M, U = dlo.min(axis=1), dhi.min(axis=1)
+    k = float(blend)
+    if k <= 1e-20:
+        return dlo <= U[:, None], M, U
+    member = dlo <= (U + k)[:, None]
+    t = M[:, None] + (U - M)[:, None] * (np.arange(J + 1) / J)[None]
+    t[:, J] = U
+    lower = np.full(len(M), np.inf)
+    upper = np.full(len(M), -np.inf)
+    for j in range(J):
+        shi = (np.where(member, np.maximum(1 - (dlo - t[:, j + 1, None]) / k, 0), 0) ** 2).sum(1)
+        slo = (np.where(member, np.maximum(1 - (dhi - t[:, j, None]) / k, 0), 0) ** 2).sum(1)
+        lower = np.minimum(lower, t[:, j] - 0.5 * k * np.log(np.maximum(shi, 1.0)))
+        upper = np.maximum(upper, t[:, j + 1] - 0.5 * k * np.log(np.maximum(slo, 1.0)))
+    return member, lower, upper
+
+
+def support(x, centres, radii, blend):
+    """Boolean (M, N): sphere i matters at point x (d_i < m + k; the nearest when k = 0)."""
+    d = np.linalg.norm(np.asarray(x, np.float64)[:, None] - np.asarray(centres, np.float64)[None],
+                       axis=2) - np.asarray(radii, np.float64)[None]
+    m = d.min(axis=1, keepdims=True)
+    return d < m + blend if blend > 1e-20 else d <= m
+
+
+def host_lists(spheres, tree_lo, tree_hi, start, count, depth, blend, lo, hi):
+    """The lists of boxes [lo, hi] (M, 3) on the host: the device builder's sets, by
+    vectorised numpy queries on the partition tree (frontiers of (box, node) pairs level by
+    level, no Python loop per box or sphere). spheres: (N, 4) in tree order; tree_lo,
+    tree_hi, start, count: the tree's node arrays in that frame. Returns (offsets (M + 1,),
+    sphere indices) with each box's list ascending; U is exact (the minimum of hi_i over a
+    first, looser list whose threshold is the nearest centre's hi)."""
+    from scipy.spatial import cKDTree
+    c = np.asarray(spheres[:, :3], np.float64)
+    r = np.asarray(spheres[:, 3], np.float64)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    k = float(blend) if blend > 1e-20 else 0.0
+    near = cKDTree(c).query(0.5 * (lo + hi))[1]
+    u0 = np.linalg.norm(np.maximum(np.abs(c[near] - lo), np.abs(c[near] - hi)), axis=1) - r[near]
+
+    def query(thr):
+        b = np.arange(len(lo))
+        node = np.ones(len(lo), np.int64)
+        for d in range(depth + 1):
+            g = np.maximum(np.maximum(tree_lo[node] - hi[b], lo[b] - tree_hi[node]), 0.0)
+            keep = (np.linalg.norm(g, axis=1) <= thr[b]) & (count[node] > 0)
+            b, node = b[keep], node[keep]
+            if d < depth:
+                b, node = np.repeat(b, 2), np.stack([2 * node, 2 * node + 1], 1).ravel()
+        n = count[node]
+        first = np.repeat(np.cumsum(n) - n, n)
+        idx = np.repeat(start[node], n) + np.arange(int(n.sum())) - first
+        bb = np.repeat(b, n)
+        dlo, dhi = (np.linalg.norm(v, axis=1) - r[idx] for v in (
+            np.maximum(np.maximum(lo[bb] - c[idx], c[idx] - hi[bb]), 0.0),
+            np.maximum(np.abs(c[idx] - lo[bb]), np.abs(c[idx] - hi[bb]))))
+        return bb, idx, dlo, dhi
+
+    bb, idx, dlo, dhi = query(u0 + k)
+    keep = dlo <= u0[bb] + k
+    u = np.full(len(lo), np.inf)
+    np.minimum.at(u, bb[keep], dhi[keep])
+    keep &= dlo <= u[bb] + k
+    bb, idx = bb[keep], idx[keep]
+    o = np.lexsort((idx, bb))
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(bb, minlength=len(lo)))])
+    return offsets, idx[o]
