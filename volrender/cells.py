@@ -409,8 +409,12 @@ def _bricks(classify, fill, force_open, buf, bdims):
 
 
 def _occupancy(c, edge):
-    """Sphere centres per occupied box of edge `edge` (c relative to the grid's corner)."""
-    q = np.floor(c / edge).astype(np.int64)
+    """Sphere centres per occupied box of edge `edge` (c relative to the grid's corner);
+    one box per centre when the boxes are too small to count in int64."""
+    qf = np.floor(c / edge)
+    if not np.all(np.abs(qf) < 2.0 ** 40):
+        return np.ones(len(c), np.int64)
+    q = qf.astype(np.int64)
     q -= q.min(axis=0)
     span = q.max(axis=0) + 1
     key = (q[:, 2] * span[1] + q[:, 1]) * span[0] + q[:, 0]
