@@ -40,7 +40,11 @@ def missing_data(what: str) -> str:
 
 
 def git_commit() -> str:
-    """The checkout's commit (+ "-dirty" with uncommitted changes), or "unknown"."""
+    """The checkout's commit (+ "-dirty" with uncommitted changes), or "unknown";
+    $VOLRENDER_COMMIT when set (bench/gpu.sh: the GPU machine gets a copy of the working
+    tree whose git metadata is not the checkout's)."""
+    if os.environ.get("VOLRENDER_COMMIT"):
+        return os.environ["VOLRENDER_COMMIT"]
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                              text=True, timeout=10).stdout.strip()

@@ -16,6 +16,8 @@ mkdir -p /tmp/icd && echo /usr/local/nvidia/lib64/libnvidia-opencl.so.1 > /tmp/i
   && cp /etc/OpenCL/vendors/*.icd /tmp/icd/ 2>/dev/null
 export OCL_ICD_VENDORS=/tmp/icd VOLRENDER_DEVICE=${VOLRENDER_DEVICE:-nvidia}
 export VOLRENDER_SHARED_DATA=/nonexistent        # the .npz conversions in bench/data instead
+# the commit measured (the copy's git metadata is not the checkout's): GPU_COMMIT=...
+export VOLRENDER_COMMIT=${GPU_COMMIT:-${VOLRENDER_COMMIT:-}}
 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.mem --format=csv,noheader || true
 python3 -m volrender info
 limit=${GPU_CMD_LIMIT:-540}

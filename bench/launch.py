@@ -94,7 +94,8 @@ def overhead(dev, size, spp, repeat):
 
 def interrupts(after, device_spec, render_args):
     out = []
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         with tempfile.TemporaryDirectory() as d:
             old = Path(d) / "o.npy"

@@ -8,7 +8,7 @@ transform that drifts a little per frame, so every frame is a separate file to l
 then renders it with render_sequence on a LocalCluster of N workers for each N of
 --workers. Each worker first renders one frame untimed (its programs are then built);
 the timed run renders every frame. On a host with several GPUs each worker gets its own
-GPU (sequence.DevicePerWorker); with one device all workers share it. Records frames
+GPU (sequence.device_per_worker); with one device all workers share it. Records frames
 per second, the speed-up over 1 worker (target: >= 0.9 N with a device per worker), the
 spread of per-frame times, and where a frame's time goes (load, setup and upload,
 kernel, write), in bench/results/sequence_<device>.json.
@@ -74,7 +74,7 @@ def run(pattern, n_frames, out, n_workers, size, density, chunk, dev_spec, fmt):
     client = Client(cluster)
     try:
         if gpus:
-            client.register_plugin(sequence.DevicePerWorker(gpus))
+            client.register_plugin(sequence.device_per_worker(gpus))
         start_s = time.perf_counter() - t_start
         opts = dict(size=size, density_scale=density)
         warm = out / "warm"

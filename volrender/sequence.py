@@ -259,20 +259,24 @@ def _worker_name() -> str:
         return "local"
 
 
-class DevicePerWorker:
-    """Dask worker plugin: worker `name` (an int in a LocalCluster) renders on GPU
+def device_per_worker(specs):
+    """A Dask worker plugin: worker `name` (an int in a LocalCluster) renders on GPU
     `name % len(specs)`, by setting $VOLRENDER_DEVICE before any task runs."""
-    name = "volrender-device"
+    from distributed.diagnostics.plugin import WorkerPlugin
 
-    def __init__(self, specs):
-        self.specs = list(specs)
+    class DevicePerWorker(WorkerPlugin):
+        name = "volrender-device"
 
-    def setup(self, worker):
-        try:
-            i = int(worker.name)
-        except (TypeError, ValueError):
-            i = abs(hash(worker.name))
-        os.environ["VOLRENDER_DEVICE"] = self.specs[i % len(self.specs)]
+        def __init__(self, specs):
+            self.specs = list(specs)
+
+        def setup(self, worker):
+            try:
+                i = int(worker.name)
+            except (TypeError, ValueError):
+                i = sum(map(ord, str(worker.name)))
+            os.environ["VOLRENDER_DEVICE"] = self.specs[i % len(self.specs)]
+    return DevicePerWorker(specs)
 
 
 def gpu_specs() -> list[str]:
@@ -408,7 +412,7 @@ def _start_client(workers, scheduler, device):
                            dashboard_address=None, env=env, silence_logs=logging.ERROR)
     client = Client(cluster)
     if gpus:
-        client.register_plugin(DevicePerWorker(gpus))
+        client.register_plugin(device_per_worker(gpus))
     return client, cluster
 
 
