@@ -150,7 +150,10 @@ def main(argv=None):
                "voxel_size": b.voxel_size}
         scale = row["density_scale"]
         configs = {"skip": VolumeSettings(density_scale=scale),
-                   "plain": VolumeSettings(density_scale=scale, skip_empty=False)}
+                   "plain": VolumeSettings(density_scale=scale, skip_empty=False),
+                   # the two ways of crossing empty bricks (the default picks one per device)
+                   "skip_runs": VolumeSettings(density_scale=scale, skip_runs=True),
+                   "skip_bricks": VolumeSettings(density_scale=scale, skip_runs=False)}
         if not args.no_dispatch:
             configs["driver"] = VolumeSettings(density_scale=scale, dispatch="fragment-driver")
         for n in octaves:
@@ -179,10 +182,14 @@ def main(argv=None):
         row["speedup"] = row["plain"]["kernel_ms"]["median"] / row["skip"]["kernel_ms"]["median"]
         if cpu:
             row["speedup_cpu"] = row["plain"]["cpu_ms"]["median"] / row["skip"]["cpu_ms"]["median"]
-        extra = ""
+        row["runs_vs_bricks"] = row["skip_bricks"]["kernel_ms"]["median"] / row["skip_runs"]["kernel_ms"]["median"]
+        row["skip_identical"] = all(bool((images[k] == images["plain"]).all())
+                                    for k in ("skip", "skip_runs", "skip_bricks"))
+        extra = (f"  runs {row['skip_runs']['kernel_ms']['median']:.1f} / bricks "
+                 f"{row['skip_bricks']['kernel_ms']['median']:.1f} ms (runs x{row['runs_vs_bricks']:.2f})")
         if "driver" in row:       # fragment in 8x8 blocks vs the driver's local size (> 1: blocks faster)
             row["blocks_vs_driver"] = row["driver"]["kernel_ms"]["median"] / row["skip"]["kernel_ms"]["median"]
-            extra = f"  driver-local {row['driver']['kernel_ms']['median']:9.1f} ms"
+            extra += f"  driver-local {row['driver']['kernel_ms']['median']:9.1f} ms"
         print(f"{row['file']:28s} skip {row['skip']['kernel_ms']['median']:9.1f} ms  "
               f"plain {row['plain']['kernel_ms']['median']:9.1f} ms  x{row['speedup']:.2f}"
               + (f" (cpu x{row['speedup_cpu']:.2f})" if cpu else "") + extra +

@@ -16,7 +16,8 @@
             full box. Without VR_SKIP_EMPTY (the plain-marching reference) nothing is
             culled. */
 #if !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || !defined(VR_SHADOWS) || \
-    !defined(VR_PHASE_MIXED) || !defined(VR_SKIP_EMPTY) || !defined(VR_EMISSION) || \
+    !defined(VR_PHASE_MIXED) || !defined(VR_SKIP_EMPTY) || !defined(VR_SKIP_RUNS) || \
+    !defined(VR_EMISSION) || \
     !defined(VR_DEPTH) || !defined(VR_TILED) || !defined(VR_TILE_W) || \
     !defined(VR_TILE_H) || !defined(VR_TILE_CAP) || !defined(VR_CHROMATIC) || \
     !defined(VR_ENV) || !defined(VR_MS_OCTAVES) || !defined(VR_TEMPERATURE)
@@ -120,7 +121,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {
 #if VR_SKIP_EMPTY
-                float te = vr_empty_exit(&g, o, inv_d, p);
+                float te = VR_EMPTY_EXIT(&g, o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
                 continue;
@@ -174,7 +175,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {            /* empty brick: density and emission are zero */
 #if VR_SKIP_EMPTY
-                float te = vr_empty_exit(&g, o, inv_d, p);
+                float te = VR_EMPTY_EXIT(&g, o, inv_d, p);
                 k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
                 continue;

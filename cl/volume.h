@@ -86,6 +86,15 @@ inline float3 vr_emission_color(__constant VolumeParams* vp, __global const floa
 #endif
 }
 
+/* World parameter where the ray leaves the (empty) brick containing point p: one ray-box
+   test (VR_SKIP_RUNS 0, GPUs). */
+inline float vr_brick_exit(float3 o, float3 inv_d, float3 p)
+{
+    float3 lo = floor(p * (1.0f / VR_BRICK)) * VR_BRICK;
+    float2 tt = vr_ray_box(o, inv_d, lo, lo + (float3)(VR_BRICK));
+    return tt.y;
+}
+
 /* World parameter where the ray o + t d leaves the run of empty bricks that starts with
    the (empty) brick holding p: a DDA over the brick table from there to the first
    stored brick or out of the layout, so a run of empty bricks costs one table read
@@ -113,6 +122,15 @@ inline float vr_empty_exit(const VrGrid* g, float3 o, float3 inv_d, float3 p)
     }
 }
 
+/* Where a sample in an empty brick resumes: past the run of empty bricks (VR_SKIP_RUNS 1,
+   CPUs) or past its brick (GPUs); either way the skipped samples read exactly zero, so the
+   image is the same (volume.VolumeSettings.skip_runs, README "Volumes" for the timings). */
+#if VR_SKIP_RUNS
+#define VR_EMPTY_EXIT(g, o, inv_d, p) vr_empty_exit(g, o, inv_d, p)
+#else
+#define VR_EMPTY_EXIT(g, o, inv_d, p) vr_brick_exit(o, inv_d, p)
+#endif
+
 /* Optical depth along o + t d, t in [t0, t1), samples at t0 + (k + u) dt. With
    VR_SKIP_EMPTY, samples in empty bricks are skipped (they read exactly zero). Stops
    early once tau exceeds tau_stop. */
@@ -131,7 +149,7 @@ inline float vr_optical_depth(const VrGrid* g, float3 o, float3 d, float t0, flo
         int slot = vr_brick_slot(g, c);
         if (slot < 0) {                /* empty brick: density is exactly zero */
 #if VR_SKIP_EMPTY
-            float te = vr_empty_exit(g, o, inv_d, p);
+            float te = VR_EMPTY_EXIT(g, o, inv_d, p);
             k = max(k, (int)ceil((te - t0) / dt - u) - 1);
 #endif
             continue;

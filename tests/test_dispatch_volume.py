@@ -14,6 +14,8 @@ a * (peak radiance + in-scatter) -- see `tolerance`, which is still far below wh
 sample more or less would change (test_tolerance_is_tight_enough...). On PoCL the
 images are in fact bit-identical, here and in bench/volume.py (max |diff| = 0).
 """
+from dataclasses import replace
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -334,3 +336,18 @@ def test_tolerance_is_tight_enough_to_see_one_lost_sample(cl_device, sparse):
     # opacity of one sample on the block's plateau (density 0.8)
     one_sample = 1.0 - np.exp(-s.density_scale * 0.8 * s.step * sparse.voxel_size)
     assert tol < 0.01 * one_sample
+
+
+def test_skipping_runs_or_single_bricks_gives_the_plain_image(cl_device, sparse):
+    """Skipping crosses empty bricks one by one (GPUs) or a whole run at once (CPUs): the
+    samples it leaves out read exactly zero, so both equal plain marching, bit for bit,
+    in the primary march and the shadow rays (the sun crosses the gap between the objects)."""
+    cam = camera_mod.frame_bounds(*sparse.world_bounds(), 40, 24)
+    lights = [Sun((1.0, -0.2, 0.1), 4.0)]
+    base = VolumeSettings(density_scale=6.0, spp=2, seed=3)
+    plain = render_volume(sparse, cam, lights, replace(base, skip_empty=False), cl_device)
+    for runs in (True, False):
+        r = render_volume(sparse, cam, lights, replace(base, skip_runs=runs), cl_device)
+        assert r["flags"]["VR_SKIP_RUNS"] == int(runs)
+        np.testing.assert_array_equal(r["rgba"], plain["rgba"])
+    assert plain["rgba"][..., 3].max() > 0.5

@@ -22,6 +22,7 @@ class VolumeFeatures:
     shadows: bool = True
     phase_mixed: bool = True
     skip_empty: bool = True
+    skip_runs: bool = False    # skipping crosses a whole run of empty bricks (CPUs) or one (GPUs)
     emission: bool = False
     depth: bool = False
     chromatic: bool = False    # albedo or sigma_t scale differs between channels
@@ -45,8 +46,9 @@ class VolumeFeatures:
                 "tile_cap": int(VOLUME_TILE_CAP)}
 
     @classmethod
-    def from_scene(cls, scene, dispatch) -> "VolumeFeatures":
-        """What a volume Scene compiles in (dispatch: the resolved Dispatch)."""
+    def from_scene(cls, scene, dispatch, gpu=False) -> "VolumeFeatures":
+        """What a volume Scene compiles in (dispatch: the resolved Dispatch; gpu: whether
+        the device is a GPU, which picks how skipping crosses empty bricks)."""
         from .lights import counts
         from .volume import env_mode
         n_suns, n_points = counts(scene.lights)
@@ -54,6 +56,7 @@ class VolumeFeatures:
         emission = bricks.emission is not None
         return cls(n_suns=n_suns, n_points=n_points, shadows=s.shadows,
                    phase_mixed=s.phase[2] < 1.0, skip_empty=s.skip_empty,
+                   skip_runs=s.skip_empty and (not gpu if s.skip_runs is None else s.skip_runs),
                    emission=emission, depth=s.depth, chromatic=s.chromatic,
                    env=env_mode(scene.environment),
                    ms_octaves=s.ms_octaves if s.estimator == "march" else 1,

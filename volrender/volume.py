@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import blackbody, layout, lights as lights_mod
-from .dispatch import Dispatch
+from .dispatch import Dispatch, is_gpu
 from .errors import UserError
 from .features import VolumeFeatures
 from .settings import (MAX_VALUE, STRS, VEC, CommonSettings, boolean, floats, in_range, knob,
@@ -118,6 +118,12 @@ class VolumeSettings(CommonSettings):
                           toml=("volume", "hide_env"))
     skip_empty: bool = knob(True, "march empty bricks too (the reference for empty-space skipping)",
                             check=boolean, flag="--no-skip", toml=("volume", "skip_empty"))
+    skip_runs: bool | None = knob(None, "skipping crosses a whole run of empty bricks in one "
+                                  "walk (True) or one brick per sample (False); None: runs on "
+                                  "CPUs, bricks on GPUs, the faster on each (README)",
+                                  check=lambda v: None if v is None or isinstance(v, bool)
+                                  else "must be True, False or None", flag=None,
+                                  show_default=False)
     aovs: tuple = knob((), "extra EXR layer (repeatable): depth -> Z (opacity-weighted mean "
                        "distance), transmittance -> T", flag="--aov", choices=AOVS,
                        check=_aovs_ok, toml=("volume", "aov"), kind=STRS, show_default=False)
@@ -310,7 +316,7 @@ def plan(scene, device, variant=None):
                         "temperature grid", fix="load it with temperature_grid= (or convert the "
                         ".vdb again with --temperature-grid)")
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
-    features = VolumeFeatures.from_scene(scene, dispatch)
+    features = VolumeFeatures.from_scene(scene, dispatch, is_gpu(device))
     params, w2l = volume_params(bricks, settings, scene.environment)
     emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
     temperature = bricks.temperature if features.temperature else np.zeros(1, np.float32)
