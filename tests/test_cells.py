@@ -265,6 +265,22 @@ def test_too_many_list_entries_fall_back_to_the_tree(cl_device, monkeypatch):
     assert np.isfinite(r["rgba"]).all()
 
 
+def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device, monkeypatch):
+    """Lists that would exceed the budget at the automatic edge: the edge doubles (the
+    total falls about as 1/edge) and the cells still serve, with the tree walk's image."""
+    cloud = points.blob(400, seed=2)
+    cam = glass.default_camera(cloud, 16, 12)
+    s = glass.GlassSettings(bounces=1)
+    full = glass.pack_scene(cloud, s, eye=cam.origin, device=cl_device)
+    monkeypatch.setattr(cells, "MAX_ITEMS", len(full.cells.runs) // 2)
+    small = glass.pack_scene(cloud, s, eye=cam.origin, device=cl_device)
+    assert small.accel == "grid" and small.cells.cell >= 1.9 * full.cells.cell
+    assert len(small.cells.runs) <= len(full.cells.runs) // 2
+    grid = render(cl_device, cloud, cam=cam, bounces=1)
+    tree = render(cl_device, cloud, cam=cam, accel="tree", bounces=1)
+    assert differ(grid, tree) <= 0.05
+
+
 def test_probe_field_in_listed_cells_is_brute_force(cl_device, rng):
     """The kernel's field through the cells at random points of listed cells equals brute
     force over all spheres (float32 sums of the same terms)."""

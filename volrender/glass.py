@@ -243,12 +243,19 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
     force = []
     if eye is not None and np.all(eye >= box_lo) and np.all(eye <= box_hi):
         force.append(eye)
-    try:
-        return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau, device,
-                               force=force, classify=settings.cell_skip,
-                               max_cells=budget), ""
-    except cells_mod.TooLarge as exc:
-        return None, f"support cells too large ({exc}): using the tree walk"
+    # the total of the lists falls about as 1/edge (cells near the surface as 1/edge^2,
+    # lists grow as edge): an automatic edge doubles a few times before giving up
+    for attempt in range(1 if settings.cell_size else 4):
+        try:
+            return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau,
+                                   device, force=force, classify=settings.cell_skip,
+                                   max_cells=budget), ""
+        except cells_mod.TooLarge as exc:
+            why = exc
+            if "list runs" not in str(exc):
+                break
+            cell *= 2.0
+    return None, f"support cells too large ({why}): using the tree walk"
 
 
 def material_unit(packed: GlassScene, settings: GlassSettings) -> float:
