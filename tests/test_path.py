@@ -150,8 +150,8 @@ def test_coloured_media_are_grey_media_channel_by_channel():
         d, e = mean[..., ch] - g[..., ch], np.sqrt(se[..., ch] ** 2 + gse[..., ch] ** 2)
         assert np.all(np.abs(d) < 6 * e + 1e-6), (ch, (np.abs(d) / (e + 1e-9)).max())
         assert abs(d.sum()) < Z * np.sqrt((e ** 2).sum())
-    # alpha is the mean transmittance over the channels
-    assert np.all(mean[..., 3] >= 0) and mean[..., 3].max() > 0.5
+    # alpha comes from the mean transmittance over the channels; GPU rounding dips a few 1e-8 below 0
+    assert np.all(mean[..., 3] >= -1e-6) and mean[..., 3].max() > 0.5
 
 
 def test_path_image_does_not_depend_on_the_launch():
