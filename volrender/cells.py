@@ -29,7 +29,8 @@ B = layout.CELL_BRICK
 B3 = B ** 3
 OUTSIDE, INSIDE = layout.CELL_OUTSIDE, layout.CELL_INSIDE
 MAX_BRICKS = 1 << 21          # the brick table (8 bytes each): the cell edge grows to fit
-MAX_ITEMS = 1 << 27           # list runs (8 bytes each, 1 GiB); beyond: the tree walk
+MAX_ITEMS = 1 << 30           # list runs (8 bytes each, 8 GiB; int32 offsets), also at most
+                              # the device's largest buffer; beyond: the tree walk
 MAX_LIST = 1 << 16            # runs on one brick's list; beyond: the tree walk
 MAX_BRICK_SPHERES = 1 << 16   # sphere centres in one brick; beyond (coincident points): the
                               # tree walk, since every cell near them would scan them all
