@@ -65,6 +65,8 @@ class Cells:
     tau: float                # skippable cells have |F| > tau
     pad: float                # lists hold lo_i <= U + k + pad
     build_ms: float
+    build_kernel_ms: float = 0.0    # of build_ms, in the build's kernels (profiling events)
+    build_launches: int = 0
 
     @property
     def nbytes(self) -> int:
@@ -94,7 +96,8 @@ class Cells:
                 "list_max": int(n.max()) if len(n) else 0,
                 "core_mean": float(nc.mean()) if len(nc) else 0.0,
                 "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)),
-                "bytes": int(self.nbytes), "build_ms": self.build_ms}
+                "bytes": int(self.nbytes), "build_ms": self.build_ms,
+                "build_kernel_ms": self.build_kernel_ms, "build_launches": self.build_launches}
 
     def box(self, q):
         """(lo, hi) float64 of the cells with integer coordinates q (..., 3)."""
@@ -223,6 +226,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     ctx, queue = device.context, device.queue
     mf = cl.mem_flags
     max_runs = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 8)
+    events = []
 
     def buf(a):
         a = np.ascontiguousarray(a)
@@ -249,13 +253,14 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
             d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             g = (_round_up(len(origins)),)
             if cand is None:
-                k_tree(queue, g, None, prm(size, open_), d_sp, d_nodes, buf(origins), d_out,
-                       np.int32(len(origins)))
+                events.append(k_tree(queue, g, None, prm(size, open_), d_sp, d_nodes,
+                                     buf(origins), d_out, np.int32(len(origins))))
             else:
                 if parents is None:
                     parents = np.arange(len(origins)) // 8
-                k_sub(queue, g, None, prm(size, open_), d_sp, cand, cand_lists,
-                      buf(parents.astype(np.int32)), buf(origins), d_out, np.int32(len(origins)))
+                events.append(k_sub(queue, g, None, prm(size, open_), d_sp, cand, cand_lists,
+                                    buf(parents.astype(np.int32)), buf(origins), d_out,
+                                    np.int32(len(origins))))
             cl.enqueue_copy(queue, out, d_out)
         return out
 
@@ -278,11 +283,12 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         d_runs = cl.Buffer(ctx, mf.READ_WRITE, 8 * max(total, 1))
         if len(origins):
             from_tree = cand is None
-            k_fill(queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
+            events.append(k_fill(
+                   queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
                    none_i if from_tree else cand, none_i4 if from_tree else cand_lists,
                    none_i if from_tree else buf(parent.astype(np.int32)), buf(origins),
                    buf(out[:, 3].view(np.float32)), buf(lists), d_runs, np.int32(len(origins)),
-                   np.int32(from_tree))
+                   np.int32(from_tree)))
         return d_runs, lists, total
 
     def force_open(origins, size, out, cand=None, cand_lists=None):
@@ -349,8 +355,9 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     cells[:, 1] = cbound
     cells[sel, 0] = np.arange(len(sel))
     cells[sel, 1] = 0
+    kernel_ms = 1e-6 * sum(e.profile.end - e.profile.start for e in events)
     return Cells(lo, cell, dims, bdims, bricks, cells, lists, runs, float(tau), pad,
-                 1e3 * (time.perf_counter() - t0))
+                 1e3 * (time.perf_counter() - t0), kernel_ms, len(events))
 
 
 TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most

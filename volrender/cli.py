@@ -426,7 +426,8 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "error": "error against run time for every speed knob",
               "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
               "sequence": "frame sequences on Dask: frames per second against worker count",
-              "launch": "launch granularity: adaptive launch overhead, time to stop on signals"}
+              "launch": "launch granularity: adaptive launch overhead, time to stop on signals",
+              "build": "acceleration build time (tree, support cells) against sphere count"}
 
 
 def bench_dir() -> Path:
