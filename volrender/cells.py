@@ -60,8 +60,10 @@ class Cells:
     cells: np.ndarray         # int32 (n_blocks * B^3, 2): code, bound bits
     lists: np.ndarray         # int32 (n_lists, 4): list start, count, core start, count
                               # in runs (core: the spheres that can be the nearest)
-    runs: np.ndarray          # int32 (n_runs, 2): first sphere, count of consecutive sphere
-                              # indices (tree order), ascending within a list
+    runs_device: object       # cl.Buffer of the runs, in the builder's context: renders
+                              # read it there, the host copy (runs) is made on first use
+    n_runs: int
+    queue: object             # the builder's queue
     tau: float                # skippable cells have |F| > tau
     pad: float                # lists hold lo_i <= U + k + pad
     build_ms: float
@@ -69,8 +71,21 @@ class Cells:
     build_launches: int = 0
 
     @property
+    def runs(self) -> np.ndarray:
+        """int32 (n_runs, 2): first sphere, count of consecutive sphere indices (tree
+        order), ascending within a list."""
+        host = self.__dict__.get("_runs")
+        if host is None:
+            import pyopencl as cl
+            host = np.empty((max(self.n_runs, 1), 2), np.int32)
+            cl.enqueue_copy(self.queue, host, self.runs_device)
+            host = host[:self.n_runs]
+            object.__setattr__(self, "_runs", host)
+        return host
+
+    @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists, self.runs))
+        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists)) + 8 * self.n_runs
 
     def lengths(self, core=False):
         """Spheres on each list (or core)."""
@@ -343,9 +358,6 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         keep = np.nonzero(cls == 0)[0]
         origins = origins[keep]
         cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
-    runs = np.empty((max(total, 1), 2), np.int32)
-    cl.enqueue_copy(queue, runs, cand)
-    runs = runs[:total]
     # the tables the renderer reads
     sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
     bricks[mixed, 0] = np.arange(len(mixed))
@@ -355,8 +367,9 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     cells[:, 1] = cbound
     cells[sel, 0] = np.arange(len(sel))
     cells[sel, 1] = 0
+    queue.finish()
     kernel_ms = 1e-6 * sum(e.profile.end - e.profile.start for e in events)
-    return Cells(lo, cell, dims, bdims, bricks, cells, lists, runs, float(tau), pad,
+    return Cells(lo, cell, dims, bdims, bricks, cells, lists, cand, total, queue, float(tau), pad,
                  1e3 * (time.perf_counter() - t0), kernel_ms, len(events))
 
 

@@ -341,7 +341,7 @@ def plan(scene, device, variant=None):
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
-    spheres, grid_arrays = kernel_arrays(packed, params)
+    spheres, grid_arrays = kernel_arrays(packed, params, device.context)
     info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
     if packed.cells is not None:
         info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.stats())
@@ -355,9 +355,10 @@ def plan(scene, device, variant=None):
                 PIXELS_PER_LAUNCH, info=info)
 
 
-def kernel_arrays(packed: GlassScene, params):
+def kernel_arrays(packed: GlassScene, params, context=None):
     """The spheres and the four support-cell arrays the kernel reads (cl/cells.h), with the
-    grid's fields of the GlassParams record `params` set; stand-ins without cells."""
+    grid's fields of the GlassParams record `params` set; stand-ins without cells. The
+    runs stay the builder's device buffer when `context` is the builder's (no copy)."""
     grid = packed.cells
     if grid is None:
         return packed.spheres, [np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int32),
@@ -368,7 +369,9 @@ def kernel_arrays(packed: GlassScene, params):
     params["grid_inv"] = np.float32(1.0 / grid.cell)
     params["grid_nudge"] = 1e-3 * grid.cell
     params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
-    return packed.spheres, [grid.bricks, grid.cells, grid.lists, grid.runs]
+    same = context is not None and grid.runs_device.context.int_ptr == context.int_ptr
+    return packed.spheres, [grid.bricks, grid.cells, grid.lists,
+                            grid.runs_device if same else grid.runs]
 
 
 def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,
