@@ -94,8 +94,15 @@ class Cells:
         c = np.concatenate([[0], np.cumsum(self.runs[:, 1], dtype=np.int64)])
         return c[start + count] - c[start]
 
+    def summary(self) -> dict:
+        """What a render reports (cheap: the runs stay on the device)."""
+        return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
+                "cells_listed": int(len(self.lists)), "runs": int(self.n_runs),
+                "bytes": int(self.nbytes), "build_ms": self.build_ms,
+                "build_kernel_ms": self.build_kernel_ms}
+
     def stats(self) -> dict:
-        """Counts for reports and benchmarks."""
+        """Counts for reports and benchmarks (reads the runs back from the device)."""
         codes = self.cells[:, 0]
         bcodes = self.bricks[:, 0]
         n = self.lengths()

@@ -344,7 +344,7 @@ def plan(scene, device, variant=None):
     spheres, grid_arrays = kernel_arrays(packed, params, device.context)
     info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
     if packed.cells is not None:
-        info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.stats())
+        info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.summary())
     if packed.note:
         info["note"] = packed.note
     inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
