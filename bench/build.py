@@ -82,6 +82,8 @@ def main(argv=None):
                     help="image size WxH whose pixel count sets the cell budget (default: 1920x1080)")
     ap.add_argument("--repeat", type=int, default=3, help="builds per count (default: 3)")
     ap.add_argument("--tag", default=None, help="added to the results' name: build_<device>-<tag>.json")
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="also print cProfile's top 25 functions of one build of N spheres")
     args = ap.parse_args(argv)
     counts = [int(v) for v in args.counts.split(",") if v]
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -102,6 +104,16 @@ def main(argv=None):
         write_json(path, {"benchmark": "build", "size": [width, height],
                           "repeat": args.repeat, **device_info(dev), "rows": rows})
     plot(rows, dev, path.with_suffix(".png"))
+    if args.profile:
+        import cProfile
+        import pstats
+        cloud = points.blob(args.profile, seed=1)
+        prof = cProfile.Profile()
+        prof.enable()
+        glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
+                         samples=width * height)
+        prof.disable()
+        pstats.Stats(prof).sort_stats("tottime").print_stats(25)
     print(f"wrote {path}")
     return 0
 
