@@ -439,13 +439,21 @@ def _bricks(classify, fill, force_open, buf, bdims):
 def _occupancy(c, edge):
     """Sphere centres per occupied box of edge `edge` (c relative to the grid's corner);
     one box per centre when the boxes are too small to count in int64."""
-    qf = np.floor(c / edge)
-    if not np.all(np.abs(qf) < 2.0 ** 40):
+    if len(c) == 0:
+        return np.zeros(0, np.int64)
+    qf = np.floor(np.ascontiguousarray(np.asarray(c, np.float64).T) / edge)    # (3, n)
+    if not np.abs(qf).max() < 2.0 ** 40:
         return np.ones(len(c), np.int64)
     q = qf.astype(np.int64)
-    q -= q.min(axis=0)
-    span = q.max(axis=0) + 1
-    key = (q[:, 2] * span[1] + q[:, 1]) * span[0] + q[:, 0]
+    q -= q.min(axis=1, keepdims=True)
+    span = q.max(axis=1) + 1
+    boxes = float(np.prod(span.astype(np.float64)))
+    if boxes >= 2.0 ** 62:
+        return np.unique(q.T, axis=0, return_counts=True)[1]
+    key = (q[2] * span[1] + q[1]) * span[0] + q[0]
+    if boxes <= max(4 * len(c), 1 << 22):          # a count per box: no sort
+        counts = np.bincount(key)
+        return counts[counts > 0]
     return np.unique(key, return_counts=True)[1]
 
 
