@@ -6,8 +6,9 @@ rest (host numpy, transfers, launch overhead).
     .venv/bin/python bench/build.py [--device SPEC] [--counts 1000,...] [--size 1920x1080]
         [--repeat 3] [--tag TAG]
 
---size sets the pixel samples that choose the automatic cell edge (cells.cell_budget), as
-a render of that size would. Writes bench/results/build_<device>[-TAG].json and .png.
+--size sets the pixel samples that choose the automatic cell edge (cells.cell_budget), and
+the eye (which sets the skip threshold) is the default camera's, as a render of that
+size would have them. Writes bench/results/build_<device>[-TAG].json and .png.
 """
 from __future__ import annotations
 
@@ -25,16 +26,19 @@ from volrender import device, glass, points  # noqa: E402
 COUNTS = [1000, 10000, 100000, 1000000]
 
 
-def measure(cloud, dev, samples, repeat):
+def measure(cloud, dev, width, height, repeat):
     """Medians over repeat builds after an untimed one (it compiles the builder for this
     tree depth): total, tree, cells, cells' kernels; the last build's stats."""
-    glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev, samples=samples)
+    samples = width * height
+    eye = glass.default_camera(cloud, width, height).origin
+    glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), eye=eye, device=dev,
+                     samples=samples)
     runs = {"total_ms": [], "tree_ms": [], "cells_ms": [], "kernel_ms": [], "host_ms": []}
     stats = {}
     for _ in range(repeat):
         t0 = time.perf_counter()
-        packed = glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
-                                  samples=samples)
+        packed = glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), eye=eye,
+                                  device=dev, samples=samples)
         total = 1e3 * (time.perf_counter() - t0)
         if packed.cells is None:
             return {"accel_used": packed.accel, "note": packed.note}
@@ -91,7 +95,7 @@ def main(argv=None):
     path = result_path("build", dev, args.tag)
     rows = []
     for n in counts:
-        row = {"n": n, **measure(points.blob(n, seed=1), dev, width * height, args.repeat)}
+        row = {"n": n, **measure(points.blob(n, seed=1), dev, width, height, args.repeat)}
         rows.append(row)
         if "cells_ms" in row:
             c = row["cells"]
@@ -111,6 +115,7 @@ def main(argv=None):
         prof = cProfile.Profile()
         prof.enable()
         glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
+                         eye=glass.default_camera(cloud, width, height).origin,
                          samples=width * height)
         prof.disable()
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
