@@ -21,6 +21,8 @@ from .paths import cl_dir
 
 log = logging.getLogger("volrender")
 ENV_DEVICE = "VOLRENDER_DEVICE"
+ENV_OPTIONS = "VOLRENDER_CL_OPTIONS"    # extra OpenCL build options (experiments), e.g.
+                                        # "-cl-nv-verbose -cl-nv-maxrregcount=64"
 
 
 def _writable_dir(path) -> bool:
@@ -181,6 +183,7 @@ class Device:
             digest.update(path.name.encode())
             digest.update(path.read_bytes())
         defines = [f"-D{k}={int(v)}" for k, v in sorted((flags or {}).items())]
+        defines += os.environ.get(ENV_OPTIONS, "").split()
         key = (digest.hexdigest(), tuple(defines))
         if key in self._programs:
             return self._programs[key]
@@ -198,6 +201,9 @@ class Device:
                 f"\n{failure}{extra}", fix="this is a volrender bug; please report it with this log")
         if noise["text"]:
             log.info("compiler output for %s: %s", what, noise["text"])
+        if os.environ.get(ENV_OPTIONS):
+            log.info("build log of %s: %s", what,
+                     prg.get_build_info(self.device, cl.program_build_info.LOG).strip())
         log.info("built %s %s in %.0f ms", what, " ".join(defines),
                  1e3 * (time.perf_counter() - start))
         self._programs[key] = prg
