@@ -218,3 +218,27 @@ def test_over_relaxation_misses_nothing(cl_device):
         _agree(a, b, frac=0.97)
     with pytest.raises(UserError, match="relax"):
         glass.GlassSettings(relax=2.0)
+
+
+class _Stub:
+    def __init__(self, extensions):
+        self.extensions = extensions
+
+    def has_extension(self, name):
+        return name in self.extensions.split()
+
+
+def test_register_cap_only_where_the_compiler_takes_it(cl_device):
+    cap = (f"-cl-nv-maxrregcount={glass.NV_MAX_REGISTERS}",)
+    nv = _Stub("cl_khr_fp64 cl_nv_compiler_options")
+    glassy = features.GlassFeatures(n_suns=1)
+    opaque_unlit = features.GlassFeatures(refraction=False)
+    assert glass.build_options(glassy, nv) == cap
+    assert glass.build_options(features.GlassFeatures(refraction=False, n_points=1), nv) == cap
+    assert glass.build_options(opaque_unlit, nv) == ()
+    assert glass.build_options(glassy, _Stub("cl_khr_fp64")) == ()
+    # the default device (PoCL here) takes no NVIDIA option, and renders
+    assert glass.build_options(glassy, cl_device) == () or \
+        cl_device.has_extension("cl_nv_compiler_options")
+    img = _render(cl_device, points.blob(40, seed=2), glass.GlassSettings())
+    assert np.isfinite(img).all() and img[..., 3].max() > 0.5

@@ -162,20 +162,26 @@ class Device:
         d = self.device
         return f"{self.name} ({d.version.strip()}, driver {d.driver_version.strip()})"
 
-    def program(self, entry: str, flags: dict[str, int]):
-        """Build cl/<entry>.cl with -D flags; cached per (sources, flags, device)."""
-        return self.build((cl_dir() / f"{entry}.cl").read_text(), flags, f"cl/{entry}.cl")
+    def program(self, entry: str, flags: dict[str, int], options=()):
+        """Build cl/<entry>.cl with -D flags; cached per (sources, flags, options, device)."""
+        return self.build((cl_dir() / f"{entry}.cl").read_text(), flags, f"cl/{entry}.cl",
+                          options)
 
-    def kernel(self, entry: str, flags: dict[str, int], name: str | None = None):
+    def kernel(self, entry: str, flags: dict[str, int], name: str | None = None, options=()):
         """A kernel object of cl/<entry>.cl, kept for repeated launches."""
-        key = ("kernel", entry, tuple(sorted(flags.items())), name)
+        key = ("kernel", entry, tuple(sorted(flags.items())), name, tuple(options))
         if key not in self._programs:
-            self._programs[key] = _cl().Kernel(self.program(entry, flags), name or entry)
+            self._programs[key] = _cl().Kernel(self.program(entry, flags, options),
+                                               name or entry)
         return self._programs[key]
 
-    def build(self, source: str, flags: dict[str, int] | None = None, what: str = "program"):
-        """Build OpenCL source with cl/ on the include path and -D flags, cached per
-        (source and headers, flags, device)."""
+    def has_extension(self, name: str) -> bool:
+        return name in self.device.extensions.split()
+
+    def build(self, source: str, flags: dict[str, int] | None = None, what: str = "program",
+              options=()):
+        """Build OpenCL source with cl/ on the include path, -D flags and compiler
+        `options`, cached per (source and headers, flags, options, device)."""
         cl = _cl()
         src_dir = cl_dir()
         digest = hashlib.sha256(source.encode())
@@ -183,7 +189,7 @@ class Device:
             digest.update(path.name.encode())
             digest.update(path.read_bytes())
         defines = [f"-D{k}={int(v)}" for k, v in sorted((flags or {}).items())]
-        defines += os.environ.get(ENV_OPTIONS, "").split()
+        defines += [*options, *os.environ.get(ENV_OPTIONS, "").split()]
         key = (digest.hexdigest(), tuple(defines))
         if key in self._programs:
             return self._programs[key]

@@ -24,6 +24,7 @@ from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range
 PIXELS_PER_LAUNCH = 1 << 14
 MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
+NV_MAX_REGISTERS = 40         # per work-item, the glass kernel on NVIDIA (build_options)
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
 SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
 SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
@@ -352,7 +353,18 @@ def plan(scene, device, variant=None):
               *grid_arrays]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
-                PIXELS_PER_LAUNCH, info=info)
+                PIXELS_PER_LAUNCH, info=info, build_options=build_options(features, device))
+
+
+def build_options(features, device) -> tuple:
+    """Compiler options of the glass kernel: on NVIDIA (cl_nv_compiler_options) registers
+    are capped at NV_MAX_REGISTERS, except for opaque spheres without lights, where the cap
+    measured slower (docs/DESIGN.md)."""
+    if device is None or not device.has_extension("cl_nv_compiler_options"):
+        return ()
+    if not features.refraction and not (features.n_suns or features.n_points or features.uber):
+        return ()
+    return (f"-cl-nv-maxrregcount={NV_MAX_REGISTERS}",)
 
 
 def kernel_arrays(packed: GlassScene, params, context=None):

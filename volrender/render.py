@@ -40,6 +40,7 @@ class Plan:
     extra: list = field(default_factory=list)
     aovs: tuple = ()                 # layers to return besides rgba
     info: dict = field(default_factory=dict)
+    build_options: tuple = ()        # compiler options for this device (e.g. register caps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,7 +113,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     t_plan = time.perf_counter()
     plan = _planner(scene.kind)(scene, dev, variant)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
-    kernel = dev.kernel(plan.entry, plan.features.flags())
+    kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
     ctx = dev.context
     args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.inputs]
     outs = {name: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * int(np.prod(shape)))
