@@ -8,6 +8,7 @@ origin keep their float32 precision.
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 
@@ -358,13 +359,14 @@ def plan(scene, device, variant=None):
 
 def build_options(features, device) -> tuple:
     """Compiler options of the glass kernel: on NVIDIA (cl_nv_compiler_options) registers
-    are capped at NV_MAX_REGISTERS, except for opaque spheres without lights, where the cap
+    are capped at NV_MAX_REGISTERS ($VOLRENDER_NV_MAX_REGISTERS; 0: no cap), except for opaque spheres without lights, where the cap
     measured slower (docs/DESIGN.md)."""
-    if device is None or not device.has_extension("cl_nv_compiler_options"):
+    cap = int(os.environ.get("VOLRENDER_NV_MAX_REGISTERS", NV_MAX_REGISTERS))
+    if cap <= 0 or device is None or not device.has_extension("cl_nv_compiler_options"):
         return ()
     if not features.refraction and not (features.n_suns or features.n_points or features.uber):
         return ()
-    return (f"-cl-nv-maxrregcount={NV_MAX_REGISTERS}",)
+    return (f"-cl-nv-maxrregcount={cap}",)
 
 
 def kernel_arrays(packed: GlassScene, params, context=None):
