@@ -236,6 +236,7 @@ def test_register_cap_only_where_the_compiler_takes_it(cl_device):
     assert glass.build_options(glassy, nv) == cap
     assert glass.build_options(features.GlassFeatures(refraction=False, n_points=1), nv) == cap
     assert glass.build_options(opaque_unlit, nv) == ()
+    assert glass.build_options(features.GlassFeatures(n_suns=1, colors=True), nv) == ()
     assert glass.build_options(glassy, _Stub("cl_khr_fp64")) == ()
     # the default device (PoCL here) takes no NVIDIA option, and renders
     assert glass.build_options(glassy, cl_device) == () or \

@@ -359,10 +359,13 @@ def plan(scene, device, variant=None):
 
 def build_options(features, device) -> tuple:
     """Compiler options of the glass kernel: on NVIDIA (cl_nv_compiler_options) registers
-    are capped at NV_MAX_REGISTERS ($VOLRENDER_NV_MAX_REGISTERS; 0: no cap), except for opaque spheres without lights, where the cap
-    measured slower (docs/DESIGN.md)."""
+    are capped at NV_MAX_REGISTERS ($VOLRENDER_NV_MAX_REGISTERS; 0: no cap), except with
+    per-point colours and for opaque spheres without lights, where the cap measured slower
+    (docs/DESIGN.md)."""
     cap = int(os.environ.get("VOLRENDER_NV_MAX_REGISTERS", NV_MAX_REGISTERS))
     if cap <= 0 or device is None or not device.has_extension("cl_nv_compiler_options"):
+        return ()
+    if features.colors and not features.uber:
         return ()
     if not features.refraction and not (features.n_suns or features.n_points or features.uber):
         return ()
