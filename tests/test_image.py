@@ -395,3 +395,19 @@ def test_read_errors(tmp_path):
     (tmp_path / 'cut.png').write_bytes(good[:40])
     with pytest.raises(UserError, match='corrupt PNG'):
         read_image(tmp_path / 'cut.png')
+
+
+def test_exr_bytes_do_not_depend_on_threads(tmp_path, rng):
+    import OpenEXR
+    rgba = rng.random((70, 90, 4)).astype(np.float32)
+    rgba[:, :30] = 0.0
+    before = OpenEXR.global_thread_count()
+    try:
+        OpenEXR.set_global_thread_count(1)
+        write_image(tmp_path / "one.exr", rgba)
+        OpenEXR.set_global_thread_count(0)
+        assert image.exr_threads() >= 1
+        write_image(tmp_path / "all.exr", rgba)
+    finally:
+        OpenEXR.set_global_thread_count(before)
+    assert (tmp_path / "one.exr").read_bytes() == (tmp_path / "all.exr").read_bytes()
