@@ -228,7 +228,7 @@ class _Stub:
         return name in self.extensions.split()
 
 
-def test_register_cap_only_where_the_compiler_takes_it(cl_device):
+def test_register_cap_only_where_the_compiler_takes_it(cl_device, monkeypatch):
     cap = (f"-cl-nv-maxrregcount={glass.NV_MAX_REGISTERS}",)
     nv = _Stub("cl_khr_fp64 cl_nv_compiler_options")
     glassy = features.GlassFeatures(n_suns=1)
@@ -238,6 +238,14 @@ def test_register_cap_only_where_the_compiler_takes_it(cl_device):
     assert glass.build_options(opaque_unlit, nv) == ()
     assert glass.build_options(features.GlassFeatures(n_suns=1, colors=True), nv) == ()
     assert glass.build_options(glassy, _Stub("cl_khr_fp64")) == ()
+    monkeypatch.setenv("VOLRENDER_NV_MAX_REGISTERS", "0")
+    assert glass.build_options(glassy, nv) == ()
+    monkeypatch.setenv("VOLRENDER_NV_MAX_REGISTERS", "64")
+    assert glass.build_options(glassy, nv) == ("-cl-nv-maxrregcount=64",)
+    monkeypatch.setenv("VOLRENDER_NV_MAX_REGISTERS", "many")
+    with pytest.raises(UserError, match="VOLRENDER_NV_MAX_REGISTERS"):
+        glass.build_options(glassy, nv)
+    monkeypatch.delenv("VOLRENDER_NV_MAX_REGISTERS")
     # the default device (PoCL here) takes no NVIDIA option, and renders
     assert glass.build_options(glassy, cl_device) == () or \
         cl_device.has_extension("cl_nv_compiler_options")

@@ -362,7 +362,12 @@ def build_options(features, device) -> tuple:
     are capped at NV_MAX_REGISTERS ($VOLRENDER_NV_MAX_REGISTERS; 0: no cap), except with
     per-point colours and for opaque spheres without lights, where the cap measured slower
     (docs/DESIGN.md)."""
-    cap = int(os.environ.get("VOLRENDER_NV_MAX_REGISTERS", NV_MAX_REGISTERS))
+    text = os.environ.get("VOLRENDER_NV_MAX_REGISTERS", "").strip()
+    try:
+        cap = int(text) if text else NV_MAX_REGISTERS
+    except ValueError:
+        raise UserError(f"VOLRENDER_NV_MAX_REGISTERS={text!r} is not an integer",
+                        fix="set it to a register count such as 40, or 0 for no cap") from None
     if cap <= 0 or device is None or not device.has_extension("cl_nv_compiler_options"):
         return ()
     if features.colors and not features.uber:
