@@ -51,6 +51,7 @@
 #include "lights.h"
 #include "env.h"
 #include "track.h"
+#include "accum.h"
 
 #define VR_RR_MAX 0.95f             /* survival probability cap of the path roulette */
 
@@ -92,16 +93,7 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
     (void)cdf;
 
     /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
-    float3 acc = (float3)(0.0f);
-    float acc_alpha = 0.0f, acc_depth = 0.0f, acc_depth_w = 0.0f;
-    if (s0 > 0) {
-        acc = out[pixel].xyz;
-        acc_alpha = out[pixel].w;
-#if VR_DEPTH
-        acc_depth = depth[2 * pixel];
-        acc_depth_w = depth[2 * pixel + 1];
-#endif
-    }
+    VrAccum acc = vr_accum_load(out, depth, pixel, s0);
     for (int s = s0; s < s1; ++s) {
         uint us = (uint)s, dim = 2u;
         float2 j = vr_pixel_jitter(cam, pixel, us);
@@ -117,11 +109,11 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
 #else
         L += sg.w * vp->background.xyz;
 #endif
-        acc_alpha += 1.0f - vr_spec_mean(sg.w);
+        acc.alpha += 1.0f - vr_spec_mean(sg.w);
 #if VR_DEPTH
         if (sg.hit) {
-            acc_depth += sg.tc;
-            acc_depth_w += 1.0f;
+            acc.depth += sg.tc;
+            acc.depth_w += 1.0f;
         }
 #endif
         VrSpec beta = sg.wt;
@@ -200,21 +192,7 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 break;
             }
         }
-        acc += vr_safe_sample(L);
+        acc.rgb += vr_safe_sample(L);
     }
-#if VR_DEPTH
-    depth[2 * pixel + 1] = acc_depth_w;
-#endif
-    if (s1 < cam->spp) {               /* more samples follow in a later launch */
-        out[pixel] = (float4)(acc, acc_alpha);
-#if VR_DEPTH
-        depth[2 * pixel] = acc_depth;
-#endif
-        return;
-    }
-    float inv = 1.0f / (float)cam->spp;
-    out[pixel] = (float4)(acc * inv, acc_alpha * inv);
-#if VR_DEPTH
-    depth[2 * pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
-#endif
+    vr_accum_store(out, depth, pixel, acc, s1, cam->spp);
 }

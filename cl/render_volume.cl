@@ -33,6 +33,7 @@
 #include "lights.h"
 #include "env.h"
 #include "march.h"
+#include "accum.h"
 
 #define VR_T_CUTOFF 1e-5f          /* stop marching once the view transmittance is below */
 
@@ -73,16 +74,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
     float dt = vp->step;
 
     /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
-    float3 acc = (float3)(0.0f);
-    float acc_alpha = 0.0f, acc_depth = 0.0f, acc_depth_w = 0.0f;
-    if (s0 > 0) {
-        acc = out[pixel].xyz;
-        acc_alpha = out[pixel].w;
-#if VR_DEPTH
-        acc_depth = depth[2 * pixel];
-        acc_depth_w = depth[2 * pixel + 1];
-#endif
-    }
+    VrAccum acc = vr_accum_load(out, depth, pixel, s0);
     for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 dir = vr_camera_dir(cam, x, y, j.x, j.y);    /* world */
@@ -220,24 +212,10 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
         L += T * vp->background.xyz;
 #endif
 #endif
-        acc += vr_safe_sample(L);
-        acc_alpha += 1.0f - vr_spec_mean(T);
-        acc_depth += dsum;
-        acc_depth_w += dw;
+        acc.rgb += vr_safe_sample(L);
+        acc.alpha += 1.0f - vr_spec_mean(T);
+        acc.depth += dsum;
+        acc.depth_w += dw;
     }
-#if VR_DEPTH
-    depth[2 * pixel + 1] = acc_depth_w;
-#endif
-    if (s1 < cam->spp) {               /* more samples follow in a later launch */
-        out[pixel] = (float4)(acc, acc_alpha);
-#if VR_DEPTH
-        depth[2 * pixel] = acc_depth;
-#endif
-        return;
-    }
-    float inv = 1.0f / (float)cam->spp;
-    out[pixel] = (float4)(acc * inv, acc_alpha * inv);
-#if VR_DEPTH
-    depth[2 * pixel] = acc_depth_w > 0.0f ? acc_depth / acc_depth_w : INFINITY;
-#endif
+    vr_accum_store(out, depth, pixel, acc, s1, cam->spp);
 }
