@@ -260,3 +260,51 @@ def test_build_timing(n):
         print(f"\nbuild n={n} axis={axis}: {time.perf_counter() - t0:.2f} s "
               f"(depth {t.depth}, {os.cpu_count()} CPUs)")
     check_invariants(t, pc.centers, pc.radii)
+
+
+def _sorting_reference(centers, depth, axis):
+    """The first build: one argsort per level of (node, rank along the node's axis)."""
+    n = len(centers)
+    start = np.zeros(2 << depth, np.int64)
+    count = np.zeros(2 << depth, np.int64)
+    start[1], count[1] = 0, n
+    rank = np.empty((3, n), np.int64)
+    for a in range(3):
+        rank[a, np.argsort(centers[:, a])] = np.arange(n)
+    order, pts = np.arange(n), centers.copy()
+    for d in range(depth):
+        first = 1 << d
+        s, c = start[first:2 * first], count[first:2 * first]
+        node = np.repeat(np.arange(first), c)
+        if axis == "cycle":
+            ax = np.full(first, d % 3)
+        else:
+            ax = np.zeros(first, np.int64)
+            full = c > 0
+            idx = s[full]
+            ext = np.maximum.reduceat(pts, idx, axis=0) - np.minimum.reduceat(pts, idx, axis=0)
+            ax[full] = np.argmax(ext, axis=1)
+        key = rank[ax[node], np.arange(n)]
+        perm = np.argsort(node * n + key)
+        order, pts, rank = order[perm], pts[perm], rank[:, perm]
+        left = (c + 1) // 2
+        kids = np.arange(2 * first, 4 * first)
+        start[kids[0::2]], count[kids[0::2]] = s, left
+        start[kids[1::2]], count[kids[1::2]] = s + left, c - left
+    return order, start, count
+
+
+@pytest.mark.parametrize("axis", ["longest", "cycle"])
+@pytest.mark.parametrize("n, leaf, dup", [(1, 1, 0), (7, 1, 0), (1000, 8, 0), (3001, 16, 0),
+                                          (2000, 4, 3), (513, 2, 40)])
+def test_partition_equals_the_sorting_build(n, leaf, dup, axis):
+    rng = np.random.default_rng(n + leaf + dup)
+    c = rng.standard_normal((n, 3)) * [3.0, 1.0, 0.2]
+    if dup:                                   # coincident points and shared coordinates
+        c[rng.integers(0, n, n // 2)] = c[rng.integers(0, dup, n // 2)]
+        c[:, 1] = np.round(c[:, 1], 1)
+    depth = tree_depth(n, leaf)
+    t = build(c, 0.1, leaf, axis=axis)
+    order, start, count = _sorting_reference(c, depth, axis)
+    assert np.array_equal(t.order, order)
+    assert np.array_equal(t.start, start) and np.array_equal(t.count, count)

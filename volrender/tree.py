@@ -11,8 +11,10 @@ Node bounds are the AABB of (center +- radius) of the node's spheres, inflated
 by ``margin`` on every side (the blend's support width, so that every sphere that
 can influence a point is found).  Empty nodes have lo = +inf, hi = -inf.
 
-The build is vectorised level by level: per level one argsort of an integer key
-(node, rank of the point along the node's split axis), no Python work per node.
+The build is vectorised level by level, with no Python work per node: the points are
+sorted once along each axis, and each level splits every node's three sorted lists
+stably into its children's (a cumulative sum and a scatter per list), so no level sorts.
+Within a leaf, points stay in the order of its parent's split axis.
 """
 from __future__ import annotations
 
@@ -94,53 +96,65 @@ def build(centers, radii, leaf_size: int = 8, margin: float = 0.0,
                         fix="remove or repair NaN/Inf points and negative radii")
 
     depth = tree_depth(n, int(leaf_size))
-    size = 2 << depth
-    start = np.zeros(size, dtype=np.int64)
-    count = np.zeros(size, dtype=np.int64)
-    start[1], count[1] = 0, n
-
-    # rank[a, k]: rank of the k-th point of ``order`` when all points are sorted
-    # along axis a (ties broken arbitrarily but distinctly, so coincident points
-    # still split exactly in half).  ``rank`` and ``pts`` are permuted along with
-    # ``order``, so each level reads them sequentially.
-    rank = np.empty((3, n), dtype=np.int64)
-    for a in range(3):
-        rank[a, np.argsort(centers[:, a])] = np.arange(n)
-    order = np.arange(n, dtype=np.int64)
-    pts = centers.copy()
-    for d in range(depth):
-        first = 1 << d
-        s, c = start[first:2 * first], count[first:2 * first]
-        node = np.repeat(np.arange(first, dtype=np.int64), c)   # level-local node per position
-        if axis == "cycle":
-            key = rank[d % 3]
-        else:
-            ax = _longest_axes(pts, s, c)[node]
-            key = np.where(ax == 0, rank[0], np.where(ax == 1, rank[1], rank[2]))
-        perm = np.argsort(node * n + key)
-        order = order[perm]
-        pts = np.take(pts, perm, axis=0)
-        rank = np.take(rank, perm, axis=1)
-        left = (c + 1) // 2
-        kids = np.arange(2 * first, 4 * first)
-        start[kids[0::2]], count[kids[0::2]] = s, left
-        start[kids[1::2]], count[kids[1::2]] = s + left, c - left
-
+    order, start, count = _partition(centers, depth, axis)
+    pts = centers[order]
     lo, hi = _bounds(pts, radii[order], start, count, depth, margin)
     return Tree(lo=lo, hi=hi, start=start, count=count, depth=depth,
                 leaf_size=int(leaf_size), margin=margin, n_points=n, order=order)
 
 
-def _longest_axes(pts, s, c):
-    """Per node of one level: the axis of the largest extent of its centres
-    (``pts`` are the centres in ``order``; node k covers pts[s[k]:s[k]+c[k]])."""
-    axes = np.zeros(len(s), dtype=np.int64)
-    full = c > 0
-    if full.any():
-        idx = s[full]
-        ext = np.maximum.reduceat(pts, idx, axis=0) - np.minimum.reduceat(pts, idx, axis=0)
-        axes[full] = np.argmax(ext, axis=1)
-    return axes
+def _partition(centers, depth, axis):
+    """(order, start, count) of the median splits down to depth. Each level takes per
+    node the axis of the longest extent of its centres ('cycle': d % 3), sends the first
+    ceil(c/2) points along it left, and splits the three sorted lists stably into the
+    children's (ties along an axis keep the order of the first argsort, so coincident
+    points still split exactly in half)."""
+    n = len(centers)
+    size = 2 << depth
+    start = np.zeros(size, dtype=np.int64)
+    count = np.zeros(size, dtype=np.int64)
+    start[1], count[1] = 0, n
+    it = np.int32 if n < 2 ** 31 else np.int64
+    by_axis = [np.argsort(centers[:, a]).astype(it) for a in range(3)]
+    coords = np.ascontiguousarray(centers.T)
+    pos = np.arange(n, dtype=it)
+    order = pos.astype(np.int64)
+    is_left = np.empty(n, dtype=bool)
+    for d in range(depth):
+        first = 1 << d
+        s, c = start[first:2 * first], count[first:2 * first]
+        if axis == "cycle":
+            ax = np.full(first, d % 3)
+        else:
+            ext = np.zeros((first, 3))
+            full = np.nonzero(c > 0)[0]
+            lo_i, hi_i = s[full], s[full] + c[full] - 1
+            for a in range(3):
+                ext[full, a] = coords[a][by_axis[a][hi_i]] - coords[a][by_axis[a][lo_i]]
+            ax = np.argmax(ext, axis=1)
+        node = np.repeat(np.arange(first, dtype=it), c)     # level-local node per position
+        s_node = s.astype(it)[node]
+        rel = pos - s_node
+        left = (c + 1) // 2
+        left_node = left.astype(it)[node]
+        ax_node = ax[node]
+        split = np.where(ax_node == 0, by_axis[0], np.where(ax_node == 1, by_axis[1], by_axis[2]))
+        kids = np.arange(2 * first, 4 * first)
+        start[kids[0::2]], count[kids[0::2]] = s, left
+        start[kids[1::2]], count[kids[1::2]] = s + left, c - left
+        if d == depth - 1:
+            order = split.astype(np.int64)
+            break
+        is_left[split] = rel < left_node
+        for a in range(3):
+            f = is_left[by_axis[a]]
+            before = np.cumsum(f, dtype=it)
+            lefts_before_node = np.concatenate([np.zeros(1, it), before])[s].astype(it)[node]
+            lb = before - f - lefts_before_node              # lefts before, within the node
+            moved = np.empty(n, dtype=it)
+            moved[s_node + np.where(f, lb, left_node + rel - lb)] = by_axis[a]
+            by_axis[a] = moved
+    return order, start, count
 
 
 def _bounds(pts, rad, start, count, depth, margin):
