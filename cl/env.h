@@ -2,9 +2,12 @@
    (glass.h) and volumes, and the importance sampling of a map by the volume kernels.
    Convention: u = 0.5 + atan2(x, -z) / 2pi (the image centre looks along -z),
    v = acos(y) / pi (the top row looks up); texel (i, j) covers u in [j, j+1)/W,
-   v in [i, i+1)/H. Directions are world directions. No flags. */
+   v in [i, i+1)/H. Directions are world directions. The volume helpers at the end
+   read VR_ENV (0 none, 1 uniform, 2 a map). */
 #ifndef VR_ENV_H
 #define VR_ENV_H
+
+#include "structs.h"
 
 inline float3 vr_env_map(__global const float4* env, int w, int h, float3 d)
 {
@@ -82,6 +85,30 @@ inline float3 vr_env_sample(__global const float* cdf, int w, int h, float u0, f
                           ((float)i + clamp(fv, 0.0f, 1.0f)) / (float)h);
     *pdf = vr_env_pdf(cdf, w, h, d);
     return d;
+}
+
+/* Volumes: the environment's radiance along world direction w (towards it), and what
+   a ray leaving the medium sees: the background, plus the environment where it is
+   visible (VolumeParams.env_visible). */
+inline float3 vr_env_radiance(__constant VolumeParams* vp, __global const float4* env, float3 w)
+{
+#if defined(VR_ENV) && VR_ENV == 1
+    (void)env; (void)w;
+    return vp->env_radiance.xyz;
+#else
+    return vr_env_map(env, vp->env_width, vp->env_height, w);
+#endif
+}
+
+inline float3 vr_volume_behind(__constant VolumeParams* vp, __global const float4* env,
+                               float3 w)
+{
+#if defined(VR_ENV) && VR_ENV
+    return vp->background.xyz + vp->env_visible * vr_env_radiance(vp, env, w);
+#else
+    (void)env; (void)w;
+    return vp->background.xyz;
+#endif
 }
 
 #endif

@@ -96,17 +96,6 @@ inline float3 vr_inscatter(const VrGrid* g, __constant VolumeParams* vp,
 #endif
 
 #if VR_ENV
-/* Environment radiance arriving along world direction w (towards the environment). */
-inline float3 vr_env_radiance(__constant VolumeParams* vp, __global const float4* env, float3 w)
-{
-#if VR_ENV == 1
-    (void)env; (void)w;
-    return vp->env_radiance.xyz;
-#else
-    return vr_env_map(env, vp->env_width, vp->env_height, w);
-#endif
-}
-
 /* The environment's single-scattered light at local p, `d` the camera ray's world
    direction, from one direction per step: drawn from the phase (octave 0), or (a map)
    from the phase or the map with probability 1/2 each, weighted by the mixture density

@@ -55,18 +55,6 @@
 
 #define VR_RR_MAX 0.95f             /* survival probability cap of the path roulette */
 
-#if VR_ENV
-inline float3 vr_path_env(__constant VolumeParams* vp, __global const float4* env, float3 w)
-{
-#if VR_ENV == 1
-    (void)env; (void)w;
-    return vp->env_radiance.xyz;
-#else
-    return vr_env_map(env, vp->env_width, vp->env_height, w);
-#endif
-}
-#endif
-
 __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
                           __constant Light* lights,
                           __global const int* table, __global const float* data,
@@ -104,11 +92,7 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
         vr_segment(&g, majorant, emission, temperature, bb, vp, o, d, fmax(tt.x, 0.0f), tt.y,
                    1, 1, scatters, 1.0f, seed, pixel, us, &dim, &sg);
         float3 L = sg.le;
-#if VR_ENV
-        L += sg.w * (vp->background.xyz + vp->env_visible * vr_path_env(vp, env, dir));
-#else
-        L += sg.w * vp->background.xyz;
-#endif
+        L += sg.w * vr_volume_behind(vp, env, dir);
         acc.alpha += 1.0f - vr_spec_mean(sg.w);
 #if VR_DEPTH
         if (sg.hit) {
@@ -154,7 +138,7 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
                     VrSpec tr = vr_shadow_ratio(&g, majorant, vp, xp, dl, INFINITY, seed, pixel,
                                                 us, &dim);
                     float r = ph / pe;              /* power heuristic, overflow-safe */
-                    Lk += (r / (1.0f + r * r)) * tr * vr_path_env(vp, env, we);
+                    Lk += (r / (1.0f + r * r)) * tr * vr_env_radiance(vp, env, we);
                 }
             }
 #endif
@@ -179,7 +163,7 @@ __kernel void path_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 float r = pe / ph;
                 mis = 1.0f / (1.0f + r * r);
 #endif
-                Lk += mis * sg.w * vr_path_env(vp, env, wn);
+                Lk += mis * sg.w * vr_env_radiance(vp, env, wn);
 #endif
                 L += b * Lk;
                 if (last)

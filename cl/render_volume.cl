@@ -149,11 +149,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 T *= 1.0f - a;
             }
         }
-#if VR_ENV
-        L += T * (vp->background.xyz + vp->env_visible * vr_env_radiance(vp, env, dir));
-#else
-        L += T * vp->background.xyz;
-#endif
+        L += T * vr_volume_behind(vp, env, dir);
 #else
         float3 L = (float3)(0.0f);
         float T = 1.0f, dsum = 0.0f, dw = 0.0f;
@@ -206,11 +202,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 T *= 1.0f - a;
             }
         }
-#if VR_ENV
-        L += T * (vp->background.xyz + vp->env_visible * vr_env_radiance(vp, env, dir));
-#else
-        L += T * vp->background.xyz;
-#endif
+        L += T * vr_volume_behind(vp, env, dir);
 #endif
         acc.rgb += vr_safe_sample(L);
         acc.alpha += 1.0f - vr_spec_mean(T);
