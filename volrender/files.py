@@ -74,3 +74,17 @@ def refuse_overwrite(output, inputs, command: str = "render", shown=None):
                             f"{command} would overwrite its own input",
                             path=shown if shown is not None else _shown(output),
                             fix="write to another file name")
+
+
+def npy_header(f):
+    """(shape, dtype, offset of the data) of the .npy stream f, read without the data."""
+    import numpy as np
+    fmt = np.lib.format
+    version = fmt.read_magic(f)
+    if version == (1, 0):
+        shape, _, dtype = fmt.read_array_header_1_0(f)
+    elif version == (2, 0):
+        shape, _, dtype = fmt.read_array_header_2_0(f)
+    else:
+        shape, _, dtype = fmt._read_array_header(f, version)
+    return shape, dtype, f.tell()

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
-from .files import check_input
+from .files import check_input, npy_header
 
 __all__ = ["PointCloud", "load_points", "blob", "uniform_box", "glass_gather",
            "generate", "GENERATORS"]
@@ -495,17 +495,9 @@ def _all_numbers(tokens) -> bool:
 def load_npy_checked(path, fix: str):
     """np.load of a .npy file once its header agrees with the file's size (a header that
     claims more than the file holds would otherwise ask for that much memory first)."""
-    fmt = np.lib.format
     try:
         with open(path, "rb") as f:
-            version = fmt.read_magic(f)
-            if version == (1, 0):
-                shape, _, dtype = fmt.read_array_header_1_0(f)
-            elif version == (2, 0):
-                shape, _, dtype = fmt.read_array_header_2_0(f)
-            else:
-                shape, _, dtype = fmt._read_array_header(f, version)
-            start = f.tell()
+            shape, dtype, start = npy_header(f)
         size = Path(path).stat().st_size
         if dtype.hasobject:
             raise UserError("the array holds Python objects, which volrender does not unpickle",

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError, printable
-from .files import check_input
+from .files import check_input, npy_header
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
@@ -627,19 +627,11 @@ class Bricks:
 def _check_npz_members(z, size):
     """Every member's .npy header must agree with the member's stored size (a lying
     header would make numpy allocate what it claims before reading)."""
-    fmt = np.lib.format
     for info in z.zip.infolist():
         if info.file_size > (1 << 40) or info.compress_size > size:
             return f"member {info.filename!r} claims {info.file_size} bytes"
         with z.zip.open(info) as f:
-            version = fmt.read_magic(f)
-            if version == (1, 0):
-                shape, _, dtype = fmt.read_array_header_1_0(f)
-            elif version == (2, 0):
-                shape, _, dtype = fmt.read_array_header_2_0(f)
-            else:
-                shape, _, dtype = fmt._read_array_header(f, version)
-            start = f.tell()
+            shape, dtype, start = npy_header(f)
         need = math.prod(shape) * dtype.itemsize
         if need != info.file_size - start:
             return (f"member {info.filename!r}: its header says shape {shape} of {dtype}, "
