@@ -377,26 +377,52 @@ inline int sdf_step_sample(const SdfScene* sc, float3 o, float3 d, float3 inv_d,
 
 /* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
    Hit when side * F < eps * (base + t); safe step r = (side * F) / lip. With relax w > 1
-   the step is w r (over-relaxed sphere tracing); when the safe balls of two consecutive
-   points do not overlap (r + r_prev < step) the step went too far: go back to the plain
-   step and stay at w = 1. No surface is skipped either way. With VR_GRID, cells of the
-   ray's side are crossed without evaluations (they hold no hit: |F| > tau there); a skip
-   restarts the relaxation and counts against max_skips, not max_steps. Returns 1 on a hit
-   with *t and *s at the hit; else 0 with *t where marching stopped (<= t1). */
-inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
-                     float eps, float base, int max_steps, float relax, float* t_out,
-                     SdfSample* s_out)
+   the step is w r (over-relaxed sphere tracing). A relaxed step reaches beyond the last
+   safe ball, so it is checked before it is kept: when the safe balls of two consecutive
+   points do not overlap (r + r_prev < step), when it ends past t1 (the box exit) or when
+   it ends in a cell the ray would skip, neither of which is evaluated, the march goes
+   back to the plain step and stays at w = 1. No surface is skipped either way. With
+   VR_GRID, cells of the ray's side are crossed without evaluations (they hold no hit:
+   |F| > tau there); a skip restarts the relaxation and counts against max_skips, not
+   max_steps. cone > 0 (shadow rays): *vis also keeps the minimum of side * F / (cone t)
+   over the evaluated points, and of a skipped cell's bound at its exit.
+   Returns 1 on a hit with *t and *s at the hit; else 0 with *t where marching stopped
+   (<= t1). */
+inline int sdf_march(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
+                     float eps, float base, int max_steps, float relax, float cone,
+                     float* vis, float* t_out, SdfSample* s_out)
 {
     float t = t0, w = relax, step = 0.0f, r_prev = 0.0f;
 #if VR_GRID
     float3 inv_d = 1.0f / d;
     int skips = 0;
 #endif
-    for (int i = 0; i < max_steps && t <= t1;) {
+    for (int i = 0; i < max_steps;) {
+        int past = !(t <= t1);
         SdfSample s;
 #if VR_GRID
-        float bound, t_exit;
-        if (!sdf_step_sample(sc, o, d, inv_d, side, &t, &skips, &s, &bound, &t_exit)) {
+        float bound = 0.0f, t_exit = t, t_next = t;
+        int skip = !past && !sdf_step_sample(sc, o, d, inv_d, side, &t_next, &skips, &s,
+                                             &bound, &t_exit);
+#else
+        int skip = 0;
+#endif
+        if ((past || skip) && w > 1.0f && step > 0.0f) {
+            t -= step - step / w;              /* back to the plain step: safe */
+            step /= w;
+            w = 1.0f;
+#if VR_GRID
+            skips -= skip;
+#endif
+            continue;
+        }
+        if (past)
+            break;
+#if VR_GRID
+        if (skip) {
+            if (cone > 0.0f)
+                *vis = fmin(*vis, bound / (cone * fmin(t_exit, t1)));
+            t = t_next;
             step = 0.0f;
             r_prev = 0.0f;
             if (skips > sc->max_skips)
@@ -420,12 +446,24 @@ inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1,
             *s_out = s;
             return 1;
         }
+        if (cone > 0.0f)
+            *vis = fmin(*vis, f / (cone * fmax(t, 1e-30f)));
         step = w * r;
         r_prev = r;
         t += step;
     }
     *t_out = fmin(t, t1);
     return 0;
+}
+
+/* sdf_march without the penumbra: primary, reflected and refracted rays. */
+inline int sdf_trace(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
+                     float eps, float base, int max_steps, float relax, float* t_out,
+                     SdfSample* s_out)
+{
+    float vis = 1.0f;
+    return sdf_march(sc, o, d, t0, t1, side, eps, base, max_steps, relax, 0.0f, &vis, t_out,
+                     s_out);
 }
 
 #endif

@@ -42,54 +42,20 @@ inline int glass_trace(const SdfScene* sc, __constant GlassParams* gp, float3 o,
 /* Visibility of a light along o + t d, t < tmax: 0 when the ray hits glass. Hard with
    shadow_cone 0; else soft: min over the march of F / (cone t), the fraction of a cone
    of half-angle atan(cone) around the ray that the glass leaves open (Quilez's penumbra
-   estimate; an approximation, exact only for the hard limit). Over-relaxed like
-   sdf_trace, with the same fallback, so thin glass is not stepped over. With VR_GRID the
-   ray skips cells outside the glass as sdf_trace does; a skipped cell enters the
-   penumbra estimate with its lower bound at its exit (bound / (cone t_exit) <= F / (cone t)
-   there: never brighter than the evaluated points would say). */
+   estimate; an approximation, exact only for the hard limit). The march is sdf_march's
+   (over-relaxed, cells skipped); a skipped cell enters the penumbra estimate with its
+   lower bound at its exit (bound / (cone t_exit) <= F / (cone t) there: never brighter
+   than the evaluated points would say). */
 inline float glass_shadow(const SdfScene* sc, __constant GlassParams* gp, float3 o, float3 d,
                           float base, float tmax)
 {
     float2 tt = vr_ray_box(o, 1.0f / d, gp->box_lo.xyz, gp->box_hi.xyz);
-    float t = fmax(tt.x, 0.0f), t1 = fmin(tt.y, tmax);
-    float cone = gp->shadow_cone, vis = 1.0f;
-    float w = gp->relax, step = 0.0f, r_prev = 0.0f;
-#if VR_GRID
-    float3 inv_d = 1.0f / d;
-    int skips = 0;
-#endif
-    for (int i = 0; i < gp->max_steps && t <= t1;) {
-        SdfSample s;
-#if VR_GRID
-        float bound, t_exit;
-        if (!sdf_step_sample(sc, o, d, inv_d, 1.0f, &t, &skips, &s, &bound, &t_exit)) {
-            if (cone > 0.0f)
-                vis = fmin(vis, bound / (cone * fmin(t_exit, t1)));
-            step = 0.0f;
-            r_prev = 0.0f;
-            if (skips > sc->max_skips)
-                break;
-            continue;
-        }
-#else
-        s = sdf_eval(sc, o + t * d);
-#endif
-        ++i;
-        float r = s.f / s.lip;
-        if (w > 1.0f && r + r_prev < step) {
-            t -= step - step / w;              /* back to the plain step */
-            step /= w;
-            w = 1.0f;
-            continue;
-        }
-        if (s.f < gp->epsilon * (base + t))
-            return 0.0f;
-        if (cone > 0.0f)
-            vis = fmin(vis, s.f / (cone * fmax(t, 1e-30f)));
-        step = w * r;
-        r_prev = r;
-        t += step;
-    }
+    float t0 = fmax(tt.x, 0.0f), t1 = fmin(tt.y, tmax);
+    float vis = 1.0f, t;
+    SdfSample s;
+    if (t0 <= t1 && sdf_march(sc, o, d, t0, t1, 1.0f, gp->epsilon, base, gp->max_steps,
+                              gp->relax, gp->shadow_cone, &vis, &t, &s))
+        return 0.0f;
     /* smooth the ratio into a penumbra weight */
     vis = clamp(vis, 0.0f, 1.0f);
     return vis * vis * (3.0f - 2.0f * vis);

@@ -62,20 +62,22 @@ __kernel void lip(PROBE_ARGS, __global const float4* pts, __global float4* out)
     out[i] = (float4)(length(s.grad), s.lip, s.f, 0.0f);
 }
 
-/* o.w: side (+1 outside, -1 inside glass); d.w: relax. out: unit normal, t (-1: no hit) */
-__kernel void trace(PROBE_ARGS, __global const float4* o, __global const float4* d,
-                    __global float4* out)
+/* o.w: side (+1 outside, -1 inside glass); d.w: relax; march over [0, t1] with penumbra
+   cone `cone`. out: unit normal, t (-1: no hit); vis: the penumbra ratio (1: none) */
+__kernel void trace(PROBE_ARGS, __global const float4* o, __global const float4* d, float t1,
+                    float cone, __global float* vis, __global float4* out)
 {
     int i = get_global_id(0);
     SdfScene sc = PROBE_SCENE;
-    float t;
+    float t, v = 1.0f;
     SdfSample s;
     float side = o[i].w != 0.0f ? o[i].w : 1.0f, relax = d[i].w != 0.0f ? d[i].w : 1.0f;
-    int hit = sdf_trace(&sc, o[i].xyz, d[i].xyz, 0.0f, 100.0f, side, gp->epsilon, 1.0f, 1024,
-                        relax, &t, &s);
+    int hit = sdf_march(&sc, o[i].xyz, d[i].xyz, 0.0f, t1, side, gp->epsilon, 1.0f, 1024,
+                        relax, cone, &v, &t, &s);
     float gl = length(s.grad);
     float3 g = gl > 0.0f ? s.grad / gl : (float3)(0.0f);
     out[i] = hit ? (float4)(g, t) : (float4)(0.0f, 0.0f, 0.0f, -1.0f);
+    vis[i] = v;
 }
 
 /* in: incident direction xyz, eta w; normal +z. out: refracted xyz (0 on TIR), Fresnel w */
@@ -125,15 +127,21 @@ class Probe:
                                hostbuf=np.ascontiguousarray(a))
                      for a in (spheres, p.nodes, params, *grid)]
 
-    def _run(self, name, *arrays, n_out):
+    def _run(self, name, *arrays, n_out, scalars=(), n_vis=0):
         mf = cl.mem_flags
         ctx = self.dev.context
         extra = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                  for a in arrays]
         out = np.zeros((n_out, 4), np.float32)
         d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-        self.kernels[name](self.dev.queue, (n_out,), None, *self.bufs, *extra, d_out)
+        vis = np.zeros(max(n_vis, 1), np.float32)
+        d_vis = [cl.Buffer(ctx, mf.WRITE_ONLY, vis.nbytes)] if n_vis else []
+        self.kernels[name](self.dev.queue, (n_out,), None, *self.bufs, *extra,
+                           *(np.float32(v) for v in scalars), *d_vis, d_out)
         cl.enqueue_copy(self.dev.queue, out, d_out)
+        if n_vis:
+            cl.enqueue_copy(self.dev.queue, vis, d_vis[0])
+            self.vis = vis
         return out
 
     def field(self, x):
@@ -146,11 +154,12 @@ class Probe:
         out = self._run("lip", f4(np.asarray(x) - self.scene.centre), n_out=len(x))
         return out[:, 0], out[:, 1], out[:, 2]
 
-    def trace(self, o, d, side=1.0, relax=1.0):
-        """(t or -1, unit normal) of sphere tracing world rays o + t d (threshold: the
-        settings' epsilon times (1 + t))."""
+    def trace(self, o, d, side=1.0, relax=1.0, t1=100.0, cone=0.0):
+        """(t or -1, unit normal) of sphere tracing world rays o + t d over [0, t1]
+        (threshold: the settings' epsilon times (1 + t)); with cone > 0 self.vis holds each
+        ray's penumbra ratio (the shadow rays' march)."""
         out = self._run("trace", f4(np.asarray(o) - self.scene.centre, side), f4(d, relax),
-                        n_out=len(o))
+                        n_out=len(o), scalars=(t1, cone), n_vis=len(o))
         return out[:, 3], out[:, :3]
 
 
