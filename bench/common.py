@@ -92,3 +92,18 @@ def device_tag(dev) -> str:
     name = dev.device.name.lower()
     return "gpu-" + "".join(c for c in name if c.isalnum())[:16] if "nvidia" in dev.name.lower() \
         else "pocl"
+
+
+def render_points(cloud, camera, lights, settings, device, variant=None) -> dict:
+    """A PointCloud rendered through the public path (Scene.of, render): Image.as_dict()."""
+    from volrender.render import render
+    from volrender.scene import GlassContent, Scene
+    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
+    return render(scene, device, variant=variant).as_dict()
+
+
+def render_volume(bricks, camera, lights, settings, device) -> dict:
+    """Bricks rendered through the public path (Scene.of, render): Image.as_dict()."""
+    from volrender.render import render
+    from volrender.scene import Scene, VolumeContent
+    return render(Scene.of(camera, lights, VolumeContent(bricks, settings)), device).as_dict()

@@ -61,11 +61,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+from bench.common import (render_points, render_volume, RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings, render_volume  # noqa: E402
+from volrender.volume import VolumeSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
@@ -474,7 +474,7 @@ def describe_glass(s: glass.GlassSettings) -> dict:
 def run_glass(dev, width, height, args, record):
     for i, (name, cloud, cam, lights, base) in enumerate(glass_scenes(width, height, args.quick)):
         t0 = time.perf_counter()
-        r = glass.render_points(cloud, cam, lights, replace(base, **GLASS_REF), dev)
+        r = render_points(cloud, cam, lights, replace(base, **GLASS_REF), dev)
         ref = r["rgba"].astype(np.float64)
         summary = {**describe_glass(replace(base, **GLASS_REF)), "kernel_ms": r["kernel_ms"],
                    "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
@@ -485,7 +485,7 @@ def run_glass(dev, width, height, args, record):
         record["glass"].append(scene)
         settings = [(g, lab, replace(base, **kw))
                     for g, lab, kw in glass_settings(args.quick, isolated=i == 0)]
-        done = sweep([(j, (lambda st=st: glass.render_points(cloud, cam, lights, st, dev)))
+        done = sweep([(j, (lambda st=st: render_points(cloud, cam, lights, st, dev)))
                       for j, (_, _, st) in enumerate(settings)], args.repeat, args.basis)
         for j, (group, label, st) in enumerate(settings):
             img, t = done[j]

@@ -44,11 +44,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+from bench.common import (render_volume, RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
 from volrender import camera as camera_mod, device, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings, render_volume  # noqa: E402
+from volrender.volume import VolumeSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_FILE = shared_data() / "vdb" / "smoke.vdb"

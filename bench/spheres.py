@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import CONVERTED, device_info, result_path, shared_data, stats, write_json  # noqa: E402
+from bench.common import render_points, CONVERTED, device_info, result_path, shared_data, stats, write_json  # noqa: E402
 from volrender import device, glass, points  # noqa: E402
 from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
@@ -78,14 +78,14 @@ def measure(cloud, cam, settings, dev, repeat, lights, cache, variant=None):
     packed = cache(cloud, settings, eye=cam.origin, device=dev,
                    samples=cam.width * cam.height * settings.spp)
     build_s = time.perf_counter() - t0
-    glass.render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings,
+    render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings,
                         dev, variant=variant)
     kernel, wall = [], []
     for _ in range(repeat):
-        r = glass.render_points(cloud, cam, lights, settings, dev, variant=variant)
+        r = render_points(cloud, cam, lights, settings, dev, variant=variant)
         kernel.append(r["kernel_ms"])
         wall.append(r["wall_ms"])
-    counts = glass.render_points(cloud, cam, lights, settings, dev, variant="stats")["rgba"]
+    counts = render_points(cloud, cam, lights, settings, dev, variant="stats")["rgba"]
     cache.clear()
     out = {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "accel_used": packed.accel,
            "build": {"total_ms": 1e3 * build_s, "tree_ms": packed.tree_ms,
@@ -193,7 +193,7 @@ def main(argv=None):
     cache = Cached()
     glass.pack_scene = cache
     warm = points.blob(50, seed=1)        # builds the cells builder's program once
-    glass.render_points(warm, glass.default_camera(warm, 8, 8), [], glass.GlassSettings(), dev)
+    render_points(warm, glass.default_camera(warm, 8, 8), [], glass.GlassSettings(), dev)
 
     def save():          # after every row, so a run cut short still leaves its data
         return write_json(path, {"benchmark": "spheres", "size": [width, height],

@@ -33,12 +33,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import (RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+from bench.common import (render_volume, RESULTS, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
 from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings, occupied_bricks, render_volume, volume_params  # noqa: E402
+from volrender.volume import VolumeSettings, occupied_bricks, volume_params  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # density scale per file, chosen so optical depths are cloud-like (see README)

@@ -6,8 +6,9 @@ import pytest
 
 from volrender import blackbody as bb, vdb
 from volrender.camera import Camera
-from volrender.volume import VolumeSettings, render_volume
+from volrender.volume import VolumeSettings
 from volrender.vdb import Bricks
+from helpers import render_volume
 
 # Planckian locus (CIE 1931 x, y), as tabulated (c2 = 1.4388e-2 m K)
 LOCUS = {1000: (0.6528, 0.3444), 1500: (0.5857, 0.3931), 2000: (0.5267, 0.4133),

@@ -12,6 +12,7 @@ from volrender import cells, cli, glass, points, reference
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
+from helpers import render_points
 
 FAST = settings(max_examples=25, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -28,7 +29,7 @@ def packed(dev, cloud, **kw):
 
 def render(dev, cloud, size=(20, 20), cam=None, lights=LIGHTS, **kw):
     cam = cam or glass.default_camera(cloud, *size, radius=kw.get("radius"))
-    return glass.render_points(cloud, cam, list(lights), glass.GlassSettings(**kw), dev)["rgba"]
+    return render_points(cloud, cam, list(lights), glass.GlassSettings(**kw), dev)["rgba"]
 
 
 def differ(a, b, atol=2e-3):
@@ -259,7 +260,7 @@ def test_camera_inside_glass_reads_its_cell(cl_device):
 def test_too_many_list_entries_fall_back_to_the_tree(cl_device, monkeypatch):
     monkeypatch.setattr(cells, "MAX_ITEMS", 10)
     cloud = points.blob(200, seed=1)
-    r = glass.render_points(cloud, glass.default_camera(cloud, 8, 8), [],
+    r = render_points(cloud, glass.default_camera(cloud, 8, 8), [],
                             glass.GlassSettings(bounces=1), cl_device)
     assert r["accel"] == "tree" and "tree walk" in r["note"]
     assert np.isfinite(r["rgba"]).all()

@@ -26,8 +26,9 @@ from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
-from volrender.volume import VolumeSettings, occupied_bricks, render_volume, volume_params
+from volrender.volume import VolumeSettings, occupied_bricks, volume_params
 from volrender.vdb import Bricks
+from helpers import render_volume
 
 VOX = 0.1
 LIGHTS = [Sun((-1.0, -0.5, -0.3), 2.0), PointLight((0.3, 4.0, 0.2), 40.0)]

@@ -10,12 +10,13 @@ from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.image import write_image
 from volrender.lights import Sun
-from volrender.scene import Environment, Scene, VolumeContent
+from volrender.environment import Environment, env_distribution, env_mode, env_weights
+from volrender.scene import Scene, VolumeContent
 from volrender.vdb import Bricks
-from volrender.volume import (VolumeSettings, env_distribution, env_mode, env_weights,
-                              render_volume)
+from volrender.volume import VolumeSettings
 
 from test_phase import chi2_sf
+from helpers import render_points, render_volume
 
 SRC = """
 #include "common.h"
@@ -255,7 +256,7 @@ def test_glass_takes_a_uniform_env_as_a_one_texel_map(cl_device):
     s = glass.GlassSettings(env=(0.2, 0.4, 0.6), refraction=False)
     sc = Scene.of(cam, [], glass_content(cloud, s))
     assert sc.environment.texels.shape == (1, 1, 3)
-    rgba = glass.render_points(cloud, cam, [], s, cl_device)["rgba"]
+    rgba = render_points(cloud, cam, [], s, cl_device)["rgba"]
     miss = rgba[..., 3] == 0
     assert miss.sum() > 20
     np.testing.assert_allclose(rgba[miss][:, :3], np.broadcast_to([0.2, 0.4, 0.6], (miss.sum(), 3)),

@@ -16,8 +16,9 @@ from volrender.errors import UserError
 from volrender.image import write_image
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
-from volrender.volume import G_MAX, VolumeSettings, render_volume
+from volrender.volume import G_MAX, VolumeSettings
 from volrender.vdb import Bricks
+from helpers import render_points, render_volume
 
 VOX = 0.1
 
@@ -391,7 +392,7 @@ GSIZE = 16
 
 def grender(dev, cloud, settings, cam=None, lights=(), size=GSIZE):
     cam = cam or glass.default_camera(cloud, size, size, radius=settings.radius)
-    return glass.render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev)["rgba"]
 
 
 def scaled_cam(cam, s, size=GSIZE):
@@ -508,7 +509,7 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     monkeypatch.setattr(tree_mod, "build", spy)
     cloud = PointCloud(c, np.full(n, 0.3))
     cam = Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.5), (0.0, 1.0, 0.0), 20.0, 3, 3)
-    r = glass.render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32),
+    r = render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32),
                             cl_device)
     img = r["rgba"]
     assert r["accel"] == "tree" and "centres in one brick" in r["note"]   # cells give way

@@ -11,6 +11,7 @@ from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
+from helpers import render_points
 
 # Field values are float32 sums of O(10) terms of size ~scale: relative error ~1e-6.
 ATOL_FIELD = 2e-5     # blob of radius ~1
@@ -28,7 +29,7 @@ def field(dev, cloud, settings, x):
 
 def _render(dev, cloud, settings, cam=None, lights=(), size=SIZE):
     cam = cam or glass.default_camera(cloud, size, size, radius=settings.radius)
-    return glass.render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev)["rgba"]
 
 
 def _samples(rng, cloud, n=400):

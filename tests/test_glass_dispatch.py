@@ -8,6 +8,7 @@ from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
+from helpers import render_points
 
 # Tiled lists change only the order of the blend sums (sorted indices instead of tree
 # order), so hit points move by float rounding; 2 bounces keep paths non-chaotic.
@@ -17,7 +18,7 @@ LIGHTS = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
 
 def _render(dev, cloud, settings, size=(24, 20), cam=None, lights=LIGHTS, variant=None):
     cam = cam or glass.default_camera(cloud, *size)
-    return glass.render_points(cloud, cam, list(lights), settings, dev, variant=variant)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev, variant=variant)["rgba"]
 
 
 def _agree(a, b, frac=1.0):
@@ -104,7 +105,7 @@ def test_uber_kernel_gives_the_specialised_image(cl_device, opts):
     cloud = points.blob(200, seed=6)
     s = glass.GlassSettings(bounces=2, **opts)
     a = _render(cl_device, cloud, s)
-    r = glass.render_points(cloud, glass.default_camera(cloud, 24, 20), LIGHTS, s, cl_device,
+    r = render_points(cloud, glass.default_camera(cloud, 24, 20), LIGHTS, s, cl_device,
                             variant="uber")
     np.testing.assert_allclose(a, r["rgba"], atol=1e-5)
     # and it really is one program with every feature in

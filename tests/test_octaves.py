@@ -10,8 +10,9 @@ from volrender import volume as volume_mod
 from volrender.camera import frame_bounds
 from volrender.errors import UserError
 from volrender.lights import Sun
-from volrender.volume import VolumeSettings, render_volume
+from volrender.volume import VolumeSettings
 from conftest import ROOT
+from helpers import render_volume
 
 REFS = ROOT / "tests" / "refs"
 

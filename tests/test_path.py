@@ -11,8 +11,9 @@ from volrender import cli
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.vdb import Bricks
-from volrender.volume import VolumeSettings, render_volume
+from volrender.volume import VolumeSettings
 from conftest import ROOT
+from helpers import render_volume
 
 VOX = 0.1
 Z = 5.0

@@ -5,8 +5,9 @@ import pytest
 from volrender import reference, volume as volume_mod
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
-from volrender.volume import VolumeSettings, render_volume
+from volrender.volume import VolumeSettings
 from volrender.vdb import Bricks
+from helpers import render_volume
 
 VOX = 0.1
 

@@ -14,10 +14,10 @@ from volrender import cli, reference
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
-from volrender.volume import (ESTIMATORS, VolumeSettings, emission_color, render_volume,
-                              track_majorants)
+from volrender.volume import (ESTIMATORS, VolumeSettings, emission_color, track_majorants)
 from volrender.vdb import Bricks
 from conftest import ROOT
+from helpers import render_volume
 
 VOX = 0.1
 Z = 5.0                         # standard errors allowed

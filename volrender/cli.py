@@ -320,14 +320,15 @@ def cmd_render(args):
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
     from . import image
     from .files import refuse_overwrite
-    from .render import check_image_memory, get_device, render
+    from .device import resolve
+    from .render import check_image_memory, render
     from .scene import request
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
     out_path = image.check_output(args.output, aovs)
     refuse_overwrite(out_path, req.inputs, shown=args.output)
-    dev = get_device(args.device)
+    dev = resolve(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
     try:
         scene = req.load()

@@ -226,3 +226,10 @@ def get(spec: str | None = None) -> Device:
     if key not in _DEVICES:
         _DEVICES[key] = Device(platform, device)
     return _DEVICES[key]
+
+
+def resolve(device=None) -> Device:
+    """A Device from None (PoCL or $VOLRENDER_DEVICE), a spec string, or a Device."""
+    if device is None or isinstance(device, str):
+        return get(device)
+    return device

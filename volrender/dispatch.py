@@ -24,7 +24,7 @@ launches leave most of the device idle.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -83,6 +83,22 @@ class Dispatch:
             raise UserError(f"tile {self.tile[0]}x{self.tile[1]} ({n} work-items) exceeds this "
                             f"kernel's work-group limit {limit} on {device.name}",
                             fix="give a smaller tile (--tile, or tile in the scene's [render])")
+
+@dataclass
+class Plan:
+    """What one launch needs. Kernel arguments are `inputs` (uploaded read-only; numpy
+    scalars are passed by value), then one buffer per output, then `extra`, then the
+    launch's first row and sample range (added by dispatch.run_rows)."""
+    entry: str                       # cl/<entry>.cl and its kernel
+    features: object                 # frozen Features with .flags()
+    inputs: list
+    outputs: list                    # [(name, shape)]: float32 buffers the kernel writes
+    dispatch: Dispatch
+    band_pixels: int                 # pixel-samples of the first launch on CPUs (dispatch)
+    extra: list = field(default_factory=list)
+    aovs: tuple = ()                 # layers to return besides rgba
+    info: dict = field(default_factory=dict)
+    build_options: tuple = ()        # compiler options for this device (e.g. register caps)
 
 
 def parse_tile(text: str) -> tuple:

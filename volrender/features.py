@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from .environment import env_mode
+
 
 # Occupied bricks one tile's local list holds (tiled dispatch). A tile whose frustum
 # meets more falls back to the full march: correct, only slower. 16 bytes each (4 KB).
@@ -26,7 +28,7 @@ class VolumeFeatures:
     emission: bool = False
     depth: bool = False
     chromatic: bool = False    # albedo or sigma_t scale differs between channels
-    env: int = 0               # environment light: 0 none, 1 uniform, 2 a map (volume.env_mode)
+    env: int = 0               # environment light: 0 none, 1 uniform, 2 a map (environment.env_mode)
     ms_octaves: int = 1        # marcher: multiple-scattering octaves (1: single scattering)
     temperature: bool = False  # per-voxel blackbody colour from a temperature grid
     # tiled dispatch (volrender.dispatch): work-groups of tile_w x tile_h pixels cull the
@@ -50,7 +52,6 @@ class VolumeFeatures:
         """What a volume Scene compiles in (dispatch: the resolved Dispatch; gpu: whether
         the device is a GPU, which picks how skipping crosses empty bricks)."""
         from .lights import counts
-        from .volume import env_mode
         n_suns, n_points = counts(scene.lights)
         s, bricks = scene.content.settings, scene.content.bricks
         emission = bricks.emission is not None

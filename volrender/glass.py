@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cells as cells_mod, layout, lights as lights_mod, tree as tree_mod
+from . import cells as cells_mod, device as device_mod, layout, lights as lights_mod, tree as tree_mod
 from .camera import DEFAULT_FOV, frame_bounds
-from .dispatch import Dispatch
+from .dispatch import Dispatch, Plan
+from .environment import texels as env_texels
 from .errors import UserError
 from .features import GlassFeatures
 from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, one_of,
@@ -236,8 +237,7 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
                  device, samples=None):
     """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
     if device is None:
-        from .render import get_device
-        device = get_device(None)
+        device = device_mod.resolve(None)
     cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
     budget = None if settings.cell_size else cells_mod.cell_budget(device, samples)
     tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
@@ -278,37 +278,6 @@ def uber_bits(features: GlassFeatures) -> int:
     return sum(bit for name, bit in UBER_BITS.items() if getattr(features, name))
 
 
-def load_environment(path):
-    """float32 (H, W, 3) texels of an equirectangular .exr/.npy: NaN/Inf and negative
-    texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
-    them), so every radiance the kernel reads is finite."""
-    import warnings
-    from .image import read_image
-    img = np.asarray(read_image(path))
-    if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
-        raise UserError("the environment must be a float image (.exr or .npy)", path=path,
-                        fix="convert it to an equirectangular .exr")
-    rgb = img[..., :3].astype(np.float64)
-    bad = int(np.count_nonzero(~np.isfinite(rgb) | (rgb < 0) | (rgb > MAX_VALUE)))
-    if bad:
-        warnings.warn(f"{path}: {bad} environment texel values are NaN/Inf, negative or above "
-                      f"{MAX_VALUE:g}; read as 0 (NaN/Inf, negative) or {MAX_VALUE:g}",
-                      stacklevel=2)
-    rgb = np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0), 0.0, MAX_VALUE)
-    return rgb.astype(np.float32)
-
-
-def _env_texels(environment):
-    """(float32 (H*W, 4) texels, width, height); a 1-texel stand-in without a map."""
-    if environment is None:
-        return np.zeros((1, 4), np.float32), 0, 0
-    img = environment.texels
-    h, w = img.shape[:2]
-    tex = np.zeros((h * w, 4), np.float32)
-    tex[:, :3] = img.reshape(-1, 3)
-    return tex, w, h
-
-
 def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
     """Camera framing the spheres' bounds (camera.frame_bounds)."""
     radii = sphere_radii(cloud, GlassSettings(radius=radius))
@@ -319,7 +288,6 @@ def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
 def plan(scene, device, variant=None):
     """The launch of a glass scene (render.render runs it). variant "uber": every feature
     compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
-    from .render import Plan
     cloud, settings = scene.content.cloud, scene.content.settings
     cam = scene.camera
     packed = pack_scene(cloud, settings, eye=cam.origin, device=device,
@@ -329,7 +297,7 @@ def plan(scene, device, variant=None):
     n_suns, n_points = lights_mod.counts(scene.lights)
     w2f = np.eye(4)
     w2f[:3, 3] = -packed.centre
-    env, env_w, env_h = _env_texels(scene.environment)
+    env, env_w, env_h = env_texels(scene.environment)
     bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
     unit = material_unit(packed, settings)
     params = layout.record(
@@ -394,14 +362,3 @@ def kernel_arrays(packed: GlassScene, params, context=None):
     same = context is not None and grid.runs_device.context.int_ptr == context.int_ptr
     return packed.spheres, [grid.bricks, grid.cells, grid.lists,
                             grid.runs_device if same else grid.runs]
-
-
-def render_points(cloud, camera, lights, settings: GlassSettings, device, progress=None,
-                  variant=None):
-    """Render a PointCloud with the given camera, lights and settings (a shortcut for tests
-    and benchmarks: render.render of the equivalent Scene). Returns render.Image.as_dict()
-    ('rgba' with alpha = coverage, timings, 'tree_ms', 'flags')."""
-    from .render import render
-    from .scene import GlassContent, Scene
-    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, progress=progress, variant=variant).as_dict()

@@ -20,27 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .dispatch import Dispatch, run_rows, upload
+from . import device as device_mod, glass, volume
+from .dispatch import run_rows, upload
 from .errors import UserError
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
-
-
-@dataclass
-class Plan:
-    """What one launch needs. Kernel arguments are `inputs` (uploaded read-only; numpy
-    scalars are passed by value), then one buffer per output, then `extra`, then the
-    launch's first row and sample range (added by dispatch.run_rows)."""
-    entry: str                       # cl/<entry>.cl and its kernel
-    features: object                 # frozen Features with .flags()
-    inputs: list
-    outputs: list                    # [(name, shape)]: float32 buffers the kernel writes
-    dispatch: Dispatch
-    band_pixels: int                 # pixel-samples of the first launch on CPUs (dispatch)
-    extra: list = field(default_factory=list)
-    aovs: tuple = ()                 # layers to return besides rgba
-    info: dict = field(default_factory=dict)
-    build_options: tuple = ()        # compiler options for this device (e.g. register caps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,22 +66,7 @@ class Image:
                 "device": self.device, **self.info}
 
 
-def _planner(kind):
-    if kind == "volume":
-        from .volume import plan
-    elif kind == "glass":
-        from .glass import plan
-    else:
-        raise ValueError(f"unknown scene kind {kind!r}")
-    return plan
-
-
-def get_device(device=None):
-    """A device.Device from None (PoCL or $VOLRENDER_DEVICE), a spec string, or itself."""
-    from . import device as device_mod
-    if device is None or isinstance(device, str):
-        return device_mod.get(device)
-    return device
+PLANNERS = {"volume": volume.plan, "glass": glass.plan}
 
 
 def render(scene, device=None, *, progress=None, variant=None) -> Image:
@@ -108,10 +77,10 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
 
     if variant not in VARIANTS:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
-    dev = get_device(device)
+    dev = device_mod.resolve(device)
     cam = scene.camera
     t_plan = time.perf_counter()
-    plan = _planner(scene.kind)(scene, dev, variant)
+    plan = PLANNERS[scene.kind](scene, dev, variant)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
     ctx = dev.context

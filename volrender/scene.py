@@ -44,6 +44,7 @@ from typing import ClassVar
 import numpy as np
 
 from .camera import View
+from .environment import Environment, load_environment, uniform
 from .errors import UserError
 from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
                        knobs, override_key)
@@ -75,20 +76,6 @@ class GlassContent:
     def bounds(self):
         from .glass import sphere_bounds, sphere_radii
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
-
-
-@dataclass(frozen=True, eq=False)
-class Environment:
-    """An equirectangular environment: float32 (H, W, 3) radiance; row 0 looks up, the
-    image centre looks along -z (cl/env.h). A uniform radiance is a 1x1 map."""
-    texels: np.ndarray
-    source: str = ""
-
-    @property
-    def uniform(self):
-        """The radiance (3 floats) when every texel holds the same, else None."""
-        t = self.texels.reshape(-1, 3)
-        return tuple(float(v) for v in t[0]) if np.all(t == t[0]) else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -502,10 +489,8 @@ def _scan_defaults(cloud, settings):
 def _environment(path, where):
     """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
     if isinstance(path, tuple):
-        rgb = np.asarray(path, np.float32).reshape(1, 1, 3)
-        return Environment(rgb, "uniform " + ",".join(f"{v:g}" for v in path))
+        return uniform(path)
     from .files import check_input
-    from .glass import load_environment
     try:
         p = check_input(path, "environment map")
     except UserError as exc:

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import blackbody, layout, lights as lights_mod
-from .dispatch import Dispatch, is_gpu
+from .dispatch import Dispatch, Plan, is_gpu
+from .environment import env_distribution, env_mode, texels as env_texels
 from .errors import UserError
 from .features import VolumeFeatures
 from .settings import (MAX_VALUE, STRS, VEC, CommonSettings, boolean, floats, in_range, knob,
@@ -206,42 +207,6 @@ def octave_tau_stop(settings: VolumeSettings) -> float:
     return float(min(stop, 1e30))
 
 
-def env_weights(texels) -> np.ndarray:
-    """Sampling weight per texel: the largest luminance among it and its 8 neighbours
-    (wrapping in u), which bounds the bilinear lookup over the texel's cell, so a small
-    bright spot is not under-sampled where it bleeds into its neighbours, times
-    sin(theta) at the row centre (the solid angle the texel covers)."""
-    t = np.asarray(texels, np.float64)
-    h = t.shape[0]
-    lum = np.maximum(t[..., :3] @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
-    m = np.maximum(lum, np.maximum(np.roll(lum, 1, axis=1), np.roll(lum, -1, axis=1)))
-    m = np.maximum(m, np.maximum(np.vstack([m[:1], m[:-1]]), np.vstack([m[1:], m[-1:]])))
-    return m * np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
-
-
-def env_distribution(texels) -> np.ndarray:
-    """float32 CDFs for cl/env.h vr_env_sample from env_weights: H + 1 row CDF values,
-    then per row W + 1 column CDF values. Rows without weight get a uniform column CDF."""
-    wts = env_weights(texels)
-    h, w = wts.shape
-    rows = wts.sum(axis=1)
-    total = rows.sum()
-    row_cdf = np.concatenate([[0.0], np.cumsum(rows)]) / (total if total > 0 else 1.0)
-    row_cdf[-1] = 1.0
-    col = np.concatenate([np.zeros((h, 1)), np.cumsum(wts, axis=1)], axis=1)
-    col = np.where(rows[:, None] > 0, col / np.where(rows > 0, rows, 1.0)[:, None],
-                   np.linspace(0.0, 1.0, w + 1)[None, :])
-    col[:, -1] = 1.0
-    return np.concatenate([row_cdf, col.ravel()]).astype(np.float32)
-
-
-def env_mode(environment) -> int:
-    """VR_ENV: 0 none (or black), 1 a uniform radiance, 2 a map."""
-    if environment is None or not np.any(environment.texels > 0):
-        return 0
-    return 1 if environment.uniform is not None else 2
-
-
 def volume_params(bricks, settings: VolumeSettings | None = None, environment=None):
     """(VolumeParams record, world -> local 4x4) for a Bricks volume and settings."""
     settings = settings or VolumeSettings()
@@ -278,16 +243,6 @@ def volume_params(bricks, settings: VolumeSettings | None = None, environment=No
 ENTRIES = {"march": "render_volume", "track": "path_volume", "path": "path_volume"}
 
 
-def _env_arrays(environment, mode):
-    """(texels (H*W, 4), CDFs) for the kernels; one-element stand-ins without a map."""
-    if mode != 2:
-        return np.zeros((1, 4), np.float32), np.zeros(1, np.float32)
-    t = environment.texels
-    tex = np.zeros((t.shape[0] * t.shape[1], 4), np.float32)
-    tex[:, :3] = t.reshape(-1, 3)
-    return tex, env_distribution(t)
-
-
 def check_steps(bricks, settings):
     """Refuse steps that would give a ray through this volume's box more samples than the
     kernels take (layout.MAX_RAY_SAMPLES, where float32 sample indices stop resolving)."""
@@ -306,7 +261,6 @@ def check_steps(bricks, settings):
 def plan(scene, device, variant=None):
     """The launch of a volume scene (render.render runs it): the marcher or the path
     tracer (track = path at max depth 1)."""
-    from .render import Plan
     if variant is not None:
         raise UserError(f"the {variant!r} variant exists for glass only")
     bricks, settings = scene.content.bricks, scene.content.settings
@@ -320,7 +274,9 @@ def plan(scene, device, variant=None):
     params, w2l = volume_params(bricks, settings, scene.environment)
     emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
     temperature = bricks.temperature if features.temperature else np.zeros(1, np.float32)
-    env, cdf = _env_arrays(scene.environment, features.env)
+    env, cdf = (np.zeros((1, 4), np.float32), np.zeros(1, np.float32))
+    if features.env == 2:
+        env, cdf = env_texels(scene.environment)[0], env_distribution(scene.environment.texels)
     inputs = [scene.camera.pack(w2l, settings.spp, settings.seed), params,
               lights_mod.pack(scene.lights, w2l), np.asarray(bricks.table, np.int32),
               np.asarray(bricks.data, np.float32), np.asarray(emission, np.float32),
@@ -339,13 +295,3 @@ def plan(scene, device, variant=None):
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
                 info={"background": tuple(settings.background)})
-
-
-def render_volume(bricks, camera, lights, settings: VolumeSettings, device, progress=None):
-    """Render Bricks with the given camera, lights and settings (a shortcut for tests and
-    benchmarks: render.render of the equivalent Scene; settings.env is read here).
-    Returns render.Image.as_dict()."""
-    from .render import render
-    from .scene import Scene, VolumeContent
-    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
-    return render(scene, device, progress=progress).as_dict()

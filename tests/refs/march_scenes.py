@@ -70,7 +70,8 @@ def _has_vdb():
 
 
 def render(dev, name, b, cam, lights, kw, **extra):
-    from volrender.volume import VolumeSettings, render_volume
+    from volrender.volume import VolumeSettings
+    from helpers import render_volume
     r = render_volume(b, cam, lights, VolumeSettings(**kw, **extra), dev)
     out = {"rgba": r["rgba"]}
     if "depth" in r:
@@ -92,5 +93,5 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT))
+    sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     main()

@@ -1,0 +1,15 @@
+"""Helpers shared by the tests: render Bricks or a PointCloud with a camera, lights and
+settings through the public path (Scene.of, render.render); the result is
+Image.as_dict() ('rgba', each AOV by name, the timings and the render's info)."""
+from volrender.render import render
+from volrender.scene import GlassContent, Scene, VolumeContent
+
+
+def render_points(cloud, camera, lights, settings, device, progress=None, variant=None):
+    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
+    return render(scene, device, progress=progress, variant=variant).as_dict()
+
+
+def render_volume(bricks, camera, lights, settings, device, progress=None):
+    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
+    return render(scene, device, progress=progress).as_dict()
