@@ -30,15 +30,13 @@ def measure(cloud, dev, width, height, repeat):
     """Medians over repeat builds after an untimed one (it compiles the builder for this
     tree depth): total, tree, cells, cells' kernels; the last build's stats."""
     samples = width * height
-    eye = glass.default_camera(cloud, width, height).origin
-    glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), eye=eye, device=dev,
-                     samples=samples)
+    glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev, samples=samples)
     runs = {"total_ms": [], "tree_ms": [], "cells_ms": [], "kernel_ms": [], "host_ms": []}
     stats = {}
     for _ in range(repeat):
         t0 = time.perf_counter()
-        packed = glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), eye=eye,
-                                  device=dev, samples=samples)
+        packed = glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
+                                  samples=samples)
         total = 1e3 * (time.perf_counter() - t0)
         if packed.cells is None:
             return {"accel_used": packed.accel, "note": packed.note}
@@ -115,7 +113,6 @@ def main(argv=None):
         prof = cProfile.Profile()
         prof.enable()
         glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
-                         eye=glass.default_camera(cloud, width, height).origin,
                          samples=width * height)
         prof.disable()
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)

@@ -30,6 +30,8 @@ from bench.common import render_points, CONVERTED, device_info, result_path, sha
 from volrender import device, glass, points  # noqa: E402
 from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
+from volrender.render import render  # noqa: E402
+from volrender.scene import GlassContent, Scene  # noqa: E402
 
 SUN = Sun((-0.5, -1.0, -0.4), 3.0)
 COUNTS = [1000, 3000, 10_000, 100_000, 1_000_000]
@@ -52,41 +54,26 @@ def words(text):
     return [v for v in text.split(",") if v]
 
 
-class Cached:
-    """glass.pack_scene memoised per (cloud, settings, eye), so timed renders reuse one
-    build (the build is timed on its own)."""
-
-    def __init__(self):
-        self.real = glass.pack_scene
-        self.memo = {}
-
-    def __call__(self, cloud, settings, eye=None, device=None, samples=None):
-        key = (id(cloud), settings, None if eye is None else tuple(np.asarray(eye, float)))
-        if key not in self.memo:
-            self.memo[key] = self.real(cloud, settings, eye=eye, device=device, samples=samples)
-        return self.memo[key]
-
-    def clear(self):
-        self.memo.clear()
-
-
-def measure(cloud, cam, settings, dev, repeat, lights, cache, variant=None):
-    """One timed build, a warm-up render at a tiny size (the program build), `repeat` timed
-    renders and one stats render, all reusing the build."""
-    cache.clear()
+def measure(cloud, cam, settings, dev, repeat, lights, variant=None):
+    """One timed build (the scene's acceleration, GlassContent.prepare), a warm-up render at
+    a tiny size (the program build), `repeat` timed renders and one stats render, all
+    reusing the build (the scene keeps it)."""
+    content = GlassContent(cloud, settings)
     t0 = time.perf_counter()
-    packed = cache(cloud, settings, eye=cam.origin, device=dev,
-                   samples=cam.width * cam.height * settings.spp)
+    packed = content.prepare(dev, samples=cam.width * cam.height * settings.spp)
     build_s = time.perf_counter() - t0
-    render_points(cloud, dataclasses.replace(cam, width=16, height=16), lights, settings,
-                        dev, variant=variant)
+
+    def once(camera, variant):
+        return render(Scene.of(camera, lights, content), dev, variant=variant)
+
+    once(dataclasses.replace(cam, width=16, height=16), variant)
     kernel, wall = [], []
     for _ in range(repeat):
-        r = render_points(cloud, cam, lights, settings, dev, variant=variant)
-        kernel.append(r["kernel_ms"])
-        wall.append(r["wall_ms"])
-    counts = render_points(cloud, cam, lights, settings, dev, variant="stats")["rgba"]
-    cache.clear()
+        r = once(cam, variant)
+        kernel.append(r.kernel_ms)
+        wall.append(r.wall_ms)
+    counts = once(cam, "stats").rgba
+    assert content.builds == 1, "a render rebuilt the scene's acceleration"
     out = {"kernel_ms": stats(kernel), "wall_ms": stats(wall), "accel_used": packed.accel,
            "build": {"total_ms": 1e3 * build_s, "tree_ms": packed.tree_ms,
                      "cells_ms": packed.cells.build_ms if packed.cells is not None else 0.0},
@@ -96,7 +83,7 @@ def measure(cloud, cam, settings, dev, repeat, lights, cache, variant=None):
         out["bytes_per_sphere"] = packed.cells.nbytes / len(packed.spheres)
     if packed.note:
         out["note"] = packed.note
-    return r["rgba"], out
+    return r.rgba, out
 
 
 def work_stats(counts, block=(8, 4)):
@@ -190,8 +177,6 @@ def main(argv=None):
     dev = device.get(args.device)
     path = result_path("spheres", dev, "-".join(t for t in (args.tag, "opaque" if args.opaque else None) if t))
     rows, uber_rows, scan_rows = [], [], []
-    cache = Cached()
-    glass.pack_scene = cache
     warm = points.blob(50, seed=1)        # builds the cells builder's program once
     render_points(warm, glass.default_camera(warm, 8, 8), [], glass.GlassSettings(), dev)
 
@@ -224,7 +209,7 @@ def main(argv=None):
                                             cell_size=cell)
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat,
-                                     [SUN] if lit == "lit" else [], cache)
+                                     [SUN] if lit == "lit" else [])
                     per_render = (time.perf_counter() - t0) / (args.repeat + 2)
                     if accel == "none" and per_render > args.brute_limit:
                         brute_ok[(disp, lit)] = False
@@ -246,7 +231,7 @@ def main(argv=None):
                 s = glass.GlassSettings(bounces=args.bounces, refraction=not args.opaque,
                                         dispatch="fragment", accel=args.accel[0])
                 img, t = measure(cloud, cam, s, dev, args.repeat, [SUN] if lit == "lit" else [],
-                                 cache, variant="uber" if uber else None)
+                                 variant="uber" if uber else None)
                 uber_rows.append({"n": args.uber_count, "dispatch": "fragment",
                                   "accel": args.accel[0], "lit": lit == "lit", "uber": uber, **t})
                 save()
@@ -270,7 +255,7 @@ def main(argv=None):
                 if (disp == "tiled" and accel not in tiled_accel) or accel == "none":
                     continue
                 s = glass.GlassSettings(accel=accel, dispatch=disp, tile=args.tile, **opts)
-                img, t = measure(cloud, cam, s, dev, args.repeat, [SCAN_SUN], cache)
+                img, t = measure(cloud, cam, s, dev, args.repeat, [SCAN_SUN])
                 row = {"scan": name, "file": file, "points": len(cloud.centers), **opts,
                        "dispatch": disp, "accel": accel, "lit": True, **t}
                 if ref is None:
@@ -281,7 +266,6 @@ def main(argv=None):
                 scan_rows.append(row)
                 save()
                 _print(row)
-    glass.pack_scene = cache.real
     out = save()
     if rows:
         plot(rows, dev, out.with_suffix(".png"), width, height)

@@ -51,28 +51,7 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
     if (x >= cam->width || y >= cam->height)
         return;
     uint pixel = (uint)(y * cam->width + x);
-    SdfScene sc;
-    sc.spheres = spheres;
-    sc.nodes = nodes;
-    sc.n_spheres = gp->n_spheres;
-    sc.first_leaf = gp->first_leaf;
-    sc.k = gp->blend;
-#if VR_COLORS
-    sc.colors = colors;
-#endif
-#if VR_GRID
-    sc.bricks = bricks;
-    sc.cells = cells;
-    sc.lists = lists;
-    sc.runs = runs;
-    sc.grid_lo = gp->grid_lo.xyz;
-    sc.cell = gp->grid_lo.w;
-    sc.inv_cell = gp->grid_inv;
-    sc.nudge = gp->grid_nudge;
-    sc.dims = gp->grid_dims.xyz;
-    sc.bdims = gp->brick_dims.xyz;
-    sc.max_skips = gp->grid_skips;
-#endif
+    SdfScene sc = sdf_scene(gp, spheres, nodes, colors, bricks, cells, lists, runs);
 #if VR_TILED
     sc.tile = tile;
     sc.tile_idx = tile_idx;

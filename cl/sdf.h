@@ -33,6 +33,7 @@ typedef struct {
     int n_spheres;
     int first_leaf;
     float k;                          /* blend, world units */
+    float hit_len;                    /* the hit threshold eps (base + t) stops growing here */
 #if VR_COLORS
     __global const float4* colors;    /* rgb per sphere, tree order */
 #endif
@@ -73,6 +74,39 @@ typedef struct {
 #if VR_GRID
 #include "cells.h"
 #endif
+
+/* The field of a glass kernel's arguments (render_glass.cl, and the tests' probes: one
+   place, so they never drift); the tile fields (VR_TILED) are the caller's. */
+inline SdfScene sdf_scene(__constant GlassParams* gp, __global const float4* spheres,
+                          __global const TreeNode* nodes, __global const float4* colors,
+                          __global const int2* bricks, __global const int2* cells,
+                          __global const int4* lists, __global const int2* runs)
+{
+    SdfScene sc;
+    sc.spheres = spheres;
+    sc.nodes = nodes;
+    sc.n_spheres = gp->n_spheres;
+    sc.first_leaf = gp->first_leaf;
+    sc.k = gp->blend;
+    sc.hit_len = gp->hit_len;
+#if VR_COLORS
+    sc.colors = colors;
+#endif
+#if VR_GRID
+    sc.bricks = bricks;
+    sc.cells = cells;
+    sc.lists = lists;
+    sc.runs = runs;
+    sc.grid_lo = gp->grid_lo.xyz;
+    sc.cell = gp->grid_lo.w;
+    sc.inv_cell = gp->grid_inv;
+    sc.nudge = gp->grid_nudge;
+    sc.dims = gp->grid_dims.xyz;
+    sc.bdims = gp->brick_dims.xyz;
+    sc.max_skips = gp->grid_skips;
+#endif
+    return sc;
+}
 
 /* sqrt(dot) rather than length(): length() guards against overflow by rescaling, which
    made the field ~1.5x slower on the H200 and PoCL; the host refuses scenes large enough
@@ -376,7 +410,7 @@ inline int sdf_step_sample(const SdfScene* sc, float3 o, float3 d, float3 inv_d,
 #endif
 
 /* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
-   Hit when side * F < eps * (base + t); safe step r = (side * F) / lip. With relax w > 1
+   Hit when side * F < eps * min(base + t, hit_len); safe step r = (side * F) / lip. With relax w > 1
    the step is w r (over-relaxed sphere tracing). A relaxed step reaches beyond the last
    safe ball, so it is checked before it is kept: when the safe balls of two consecutive
    points do not overlap (r + r_prev < step), when it ends past t1 (the box exit) or when
@@ -441,7 +475,7 @@ inline int sdf_march(const SdfScene* sc, float3 o, float3 d, float t0, float t1,
             w = 1.0f;
             continue;
         }
-        if (f < eps * (base + t)) {
+        if (f < eps * fmin(base + t, sc->hit_len)) {
             *t_out = t;
             *s_out = s;
             return 1;

@@ -125,7 +125,7 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
     float3 tint = gp->color.xyz;               /* glow colour of the glass we are in */
 #if VR_COLORS
     if (VR_ON(VR_BIT_COLORS) && inside)
-        tint = s0.color;
+        tint = gp->eye_color.xyz;              /* the host's blend at the eye (glass.eye_color) */
 #endif
     *covered = inside;
     for (int b = 0;; ++b) {

@@ -79,7 +79,7 @@ typedef struct {  /* 32 bytes */
     int count;
 } TreeNode;
 
-typedef struct {  /* 208 bytes */
+typedef struct {  /* 224 bytes */
     float4 box_lo;
     float4 box_hi;
     float4 absorption;
@@ -103,7 +103,7 @@ typedef struct {  /* 208 bytes */
     int n_suns;
     int n_points;
     float relax;
-    float _pad0;
+    float hit_len;
     float4 grid_lo;
     int4 grid_dims;
     int4 brick_dims;
@@ -111,6 +111,7 @@ typedef struct {  /* 208 bytes */
     float grid_nudge;
     int grid_skips;
     float _pad1;
+    float4 eye_color;
 } GlassParams;
 
 typedef struct {  /* 48 bytes */

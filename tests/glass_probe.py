@@ -4,7 +4,7 @@ cells and extreme-case tests."""
 import numpy as np
 import pyopencl as cl
 
-from volrender import glass, layout
+from volrender import glass
 
 SOURCE = """
 #include "common.h"
@@ -12,37 +12,10 @@ SOURCE = """
 #include "sdf.h"
 #include "glass.h"
 
-inline SdfScene probe_scene(__global const float4* spheres, __global const TreeNode* nodes,
-                            __constant GlassParams* gp, __global const int2* bricks,
-                            __global const int2* cells, __global const int4* lists,
-                            __global const int2* runs)
-{
-    SdfScene sc;
-    sc.spheres = spheres;
-    sc.nodes = nodes;
-    sc.n_spheres = gp->n_spheres;
-    sc.first_leaf = gp->first_leaf;
-    sc.k = gp->blend;
-#if VR_GRID
-    sc.bricks = bricks;
-    sc.cells = cells;
-    sc.lists = lists;
-    sc.runs = runs;
-    sc.grid_lo = gp->grid_lo.xyz;
-    sc.cell = gp->grid_lo.w;
-    sc.inv_cell = gp->grid_inv;
-    sc.nudge = gp->grid_nudge;
-    sc.dims = gp->grid_dims.xyz;
-    sc.bdims = gp->brick_dims.xyz;
-    sc.max_skips = gp->grid_skips;
-#endif
-    return sc;
-}
-
 #define PROBE_ARGS __global const float4* spheres, __global const TreeNode* nodes, \\
     __constant GlassParams* gp, __global const int2* bricks, __global const int2* cells, \\
     __global const int4* lists, __global const int2* runs
-#define PROBE_SCENE probe_scene(spheres, nodes, gp, bricks, cells, lists, runs)
+#define PROBE_SCENE sdf_scene(gp, spheres, nodes, 0, bricks, cells, lists, runs)
 
 /* out: grad xyz, F */
 __kernel void field(PROBE_ARGS, __global const float4* pts, __global float4* out)
@@ -104,12 +77,12 @@ def f4(a, w=0.0):
 
 
 class Probe:
-    """The probe kernels over one packed scene (glass.pack_scene)."""
+    """The probe kernels over one packed scene (glass.pack_scene, glass.glass_params)."""
 
-    def __init__(self, dev, cloud, settings, eye=None):
+    def __init__(self, dev, cloud, settings):
         self.dev = dev
         self.settings = settings
-        self.scene = glass.pack_scene(cloud, settings, eye=eye, device=dev)
+        self.scene = glass.pack_scene(cloud, settings, device=dev)
         p = self.scene
         flags = {"VR_TREE": int(p.accel == "tree"), "VR_GRID": int(p.accel == "grid"),
                  "VR_TILED": 0, "VR_COLORS": 0,
@@ -119,8 +92,7 @@ class Probe:
             prg = dev.build(SOURCE, flags, "glass probe")
             _PROGRAMS[key] = {n: cl.Kernel(prg, n) for n in ("field", "lip", "trace", "optics")}
         self.kernels = _PROGRAMS[key]
-        params = layout.record("GlassParams", blend=p.blend, n_spheres=len(p.spheres),
-                               first_leaf=p.first_leaf, epsilon=settings.epsilon)
+        params = glass.glass_params(p, settings)
         spheres, grid = glass.kernel_arrays(p, params)
         mf = cl.mem_flags
         self.bufs = [cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR,

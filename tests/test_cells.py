@@ -12,6 +12,8 @@ from volrender import cells, cli, glass, points, reference
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
+from volrender.render import render as render_scene
+from volrender.scene import GlassContent, Scene
 from helpers import render_points
 
 FAST = settings(max_examples=25, deadline=None,
@@ -239,42 +241,47 @@ def test_coincident_points_are_one_run(cl_device):
     assert (g.lists[:, 1] == 1).all()
 
 
-def test_camera_inside_glass_reads_its_cell(cl_device):
-    """An eye deep inside the glass sits in a cell that would be skipped: the builder
-    lists it anyway, so the first sample's colour (per-point colours) is exact: the image
-    equals the tree walk's up to the skipping criterion, and every ray starts in glass."""
+def test_camera_inside_glass_glows_with_its_colour(cl_device):
+    """An eye deep inside coloured glass sits in a cell that rays skip: its glow tint comes
+    from the host's blend at the eye (glass.eye_color, the kernel's formula in float64),
+    so the image equals the tree walk's up to the skipping criterion, and every ray starts
+    in glass."""
     base = points.blob(200, seed=10)
     cols = np.random.default_rng(1).random((200, 3)).astype(np.float32)
     cloud = PointCloud(base.centers, np.full(200, 0.3), cols)
     cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=16, height=16)
     kw = dict(blend=0.15, bounces=2)
-    p = glass.pack_scene(cloud, glass.GlassSettings(**kw), eye=cam.origin, device=cl_device)
+    p = glass.pack_scene(cloud, glass.GlassSettings(**kw), device=cl_device)
     code, _, _ = p.cells.lookup(p.cells.locate(np.zeros((1, 3)) - p.centre))
-    assert code[0] >= 0
+    assert code[0] < 0                            # the eye's cell is skipped
+    d = np.linalg.norm(cloud.centers, axis=1) - 0.3
+    h = np.maximum(1 - (d - d.min()) / 0.15, 0) ** 2
+    np.testing.assert_allclose(glass.eye_color(p, -p.centre)[:3], h @ cols / h.sum(), rtol=1e-5)
     grid = render(cl_device, cloud, cam=cam, **kw)
     tree = render(cl_device, cloud, cam=cam, accel="tree", **kw)
     assert (grid[..., 3] == 1).all()
     assert differ(grid, tree) <= 0.05
 
 
-def test_too_many_list_entries_fall_back_to_the_tree(cl_device, monkeypatch):
-    monkeypatch.setattr(cells, "MAX_ITEMS", 10)
+def test_too_many_list_entries_fall_back_to_the_tree(cl_device):
     cloud = points.blob(200, seed=1)
-    r = render_points(cloud, glass.default_camera(cloud, 8, 8), [],
-                            glass.GlassSettings(bounces=1), cl_device)
-    assert r["accel"] == "tree" and "tree walk" in r["note"]
-    assert np.isfinite(r["rgba"]).all()
+    content = GlassContent(cloud, glass.GlassSettings(bounces=1))
+    cam = glass.default_camera(cloud, 8, 8)
+    packed = content.prepare(cl_device, max_runs=10)
+    assert packed.accel == "tree" and "tree walk" in packed.note
+    r = render_scene(Scene.of(cam, [], content), cl_device)
+    assert r.info["accel"] == "tree" and "tree walk" in r.info["note"]
+    assert np.isfinite(r.rgba).all()
 
 
-def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device, monkeypatch):
+def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device):
     """Lists that would exceed the budget at the automatic edge: the edge doubles (the
     total falls about as 1/edge) and the cells still serve, with the tree walk's image."""
     cloud = points.blob(400, seed=2)
     cam = glass.default_camera(cloud, 16, 12)
     s = glass.GlassSettings(bounces=1)
-    full = glass.pack_scene(cloud, s, eye=cam.origin, device=cl_device)
-    monkeypatch.setattr(cells, "MAX_ITEMS", len(full.cells.runs) // 2)
-    small = glass.pack_scene(cloud, s, eye=cam.origin, device=cl_device)
+    full = glass.pack_scene(cloud, s, device=cl_device)
+    small = glass.pack_scene(cloud, s, device=cl_device, max_runs=len(full.cells.runs) // 2)
     assert small.accel == "grid" and small.cells.cell >= 1.9 * full.cells.cell
     assert len(small.cells.runs) <= len(full.cells.runs) // 2
     grid = render(cl_device, cloud, cam=cam, bounces=1)
@@ -361,3 +368,28 @@ def test_host_lists_agree_with_the_device(cl_device, rng):
         dev, host, wide = (set(lists[j].tolist()), set(idx[off[j]:off[j + 1]].tolist()),
                            set(idx2[off2[j]:off2[j + 1]].tolist()))
         assert host <= dev <= wide
+
+
+def test_a_scene_builds_its_acceleration_once(cl_device):
+    """Renders of one scene with other cameras, sizes, samples or lights reuse its packed
+    spheres, tree and cells (one build), and give exactly the images of fresh scenes."""
+    import dataclasses
+    from volrender.scene import load_scene
+    scene = load_scene("blob:300", size=(16, 12), bounces=2, seed=3)
+    views = [scene.camera, dataclasses.replace(scene.camera, origin=(0.5, 3.0, 4.0)),
+             dataclasses.replace(scene.camera, width=10, height=8)]
+    cont = scene.content
+    variants = [scene.replace(camera=v) for v in views]
+    variants.append(scene.replace(lights=(Sun((0.0, -1.0, 0.0), 2.0),)))
+    variants.append(scene.replace(content=dataclasses.replace(
+        cont, settings=dataclasses.replace(cont.settings, spp=2))))
+    images = [render_scene(v, cl_device).rgba for v in variants]
+    assert cont.builds == 1
+    for v, img in zip(variants, images):
+        fresh = v.replace(content=GlassContent(v.content.cloud, v.content.settings))
+        np.testing.assert_array_equal(render_scene(fresh, cl_device).rgba, img)
+        assert fresh.content.builds == 1
+    changed = scene.replace(content=dataclasses.replace(
+        cont, settings=dataclasses.replace(cont.settings, blend=0.2)))
+    render_scene(changed, cl_device)
+    assert cont.builds == 2                    # the blend changes the acceleration

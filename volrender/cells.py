@@ -200,20 +200,21 @@ def grid_shape(box_lo, box_hi, cell):
         cell *= 1.25
 
 
-def threshold(epsilon, bounces, scale, box_lo, box_hi, eye=None, blend=0.0, n=1) -> float:
-    """tau: above every hit threshold eps * (base + t) a render can test (cl/shade_glass.h:
-    base + t is at most the hit floor plus the eye's distance to the far side of the box plus
-    one box diagonal per segment and one for the shadow ray), and above float32 rounding of
-    the field."""
+def hit_length(scale, box_lo, box_hi, bounces) -> float:
+    """The longest base + t whose hit threshold eps (base + t) grows (the kernels clamp it
+    here, GlassParams.hit_len): the hit floor, a camera up to four box diagonals from the
+    box, one diagonal per segment and one for the shadow ray. Independent of the camera, so
+    the cells serve every view; a camera farther away gets a tighter threshold, not a
+    missed skip."""
+    diag = float(np.linalg.norm(np.asarray(box_hi, np.float64) - np.asarray(box_lo, np.float64)))
+    return 1e-2 * scale + 4.0 * diag + (bounces + 2) * diag
+
+
+def threshold(epsilon, bounces, scale, box_lo, box_hi, blend=0.0, n=1) -> float:
+    """tau: above every hit threshold eps * min(base + t, hit_length) a render can test
+    (cl/sdf.h), and above float32 rounding of the field."""
     lo, hi = np.asarray(box_lo, np.float64), np.asarray(box_hi, np.float64)
-    diag = float(np.linalg.norm(hi - lo))
-    if eye is None:
-        far = 4.0 * diag
-    else:
-        corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
-                            for c in (lo[2], hi[2])])
-        far = float(np.linalg.norm(corners - np.asarray(eye, np.float64), axis=1).max())
-    t_max = 1e-2 * scale + far + (bounces + 2) * diag
+    t_max = hit_length(scale, lo, hi, bounces)
     extent = float(np.abs(np.concatenate([lo, hi])).max())
     rounding = PAD * (extent + blend * (1.0 + math.log(max(n, 1))))
     return 2.0 * epsilon * t_max + rounding
@@ -224,11 +225,11 @@ def _round_up(n, m=64):
 
 
 def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
-          force=(), classify=True, max_cells=None) -> Cells:
+          classify=True, max_cells=None, max_runs=None) -> Cells:
     """Support cells over [box_lo, box_hi] (render frame) for float32 `spheres` (N, 4, tree
     order) and their TreeNode records, on `device` (a volrender.device.Device).
-    force: render-frame points whose cells get a list whatever their class (the eye: its
-    first sample reads the colour there). classify=False lists every cell (tests).
+    classify=False lists every cell (tests). max_runs: most list runs (default MAX_ITEMS,
+    and what the device's largest buffer holds); beyond, TooLarge.
     max_cells: when the bricks the surface passes through hold more cells than this, the
     cell edge grows (first from an estimate by occupied bricks, then by (cells /
     max_cells)^0.5 with the brick pass redone) until they fit."""
@@ -247,7 +248,8 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     k_fill = device.kernel("build_cells", flags, "build_fill")
     ctx, queue = device.context, device.queue
     mf = cl.mem_flags
-    max_runs = min(MAX_ITEMS, int(device.device.max_mem_alloc_size) // 8)
+    max_runs = min(MAX_ITEMS if max_runs is None else int(max_runs),
+                   int(device.device.max_mem_alloc_size) // 8)
     events = []
 
     def buf(a):
@@ -260,27 +262,25 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     none_i = buf(np.zeros(1, np.int32))
     none_i4 = buf(np.zeros((1, 4), np.int32))
 
-    def prm(size, open_=False):
+    def prm(size):
         p = params.copy()
         p["box_cells"] = size
-        if open_:
-            p["tau"] = np.float32(3e38)
         return buf(p)
 
-    def classify(origins, size, cand=None, cand_lists=None, parents=None, open_=False):
+    def classify(origins, size, cand=None, cand_lists=None, parents=None):
         """(class, count, core count or bound bits, U bits) per box, from the tree or (cand)
-        the lists of parent boxes parents (default: box j // 8); open_: class 0 always."""
+        the lists of parent boxes parents (default: box j // 8)."""
         out = np.empty((len(origins), 4), np.int32)
         if len(origins):
             d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             g = (_round_up(len(origins)),)
             if cand is None:
-                events.append(k_tree(queue, g, None, prm(size, open_), d_sp, d_nodes,
+                events.append(k_tree(queue, g, None, prm(size), d_sp, d_nodes,
                                      buf(origins), d_out, np.int32(len(origins))))
             else:
                 if parents is None:
                     parents = np.arange(len(origins)) // 8
-                events.append(k_sub(queue, g, None, prm(size, open_), d_sp, cand, cand_lists,
+                events.append(k_sub(queue, g, None, prm(size), d_sp, cand, cand_lists,
                                     buf(parents.astype(np.int32)), buf(origins), d_out,
                                     np.int32(len(origins))))
             cl.enqueue_copy(queue, out, d_out)
@@ -313,16 +313,6 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
                    np.int32(from_tree)))
         return d_runs, lists, total
 
-    def force_open(origins, size, out, cand=None, cand_lists=None):
-        """Keep forced cells' boxes unclassified down to the cell level (their class,
-        counts and U redone without classifying)."""
-        hit = np.zeros(len(origins), bool)
-        for q in forced:
-            hit |= np.all((origins[:, :3] <= q) & (q < origins[:, :3] + size), axis=1)
-        j = np.nonzero(hit & (out[:, 0] != 0))[0]
-        if len(j):
-            out[j] = classify(origins[j], size, cand, cand_lists, j // 8, open_=True)
-
     if max_cells is not None:
         cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
     cell = grid_shape(box_lo, box_hi, cell)[0]
@@ -333,9 +323,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
         params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
                                tau=tau_run, n_spheres=n, first_leaf=first_leaf, box_cells=B)
-        forced = [np.clip(np.floor((np.asarray(p, np.float32) - lo) / np.float32(cell)), 0,
-                          dims - 1).astype(np.int64) for p in force]
-        bricks, (origins, out, cand, lists) = _bricks(classify, fill, force_open, buf, bdims)
+        bricks, (origins, out, cand, lists) = _bricks(classify, fill, buf, bdims)
         mixed = np.nonzero(bricks[:, 0] == 0)[0]
         if max_cells is None or len(mixed) * B3 <= max_cells or len(mixed) <= 1:
             break
@@ -352,7 +340,6 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
         origins = (origins[:, None, :] + size * octants[None]).reshape(-1, 4)
         d_lists = buf(lists)
         out = classify(origins, size, cand, d_lists)
-        force_open(origins, size, out, cand, d_lists)
         cls = out[:, 0].copy()
         # paint the classified boxes into their bricks' blocks
         done = np.nonzero(cls != 0)[0]
@@ -383,7 +370,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
 TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
 
 
-def _bricks(classify, fill, force_open, buf, bdims):
+def _bricks(classify, fill, buf, bdims):
     """Classify every brick: boxes of 2^t bricks from the tree first (t: the smallest with
     at most TOP_BOXES of them), then the octants of the unclassified ones from their
     parents' lists, down to bricks. Returns the brick table (class or 0, bound bits) and the
@@ -399,7 +386,6 @@ def _bricks(classify, fill, force_open, buf, bdims):
     origins[:, 0], origins[:, 1], origins[:, 2] = tx.ravel() * size, ty.ravel() * size, \
         tz.ravel() * size
     out = classify(origins, size)
-    force_open(origins, size, out)
     table = np.full((int(np.prod(bdims)), 2), -99, np.int32)
     cand = d_lists = None
     octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
@@ -433,7 +419,6 @@ def _bricks(classify, fill, force_open, buf, bdims):
         origins = (origins[keep][:, None, :] + size * octants[None]).reshape(-1, 4)
         d_lists = buf(lists)
         out = classify(origins, size, cand, d_lists)
-        force_open(origins, size, out, cand, d_lists)
 
 
 def _occupancy(c, edge):

@@ -110,9 +110,15 @@ class GlassSettings(CommonSettings):
             object.__setattr__(self, "accel", "none")
 
 
+# settings the packed spheres, the tree and the cells depend on (GlassContent.prepare)
+ACCEL_FIELDS = ("radius", "blend", "leaf_size", "accel", "cell_size", "cell_skip", "epsilon",
+                "bounces", "point_colors")
+
+
 @dataclass(frozen=True)
-class GlassScene:
-    """Everything the kernel reads about the spheres, in the render frame."""
+class PackedSpheres:
+    """Everything the kernel reads about the spheres, in the render frame: the same for
+    every camera, so a scene builds it once (scene.GlassContent.prepare)."""
     centre: np.ndarray      # float64 (3,): world position of the render-frame origin
     spheres: np.ndarray     # float32 (N, 4): centre - scene centre, radius; tree order
     nodes: np.ndarray       # TreeNode records (one zero record without a tree)
@@ -127,6 +133,8 @@ class GlassScene:
     accel: str = "none"     # what the kernel uses: grid, tree or none
     cells: object = None    # cells.Cells with accel grid
     note: str = ""          # why accel differs from the settings' (a fallback)
+    hit_len: float = math.inf   # the hit threshold eps (base + t) stops growing at this
+                                # base + t (cells.hit_length: the cells' tau covers it)
 
 
 def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
@@ -163,12 +171,12 @@ def _outward(a, down: bool):
     return np.where(np.isfinite(a32), step, a32)
 
 
-def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
-               samples=None) -> GlassScene:
-    """Spheres, tree and support cells in the render frame. The tree is built for accel
-    tree and grid (it builds the cells); eye (world) sets the cells' skip threshold
-    (cells.threshold); device: where the cells are built (default: the default device);
-    samples (pixels x spp) sets the automatic cell edge's budget (cells.cell_budget)."""
+def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
+               max_runs=None) -> PackedSpheres:
+    """Spheres, tree and support cells in the render frame, for every camera. The tree is
+    built for accel tree and grid (it builds the cells); device: where the cells are built
+    (default: the default device); samples (pixels x spp) sets the automatic cell edge's
+    budget (cells.cell_budget); max_runs caps the cells' list runs (cells.build)."""
     centers = np.asarray(cloud.centers, np.float64)
     n = len(centers)
     radii = sphere_radii(cloud, settings) if n else np.zeros(0)
@@ -179,8 +187,8 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
     first_leaf, tree_ms = 1, 0.0
     if n == 0:
         centre, lo, hi = np.zeros(3), np.full(3, np.inf), np.full(3, -np.inf)
-        return GlassScene(centre, np.zeros((0, 4), np.float32), nodes, 1,
-                          lo.astype(np.float32), hi.astype(np.float32), k, 1.0, 0.0)
+        return PackedSpheres(centre, np.zeros((0, 4), np.float32), nodes, 1,
+                             lo.astype(np.float32), hi.astype(np.float32), k, 1.0, 0.0)
     lo, hi = sphere_bounds(cloud, radii)
     centre = 0.5 * (lo + hi)
     order = np.arange(n)
@@ -222,36 +230,32 @@ def pack_scene(cloud, settings: GlassSettings, eye=None, device=None,
                         fix="rescale the points (or lower the blend: --blend, or [render].blend)")
     box_lo = _outward(lo - centre - bulge, True)
     box_hi = _outward(hi - centre + bulge, False)
+    hit_len = cells_mod.hit_length(scale, box_lo, box_hi, settings.bounces)
     grid, note = None, ""
     if accel == "grid":
         grid, note = _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale,
-                                  settings, None if eye is None else np.asarray(eye) - centre,
-                                  device, samples)
+                                  settings, device, samples, max_runs)
         if grid is None:
             accel = "tree"
-    return GlassScene(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
-                      colors, margin, accel, grid, note)
+    return PackedSpheres(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
+                         colors, margin, accel, grid, note, hit_len)
 
 
-def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings, eye,
-                 device, samples=None):
+def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings,
+                 device, samples=None, max_runs=None):
     """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
-    if device is None:
-        device = device_mod.resolve(None)
+    device = device_mod.resolve(device)
     cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
     budget = None if settings.cell_size else cells_mod.cell_budget(device, samples)
-    tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, eye, k,
+    tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, k,
                               len(spheres))
-    force = []
-    if eye is not None and np.all(eye >= box_lo) and np.all(eye <= box_hi):
-        force.append(eye)
     # the total of the lists falls about as 1/edge (cells near the surface as 1/edge^2,
     # lists grow as edge): an automatic edge doubles a few times before giving up
     for attempt in range(1 if settings.cell_size else 4):
         try:
             return cells_mod.build(spheres, nodes, first_leaf, k, box_lo, box_hi, cell, tau,
-                                   device, force=force, classify=settings.cell_skip,
-                                   max_cells=budget), ""
+                                   device, classify=settings.cell_skip, max_cells=budget,
+                                   max_runs=max_runs), ""
         except cells_mod.TooLarge as exc:
             why = exc
             if "list runs" not in str(exc):
@@ -260,7 +264,26 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
     return None, f"support cells too large ({why}): using the tree walk"
 
 
-def material_unit(packed: GlassScene, settings: GlassSettings) -> float:
+def eye_color(packed: PackedSpheres, eye) -> np.ndarray:
+    """The glow tint of the glass at render-frame point `eye` (the colour blend of
+    cl/sdf.h, sum h_i^2 c_i / S, in float64 over every sphere): what the first segment of a
+    path from a camera inside coloured glass glows with, the same for every acceleration."""
+    out = np.zeros(4, np.float32)
+    if packed.colors is None or not len(packed.spheres):
+        return out
+    s = packed.spheres.astype(np.float64)
+    d = np.linalg.norm(s[:, :3] - np.asarray(eye, np.float64), axis=1) - s[:, 3]
+    m = d.min()
+    if packed.blend > 1e-20:
+        h = np.maximum(1.0 - (d - m) / packed.blend, 0.0)
+        w = h * h
+    else:
+        w = (d == m).astype(np.float64)
+    out[:3] = (w @ packed.colors[:, :3].astype(np.float64)) / max(w.sum(), 1e-300)
+    return out
+
+
+def material_unit(packed: PackedSpheres, settings: GlassSettings) -> float:
     """World length that absorption and glow are per: settings.material_unit, else the
     cloud's bounding radius (packed.scale), so a 15 cm scan and a 3-unit gather look alike."""
     return float(settings.material_unit) if settings.material_unit else float(packed.scale)
@@ -285,22 +308,14 @@ def default_camera(cloud, width=640, height=480, fov=DEFAULT_FOV, radius=None):
     return frame_bounds(lo, hi, width, height, fov)
 
 
-def plan(scene, device, variant=None):
-    """The launch of a glass scene (render.render runs it). variant "uber": every feature
-    compiled in and chosen at run time; "stats": rgb counts the field's work per pixel."""
-    cloud, settings = scene.content.cloud, scene.content.settings
-    cam = scene.camera
-    packed = pack_scene(cloud, settings, eye=cam.origin, device=device,
-                        samples=cam.width * cam.height * settings.spp)
-    dispatch = dispatch_for(settings, device)
-    features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
-    n_suns, n_points = lights_mod.counts(scene.lights)
-    w2f = np.eye(4)
-    w2f[:3, 3] = -packed.centre
-    env, env_w, env_h = env_texels(scene.environment)
-    bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
+def glass_params(packed: PackedSpheres, settings: GlassSettings, environment=None, lights=(),
+                 uber=0):
+    """The GlassParams record of packed spheres and settings (the kernels' and the tests'
+    probes'); the support-cell fields are set by kernel_arrays."""
+    n_suns, n_points = lights_mod.counts(lights)
+    env_w, env_h = env_texels(environment)[1:]
     unit = material_unit(packed, settings)
-    params = layout.record(
+    return layout.record(
         "GlassParams", box_lo=[*packed.box_lo, 0], box_hi=[*packed.box_hi, 0],
         absorption=[*(np.asarray(settings.absorption) / unit), 0], color=[*settings.color, 0],
         blend=packed.blend, ior=settings.ior, reflectivity=settings.reflectivity,
@@ -309,7 +324,28 @@ def plan(scene, device, variant=None):
         bounces=settings.bounces, max_steps=settings.max_steps, env_width=env_w,
         env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
-        uber=bits, n_suns=n_suns, n_points=n_points, relax=settings.relax)
+        uber=uber, n_suns=n_suns, n_points=n_points, relax=settings.relax,
+        hit_len=min(packed.hit_len, 3e38))
+
+
+def plan(scene, device, variant=None):
+    """The launch of a glass scene (render.render runs it): the scene's packed spheres
+    (built once per device, scene.GlassContent.prepare) and this frame's parameters.
+    variant "uber": every feature compiled in and chosen at run time; "stats": rgb counts
+    the field's work per pixel."""
+    settings = scene.content.settings
+    cam = scene.camera
+    packed = scene.content.prepare(device, samples=cam.width * cam.height * settings.spp)
+    dispatch = dispatch_for(settings, device)
+    features = GlassFeatures.from_scene(scene, packed, dispatch, variant)
+    w2f = np.eye(4)
+    w2f[:3, 3] = -packed.centre
+    env = env_texels(scene.environment)[0]
+    bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
+    params = glass_params(packed, settings, scene.environment, scene.lights, bits)
+    eye = np.asarray(cam.origin, np.float64) - packed.centre
+    if np.all(eye >= packed.box_lo) and np.all(eye <= packed.box_hi):
+        params["eye_color"] = eye_color(packed, eye)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
     spheres, grid_arrays = kernel_arrays(packed, params, device.context)
     info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
@@ -345,7 +381,7 @@ def build_options(features, device) -> tuple:
     return (f"-cl-nv-maxrregcount={cap}",)
 
 
-def kernel_arrays(packed: GlassScene, params, context=None):
+def kernel_arrays(packed: PackedSpheres, params, context=None):
     """The spheres and the four support-cell arrays the kernel reads (cl/cells.h), with the
     grid's fields of the GlassParams record `params` set; stand-ins without cells. The
     runs stay the builder's device buffer when `context` is the builder's (no copy)."""

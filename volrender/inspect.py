@@ -471,7 +471,7 @@ def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export
     centers : (N, 3) array
         The sphere centres (world).
     centre : (3,) array
-        The render frame's origin in world space (glass.GlassScene.centre).
+        The render frame's origin in world space (glass.PackedSpheres.centre).
     screenshot, export, show, window_size, point_size
         As in :func:`show_tree`; a ``.vtm`` export holds one block, ``cells``. Beyond
         MAX_CELL_BOXES cells the view draws each cell as a point at its centre (the
@@ -593,8 +593,7 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     if cells:
         import dataclasses
         from .glass import pack_scene
-        packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"),
-                            eye=scene.camera.origin)
+        packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"))
         if packed.cells is None:
             raise UserError(packed.note or "no support cells for this cloud",
                             fix="view the tree instead (drop --cells)")

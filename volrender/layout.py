@@ -131,7 +131,7 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("n_suns", "int"),               # uber-kernel: light counts at run time
         ("n_points", "int"),
         ("relax", "float"),              # over-relaxed sphere tracing factor, 1 = off
-        ("_pad0", "float"),
+        ("hit_len", "float"),            # the hit threshold eps (base + t) stops growing here
         # support cells (volrender/cells.py, cl/cells.h), unused without them
         ("grid_lo", "float4"),           # xyz: the grid's min corner (render frame); w: cell size
         ("grid_dims", "int4"),           # cells per axis
@@ -140,6 +140,7 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("grid_nudge", "float"),         # step past a skipped cell's exit face, world units
         ("grid_skips", "int"),           # most skips per ray segment
         ("_pad1", "float"),
+        ("eye_color", "float4"),         # rgb glow tint at the eye (per-point colours, eye in glass)
     ],
     # Support-cell builder (cl/build_cells.cl): boxes are cells or bricks of the grid.
     "CellBuild": [

@@ -37,7 +37,7 @@ import dataclasses
 import functools
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
@@ -59,23 +59,61 @@ KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 
 @dataclass(frozen=True, eq=False)
 class VolumeContent:
+    """A volume's bricks and settings. The bricks' arrays are uploaded on the first render
+    on a device and kept there (`buffer`): later renders of the scene upload none of them."""
     bricks: object                    # vdb.Bricks
     settings: object                  # volume.VolumeSettings
+    store: dict = field(default_factory=dict, compare=False, repr=False)
     kind: ClassVar[str] = "volume"
 
     def bounds(self):
         return self.bricks.world_bounds()
 
+    def buffer(self, device, name):
+        """The device copy of bricks.<name> ("table", "data", "emission" or
+        "temperature"), uploaded once per device."""
+        from .dispatch import upload
+        key = (device.device.int_ptr, name)
+        if key not in self.store:
+            dtype = np.int32 if name == "table" else np.float32
+            self.store[key] = upload(device.context, np.asarray(getattr(self.bricks, name), dtype))
+        return self.store[key]
+
 
 @dataclass(frozen=True, eq=False)
 class GlassContent:
+    """A point cloud and its glass settings. The packed spheres, tree and support cells
+    are built on the first render on a device and kept (`prepare`): renders with another
+    camera, size, spp or lights reuse them; `dataclasses.replace` keeps the store, so
+    settings the acceleration does not read (glass.ACCEL_FIELDS) reuse it too."""
     cloud: object                     # points.PointCloud
     settings: object                  # glass.GlassSettings
+    store: dict = field(default_factory=dict, compare=False, repr=False)
     kind: ClassVar[str] = "glass"
 
     def bounds(self):
         from .glass import sphere_bounds, sphere_radii
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
+
+    def prepare(self, device=None, samples=None, max_runs=None):
+        """The glass.PackedSpheres of this cloud and settings on `device`, built once (the
+        first call's samples, pixels x spp, set the automatic cell edge's budget, and its
+        max_runs caps the cells' list runs: cells.build); later calls return it."""
+        from . import device as device_mod, glass
+        dev = device_mod.resolve(device)
+        key = (dev.device.int_ptr, *(getattr(self.settings, f) for f in glass.ACCEL_FIELDS))
+        hit = self.store.get(key)
+        if hit is not None and hit[0] is self.cloud:
+            return hit[1]
+        packed = glass.pack_scene(self.cloud, self.settings, dev, samples, max_runs)
+        self.store[key] = (self.cloud, packed)
+        self.store["builds"] = self.store.get("builds", 0) + 1
+        return packed
+
+    @property
+    def builds(self) -> int:
+        """How many times `prepare` built the acceleration."""
+        return self.store.get("builds", 0)
 
 
 @dataclass(frozen=True, eq=False)

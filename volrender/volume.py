@@ -272,15 +272,16 @@ def plan(scene, device, variant=None):
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
     features = VolumeFeatures.from_scene(scene, dispatch, is_gpu(device))
     params, w2l = volume_params(bricks, settings, scene.environment)
-    emission = bricks.emission if bricks.emission is not None else np.zeros(1, np.float32)
-    temperature = bricks.temperature if features.temperature else np.zeros(1, np.float32)
+    content = scene.content
+    none = np.zeros(1, np.float32)
+    emission = content.buffer(device, "emission") if bricks.emission is not None else none
+    temperature = content.buffer(device, "temperature") if features.temperature else none
     env, cdf = (np.zeros((1, 4), np.float32), np.zeros(1, np.float32))
     if features.env == 2:
         env, cdf = env_texels(scene.environment)[0], env_distribution(scene.environment.texels)
     inputs = [scene.camera.pack(w2l, settings.spp, settings.seed), params,
-              lights_mod.pack(scene.lights, w2l), np.asarray(bricks.table, np.int32),
-              np.asarray(bricks.data, np.float32), np.asarray(emission, np.float32),
-              np.asarray(temperature, np.float32), blackbody.table(), env, cdf]
+              lights_mod.pack(scene.lights, w2l), content.buffer(device, "table"),
+              content.buffer(device, "data"), emission, temperature, blackbody.table(), env, cdf]
     extra = []
     if settings.estimator != "march":
         inputs.append(track_majorants(bricks, settings))
