@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "bench" / "results"
+RESULTS = ROOT / "bench" / "results"     # $VOLRENDER_BENCH_RESULTS instead (tests)
 CONVERTED = ROOT / "bench" / "data"          # .npz conversions (git-ignored), e.g. for the GPU
 
 
@@ -69,8 +69,10 @@ def device_info(dev) -> dict:
 
 
 def result_path(name: str, dev, tag: str | None = None, suffix=".json") -> Path:
-    """bench/results/NAME_<device>[-TAG].json: --tag adds to the device, never replaces it."""
-    return RESULTS / f"{name}_{device_tag(dev)}{'-' + tag if tag else ''}{suffix}"
+    """bench/results/NAME_<device>[-TAG].json ($VOLRENDER_BENCH_RESULTS instead of
+    bench/results): --tag adds to the device, never replaces it."""
+    folder = Path(os.environ.get("VOLRENDER_BENCH_RESULTS") or RESULTS)
+    return folder / f"{name}_{device_tag(dev)}{'-' + tag if tag else ''}{suffix}"
 
 
 def stats(values) -> dict:

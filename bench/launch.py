@@ -56,23 +56,12 @@ def overhead(dev, size, spp, repeat):
         images, launches = {}, {}
         for _ in range(repeat):
             for name, fixed in modes.items():
-                dispatch.FIXED_LAUNCH = fixed
-                count = [0]
-                real = dispatch.Progress.update
-
-                def counting(self, *a, _real=real, _count=count):
-                    _count[0] += 1
-                    return _real(self, *a)
-                dispatch.Progress.update = counting
-                try:
-                    t, c = time.perf_counter(), time.process_time()
-                    images[name] = render(scene, dev).rgba
-                    times[name].append(time.perf_counter() - t)
-                    cpu[name].append(time.process_time() - c)
-                finally:
-                    dispatch.Progress.update = real
-                    dispatch.FIXED_LAUNCH = None
-                launches[name] = count[0]
+                t, c = time.perf_counter(), time.process_time()
+                img = render(scene, dev, launch=dispatch.Launch(fixed=fixed))
+                times[name].append(time.perf_counter() - t)
+                cpu[name].append(time.process_time() - c)
+                images[name] = img.rgba
+                launches[name] = img.info["launches"]
         base = statistics.median(times["bands"])
         base_cpu = statistics.median(cpu["bands"])
         row = {"scene": str(source.name if isinstance(source, Path) else source),

@@ -5,11 +5,12 @@ from volrender.render import render
 from volrender.scene import GlassContent, Scene, VolumeContent
 
 
-def render_points(cloud, camera, lights, settings, device, progress=None, variant=None):
+def render_points(cloud, camera, lights, settings, device, progress=None, variant=None,
+                  launch=None):
     scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, progress=progress, variant=variant).as_dict()
+    return render(scene, device, progress=progress, variant=variant, launch=launch).as_dict()
 
 
-def render_volume(bricks, camera, lights, settings, device, progress=None):
+def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
     scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
-    return render(scene, device, progress=progress).as_dict()
+    return render(scene, device, progress=progress, launch=launch).as_dict()

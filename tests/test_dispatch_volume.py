@@ -28,6 +28,7 @@ from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings, occupied_bricks, volume_params
 from volrender.vdb import Bricks
+from volrender.dispatch import Launch
 from helpers import render_volume
 
 VOX = 0.1
@@ -77,14 +78,14 @@ def tiled(s, tile=(8, 8)):
     return VolumeSettings(**{**s.__dict__, "dispatch": "tiled", "tile": tile})
 
 
-def compare(dev, b, cam, s, lights=LIGHTS, tiles=((8, 8),)):
+def compare(dev, b, cam, s, lights=LIGHTS, tiles=((8, 8),), launch=None):
     """Render fragment and tiled (each tile size); assert they agree; return the images."""
-    ref = render_volume(b, cam, lights, s, dev)["rgba"]
+    ref = render_volume(b, cam, lights, s, dev, launch=launch)["rgba"]
     assert np.all(np.isfinite(ref))
     tol = tolerance(b, cam, s, lights, float(ref.max()))
     out = {}
     for tile in tiles:
-        t = render_volume(b, cam, lights, tiled(s, tile), dev)
+        t = render_volume(b, cam, lights, tiled(s, tile), dev, launch=launch)
         assert t["flags"]["VR_TILED"] == 1 and t["flags"]["VR_TILE_W"] == tile[0]
         diff = float(np.abs(t["rgba"] - ref).max())
         assert diff <= tol, f"tile {tile}: max |diff| {diff:.3g} > {tol:.3g}"
@@ -161,12 +162,12 @@ def test_camera_inside_the_grid(cl_device, dense, sparse):
 
 
 @pytest.mark.parametrize("tile", [(1, 1), (8, 8), (16, 4)])
-def test_tile_sizes_and_ragged_image(cl_device, sparse, tile, monkeypatch):
+def test_tile_sizes_and_ragged_image(cl_device, sparse, tile):
     """37 x 23 is a multiple of no tile here but 1x1: edge work-items only help cull.
     Launched in bands of 8 rows, so the tiles of later bands start at y0 > 0."""
-    monkeypatch.setattr(volume_mod, "PIXELS_PER_LAUNCH", 37 * 8)
     cam = Camera((0.0, 1.5, 11.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 75.0, 37, 23)
-    ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0), tiles=(tile,))
+    ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0), tiles=(tile,),
+                     launch=Launch(first=37 * 8))
     assert ref[..., 3].max() > 0.3
 
 
@@ -180,15 +181,16 @@ def test_several_samples_per_pixel_and_depth(cl_device, sparse):
     np.testing.assert_allclose(t, f, rtol=1e-6)
 
 
-def test_list_overflow_falls_back_to_the_full_march(cl_device, sparse, monkeypatch):
+def test_list_overflow_falls_back_to_the_full_march(cl_device, sparse):
     """With a local list of 5 bricks, some tiles of this view overflow (they march the
     whole box) and some do not: the image is the same."""
     cam = Camera((0.0, 1.5, 11.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 75.0, 40, 24)
-    monkeypatch.setattr(features, "VOLUME_TILE_CAP", 5)
     counts = tile_lists(cl_device, sparse, cam, (8, 8))[0]
     assert (counts > 5).sum() >= 2 and ((counts > 0) & (counts <= 5)).sum() >= 1
-    ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0))
-    r = render_volume(sparse, cam, [], tiled(VolumeSettings()), cl_device)
+    ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0),
+                     launch=Launch(tile_cap=5))
+    r = render_volume(sparse, cam, [], tiled(VolumeSettings()), cl_device,
+                      launch=Launch(tile_cap=5))
     assert r["flags"]["VR_TILE_CAP"] == 5
 
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from volrender import dispatch, glass, points
+from volrender.dispatch import Launch
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.render import render
@@ -25,19 +26,17 @@ def soft_ball(n=20):
     return Bricks.from_dense(v, m, emission=v * 0.5)
 
 
-def renders(cl_device, scene, monkeypatch, variant=None):
+def renders(cl_device, scene, variant=None):
     whole = render(scene, cl_device, variant=variant)
     out = []
     for split in SPLITS:
-        monkeypatch.setattr(dispatch, "FIXED_LAUNCH", split)
-        out.append((split, render(scene, cl_device, variant=variant)))
-    monkeypatch.setattr(dispatch, "FIXED_LAUNCH", None)
+        out.append((split, render(scene, cl_device, variant=variant, launch=Launch(fixed=split))))
     return whole, out
 
 
 @pytest.mark.parametrize("estimator", ["march", "track"])
 @pytest.mark.parametrize("dispatch_kind", ["fragment", "tiled"])
-def test_volume_splits_are_bit_identical(cl_device, monkeypatch, estimator, dispatch_kind):
+def test_volume_splits_are_bit_identical(cl_device, estimator, dispatch_kind):
     if estimator == "track" and dispatch_kind == "tiled":
         pytest.skip("the tracker has one dispatch")
     cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 21, 19)
@@ -45,7 +44,7 @@ def test_volume_splits_are_bit_identical(cl_device, monkeypatch, estimator, disp
                        aovs=("depth",), dispatch=dispatch_kind, tile=(4, 4), background=(0.1, 0.2, 0.3))
     scene = Scene(cam, (Sun((0.2, -1.0, -0.4), 2.0), PointLight((0.5, 0.5, 0.5), 1.0)),
                   VolumeContent(soft_ball(), s))
-    whole, split = renders(cl_device, scene, monkeypatch)
+    whole, split = renders(cl_device, scene)
     assert whole.rgba[..., 3].max() > 0.3
     for how, img in split:
         assert np.array_equal(img.rgba, whole.rgba), how
@@ -53,12 +52,12 @@ def test_volume_splits_are_bit_identical(cl_device, monkeypatch, estimator, disp
 
 
 @pytest.mark.parametrize("variant", [None, "uber", "stats"])
-def test_glass_splits_are_bit_identical(cl_device, monkeypatch, variant):
+def test_glass_splits_are_bit_identical(cl_device, variant):
     cloud = points.blob(120, seed=3)
     cam = glass.default_camera(cloud, 19, 17)
     s = glass.GlassSettings(spp=4, bounces=3)
     scene = Scene(cam, (Sun((0.3, -1.0, -0.2), 3.0),), GlassContent(cloud, s))
-    whole, split = renders(cl_device, scene, monkeypatch, variant)
+    whole, split = renders(cl_device, scene, variant)
     assert whole.rgba[..., 3].mean() > 0.1
     for how, img in split:
         assert np.array_equal(img.rgba, whole.rgba), (how, variant)
@@ -66,7 +65,6 @@ def test_glass_splits_are_bit_identical(cl_device, monkeypatch, variant):
 
 def test_progress_counts_every_sample(cl_device, monkeypatch, capsys):
     """The bar (forced on) ends at width x height x spp samples and all rows."""
-    monkeypatch.setattr(dispatch, "FIXED_LAUNCH", (8, 2))
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 24)
     scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=3)))
     bars = []
@@ -77,7 +75,7 @@ def test_progress_counts_every_sample(cl_device, monkeypatch, capsys):
             super().__init__(*a, **kw, delay=0.0)
             bars.append(self)
     monkeypatch.setattr(dispatch, "Progress", Spy)
-    render(scene, cl_device, progress=True)
+    render(scene, cl_device, progress=True, launch=Launch(fixed=(8, 2)))
     (bar,) = bars
     assert bar.bar.n == bar.bar.total == 16 * 24 * 3
     assert "rows 24/24" in capsys.readouterr().err
@@ -93,15 +91,11 @@ def test_launches_adapt_to_the_target(cl_device, monkeypatch):
         sizes.append(samples)
         return real(self, samples, rows)
     monkeypatch.setattr(dispatch.Progress, "update", spy)
-    from volrender import volume
-    monkeypatch.setattr(volume, "PIXELS_PER_LAUNCH", 16 * 8)      # the first launch
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 64)
     scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=4)))
     gpu = dispatch.is_gpu(cl_device)          # GPUs launch whole frames, splitting samples
-    monkeypatch.setattr(dispatch, "GPU_TARGET_S" if gpu else "TARGET_S", 1e-9)
-    render(scene, cl_device)
+    render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1e-9))
     assert sizes == ([16 * 64] * 4 if gpu else [16 * 8] * (8 * 4))
     sizes.clear()
-    monkeypatch.setattr(dispatch, "GPU_TARGET_S" if gpu else "TARGET_S", 1e9)
-    render(scene, cl_device)
+    render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1e9))
     assert sum(sizes) == 16 * 64 * 4 and len(sizes) <= 4 and (gpu or sizes[1] > sizes[0])

@@ -7,6 +7,7 @@ from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings
 from volrender.vdb import Bricks
+from volrender.dispatch import Launch
 from helpers import render_volume
 
 VOX = 0.1
@@ -248,13 +249,13 @@ def test_emission_is_integrated_along_the_chord(cl_device):
     assert colour[0] == 1.0 and colour[0] > colour[1] > colour[2]
 
 
-def test_same_seed_same_image_whatever_the_launch_split(cl_device, monkeypatch):
+def test_same_seed_same_image_whatever_the_launch_split(cl_device):
     b = sparse_blobs()
     cam = Camera((0.0, 2.0, 14.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 55.0, 40, 30)
     s = VolumeSettings(density_scale=4.0, spp=3, seed=11)
     one = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device)["rgba"]
-    monkeypatch.setattr(volume_mod, "PIXELS_PER_LAUNCH", 40 * 7)
-    split = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device)["rgba"]
+    split = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device,
+                          launch=Launch(first=40 * 7))["rgba"]
     assert np.array_equal(one, split)
     other = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], VolumeSettings(density_scale=4.0, spp=3, seed=12),
                           cl_device)["rgba"]

@@ -219,8 +219,8 @@ def test_cli_renders_with_tracking(tmp_path, capsys):
 def test_error_bench_quick_run(tmp_path, monkeypatch):
     """bench/error.py --quick end to end (volumes only), writing into tmp_path."""
     import json
-    from bench import common, error
-    monkeypatch.setattr(common, "RESULTS", tmp_path)
+    from bench import error
+    monkeypatch.setenv("VOLRENDER_BENCH_RESULTS", str(tmp_path))
     assert error.main(["--quick", "--no-glass", "--size", "24x18", "--ref-spp", "16",
                        "--tag", "t"]) == 0
     (path,) = tmp_path.glob("error_*-t-quick.json")     # the device's tag, then ours

@@ -37,7 +37,20 @@ KINDS = CHOICES + ("fragment-driver",)   # fragment with the driver's local size
 GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
 TARGET_S = 0.25                # launch length aimed at on CPUs (PoCL)
 GPU_TARGET_S = 0.5             # on GPUs
-FIXED_LAUNCH = None            # (rows, samples) per launch instead (benchmarks, tests)
+
+
+@dataclass(frozen=True)
+class Launch:
+    """How a render is cut into launches (render.render(..., launch=), run_rows). The
+    defaults are what renders use; tests and benchmarks pass other values instead of
+    changing module constants."""
+    first: int | None = None       # pixel-samples of the first launch on CPUs (None: the
+                                   # integrator's Plan.band_pixels)
+    target_s: float | None = None  # seconds a launch aims at (None: TARGET_S on CPUs,
+                                   # GPU_TARGET_S on GPUs)
+    fixed: tuple | None = None     # (rows, samples) per launch instead of adapting
+    tile_cap: int | None = None    # bricks a volume tile's list holds (tiled dispatch;
+                                   # None: features.VOLUME_TILE_CAP)
 
 
 @dataclass(frozen=True)
@@ -133,11 +146,17 @@ def row_bands(width: int, height: int, pixels: int, unit: int = 1):
 
 
 def run_rows(device, kernel, args, width, height, pixels, progress=None,
-             dispatch: Dispatch | None = None, spp: int = 1) -> float:
+             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None):
     """Launch `kernel(*args, y0, s0, s1)` over the image, band by band and sample range by
-    sample range (see the module docstring); returns the kernel time in ms (OpenCL
-    profiling events). `pixels`: pixel-samples of the first launch on CPUs, after which
-    launches grow or shrink (at most x8 per launch) towards TARGET_S."""
+    sample range (see the module docstring); returns (kernel ms from OpenCL profiling
+    events, launches). `pixels`: pixel-samples of the first launch on CPUs (unless
+    launch.first), after which launches grow or shrink (at most x8 per launch) towards
+    the target (launch.target_s, else TARGET_S or GPU_TARGET_S); launch.fixed: (rows,
+    samples) per launch."""
+    launch = launch or Launch()
+    fixed = launch.fixed
+    if launch.first is not None:
+        pixels = launch.first
     import pyopencl as cl
     dispatch = (dispatch or Dispatch()).resolve(device)
     dispatch.check(device, kernel)
@@ -145,18 +164,18 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     tw, th = (1, 1) if driver else dispatch.tile
     spp = max(1, int(spp))
     gpu = is_gpu(device)
-    target = GPU_TARGET_S if gpu else TARGET_S
+    target = launch.target_s or (GPU_TARGET_S if gpu else TARGET_S)
     gpu_rows = row_bands(width, height, GPU_BAND_PIXELS, th)[0][1]
     work = gpu_rows * width if gpu else max(1, pixels)        # pixel-samples per launch
     bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height)
-    kernel_ns = 0
+    kernel_ns = launches = 0
     gx = -(-width // tw) * tw
     y0 = 0
     try:
         while y0 < height:
-            if FIXED_LAUNCH is not None:
-                rows = min(height - y0, max(th, FIXED_LAUNCH[0] // th * th))
-                work = width * rows * FIXED_LAUNCH[1]
+            if fixed is not None:
+                rows = min(height - y0, max(th, fixed[0] // th * th))
+                work = width * rows * fixed[1]
             elif gpu:
                 rows = min(height - y0, gpu_rows)
             elif work >= width * spp * th:                   # whole samples, several rows
@@ -178,12 +197,13 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 ev.wait()
                 took = time.perf_counter() - start
                 kernel_ns += ev.profile.end - ev.profile.start
+                launches += 1
                 done = width * rows * (s1 - s0)
-                if FIXED_LAUNCH is None:
+                if fixed is None:
                     work = int(min(max(done * target / max(took, 1e-6), done / 8), done * 8))
                 bar.update(done, y0 + rows if s1 == spp else y0)
                 s0 = s1
             y0 += rows
     finally:
         bar.close()
-    return kernel_ns * 1e-6
+    return kernel_ns * 1e-6, launches

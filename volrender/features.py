@@ -40,17 +40,19 @@ class VolumeFeatures:
     tile_cap: int = 0
 
     @staticmethod
-    def dispatch_fields(dispatch) -> dict:
-        """The tiled/tile_* fields for a volrender.dispatch.Dispatch."""
+    def dispatch_fields(dispatch, tile_cap=None) -> dict:
+        """The tiled/tile_* fields for a volrender.dispatch.Dispatch (tile_cap: the list's
+        capacity, default VOLUME_TILE_CAP)."""
         if not dispatch.tiled:
             return {}
         return {"tiled": True, "tile_w": int(dispatch.tile[0]), "tile_h": int(dispatch.tile[1]),
-                "tile_cap": int(VOLUME_TILE_CAP)}
+                "tile_cap": int(tile_cap or VOLUME_TILE_CAP)}
 
     @classmethod
-    def from_scene(cls, scene, dispatch, gpu=False) -> "VolumeFeatures":
+    def from_scene(cls, scene, dispatch, gpu=False, tile_cap=None) -> "VolumeFeatures":
         """What a volume Scene compiles in (dispatch: the resolved Dispatch; gpu: whether
-        the device is a GPU, which picks how skipping crosses empty bricks)."""
+        the device is a GPU, which picks how skipping crosses empty bricks; tile_cap: the
+        tiled list's capacity, dispatch.Launch)."""
         from .lights import counts
         n_suns, n_points = counts(scene.lights)
         s, bricks = scene.content.settings, scene.content.bricks
@@ -62,7 +64,7 @@ class VolumeFeatures:
                    env=env_mode(scene.environment),
                    ms_octaves=s.ms_octaves if s.estimator == "march" else 1,
                    temperature=emission and s.temperature_grid is not None,
-                   **cls.dispatch_fields(dispatch))
+                   **cls.dispatch_fields(dispatch, tile_cap))
 
     def flags(self) -> dict[str, int]:
         return {f"VR_{k.upper()}": int(v) for k, v in sorted(asdict(self).items())}

@@ -328,7 +328,7 @@ def glass_params(packed: PackedSpheres, settings: GlassSettings, environment=Non
         hit_len=min(packed.hit_len, 3e38))
 
 
-def plan(scene, device, variant=None):
+def plan(scene, device, variant=None, launch=None):
     """The launch of a glass scene (render.render runs it): the scene's packed spheres
     (built once per device, scene.GlassContent.prepare) and this frame's parameters.
     variant "uber": every feature compiled in and chosen at run time; "stats": rgb counts

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import device as device_mod, glass, volume
-from .dispatch import run_rows, upload
+from .dispatch import Launch, run_rows, upload
 from .errors import UserError
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
@@ -69,10 +69,11 @@ class Image:
 PLANNERS = {"volume": volume.plan, "glass": glass.plan}
 
 
-def render(scene, device=None, *, progress=None, variant=None) -> Image:
+def render(scene, device=None, *, progress=None, variant=None, launch: Launch | None = None) -> Image:
     """Render a Scene (volrender.load_scene) on `device` (a spec such as "nvidia", a
     device.Device, or None for the default). `progress`: a bar on stderr (None: when it
-    is a terminal). `variant`: "uber" or "stats" builds of the glass kernel (benchmarks)."""
+    is a terminal). `variant`: "uber" or "stats" builds of the glass kernel (benchmarks).
+    `launch`: how the image is cut into launches (dispatch.Launch; the default adapts)."""
     import pyopencl as cl
 
     if variant not in VARIANTS:
@@ -80,7 +81,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     dev = device_mod.resolve(device)
     cam = scene.camera
     t_plan = time.perf_counter()
-    plan = PLANNERS[scene.kind](scene, dev, variant)
+    plan = PLANNERS[scene.kind](scene, dev, variant, launch)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
     ctx = dev.context
@@ -91,8 +92,8 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
     args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.extra]
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
-    kernel_ms = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                         dispatch=plan.dispatch, spp=scene.settings.spp)
+    kernel_ms, launches = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
+                         dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -109,7 +110,7 @@ def render(scene, device=None, *, progress=None, variant=None) -> Image:
             aovs[name] = _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
-                 info={**plan.info, "setup_ms": setup_ms})
+                 info={**plan.info, "setup_ms": setup_ms, "launches": launches})
 
 
 def _derived_aov(name, rgba):

@@ -258,7 +258,7 @@ def check_steps(bricks, settings):
                                 f"(--{name.replace('_', '-')}, or [volume].{name})")
 
 
-def plan(scene, device, variant=None):
+def plan(scene, device, variant=None, launch=None):
     """The launch of a volume scene (render.render runs it): the marcher or the path
     tracer (track = path at max depth 1)."""
     if variant is not None:
@@ -270,7 +270,8 @@ def plan(scene, device, variant=None):
                         "temperature grid", fix="load it with temperature_grid= (or convert the "
                         ".vdb again with --temperature-grid)")
     dispatch = Dispatch(settings.dispatch, tuple(settings.tile)).resolve(device)
-    features = VolumeFeatures.from_scene(scene, dispatch, is_gpu(device))
+    features = VolumeFeatures.from_scene(scene, dispatch, is_gpu(device),
+                                         launch.tile_cap if launch else None)
     params, w2l = volume_params(bricks, settings, scene.environment)
     content = scene.content
     none = np.zeros(1, np.float32)
