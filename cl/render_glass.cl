@@ -4,7 +4,7 @@
    per-sphere colours, support cells (bricks, cells, lists, runs: cl/cells.h). Output:
    rgba, alpha = coverage of the primary ray.
    Flags: VR_TREE, VR_GRID, VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_REFRACTION, VR_ABSORPTION,
-          VR_GLOW, VR_ENV_MAP, VR_COLORS, VR_TILED (+ VR_TILE_W, VR_TILE_H, VR_TILE_CAP),
+          VR_GLOW, VR_ENV_MAP, VR_COLORS, VR_FULL (both Fresnel branches, shade_glass.h), VR_TILED (+ VR_TILE_W, VR_TILE_H, VR_TILE_CAP),
           VR_UBER (every feature compiled in, chosen at run time by GlassParams.uber and
           the light counts in GlassParams: the kernel-specialisation baseline),
           VR_STATS (diagnostics: rgb holds the field evaluations, node tests and sphere
@@ -12,7 +12,7 @@
 #if !defined(VR_TREE) || !defined(VR_GRID) || !defined(VR_N_SUNS) || !defined(VR_N_POINTS) || \
     !defined(VR_SHADOWS) || !defined(VR_REFRACTION) || !defined(VR_ABSORPTION) || \
     !defined(VR_GLOW) || !defined(VR_ENV_MAP) || !defined(VR_COLORS) || \
-    !defined(VR_TILED) || !defined(VR_UBER) || !defined(VR_STATS)
+    !defined(VR_TILED) || !defined(VR_UBER) || !defined(VR_STATS) || !defined(VR_FULL)
 #error "render_glass.cl: a VR_* feature flag is missing (see volrender/features.py)"
 #endif
 
@@ -79,7 +79,8 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 d = vr_camera_dir(cam, x, y, j.x, j.y);
         int covered;
-        acc += vr_safe_sample(glass_path(&sc, gp, lights, env, cam->origin.xyz, d, &covered));
+        acc += vr_safe_sample(glass_path(&sc, gp, lights, env, cam->origin.xyz, d, cam->seed,
+                                         pixel, (uint)s, &covered));
         cover += (float)covered;
     }
 #if VR_STATS

@@ -39,13 +39,13 @@ inline int glass_trace(const SdfScene* sc, __constant GlassParams* gp, float3 o,
 
 #if VR_LIT
 #if VR_SHADOWS
-/* Visibility of a light along o + t d, t < tmax: 0 when the ray hits glass. Hard with
-   shadow_cone 0; else soft: min over the march of F / (cone t), the fraction of a cone
-   of half-angle atan(cone) around the ray that the glass leaves open (Quilez's penumbra
-   estimate; an approximation, exact only for the hard limit). The march is sdf_march's
-   (over-relaxed, cells skipped); a skipped cell enters the penumbra estimate with its
-   lower bound at its exit (bound / (cone t_exit) <= F / (cone t) there: never brighter
-   than the evaluated points would say). */
+/* Visibility of a light along o + t d, t < tmax, through opaque glass: 0 when the ray hits
+   it. Hard with shadow_cone 0; else soft: min over the march of F / (cone t), the fraction
+   of a cone of half-angle atan(cone) around the ray that the glass leaves open (Quilez's
+   penumbra estimate; an approximation, exact only for the hard limit). The march is
+   sdf_march's (over-relaxed, cells skipped); a skipped cell enters the penumbra estimate
+   with its lower bound at its exit (bound / (cone t_exit) <= F / (cone t) there: never
+   brighter than the evaluated points would say). */
 inline float glass_shadow(const SdfScene* sc, __constant GlassParams* gp, float3 o, float3 d,
                           float base, float tmax)
 {
@@ -60,6 +60,63 @@ inline float glass_shadow(const SdfScene* sc, __constant GlassParams* gp, float3
     vis = clamp(vis, 0.0f, 1.0f);
     return vis * vis * (3.0f - 2.0f * vis);
 }
+
+#if VR_FULL && VR_REFRACTION
+/* Transmittance of a light along o + t d, t < tmax, through refracting glass (--glass-model
+   full): the straight ray crosses each piece of glass it meets, each crossing multiplying
+   by the Fresnel transmission 1 - F at its entry and exit (0 on total internal reflection)
+   and by Beer-Lambert over its chord. The light is not bent: caustics are left out. A ray
+   that meets no glass takes the soft-shadow penumbra, darkened only by the normal-incidence
+   transmission (1 - F0)^2 of the glass it passes, so a soft shadow's edge meets its
+   transmitted core. More than max(bounces, 8) crossings block the light. */
+inline float3 glass_shadow_full(const SdfScene* sc, __constant GlassParams* gp, float3 o,
+                                float3 d, float base, float tmax)
+{
+    float3 trans = (float3)(1.0f), inv_d = 1.0f / d;
+    float eps = gp->epsilon, along = 0.0f, vis = 1.0f;
+    int crossings = max(gp->bounces, 8);
+    for (int k = 0; k <= crossings; ++k) {
+        float2 tt = vr_ray_box(o, inv_d, gp->box_lo.xyz, gp->box_hi.xyz);
+        float t0 = fmax(tt.x, 0.0f), t1 = fmin(tt.y, tmax - along), t, v = 1.0f;
+        SdfSample s;
+        if (!(t0 <= t1) || !sdf_march(sc, o, d, t0, t1, 1.0f, eps, base + along, gp->max_steps,
+                                      gp->relax, k ? 0.0f : gp->shadow_cone, &v, &t, &s)) {
+            if (k == 0) {
+                float f0 = glass_fresnel(1.0f, 1.0f / gp->ior), t00 = (1.0f - f0) * (1.0f - f0);
+                v = clamp(v, 0.0f, 1.0f);
+                vis = 1.0f - (1.0f - v * v * (3.0f - 2.0f * v)) * (1.0f - t00);
+            }
+            return trans * vis;
+        }
+        if (k == crossings)
+            break;
+        float gl = length(s.grad);
+        float3 n = gl > 0.0f ? s.grad / gl : -d;
+        float3 p = o + t * d;
+        along += t;
+        trans *= 1.0f - glass_fresnel(clamp(-dot(d, n), 0.0f, 1.0f), 1.0f / gp->ior);
+        float off = 4.0f * eps * fmax(base + along, length(p));
+        float3 q = p - off * n;                           /* inside */
+        tt = vr_ray_box(q, inv_d, gp->box_lo.xyz, gp->box_hi.xyz);
+        if (!sdf_march(sc, q, d, 0.0f, fmax(tt.y, 0.0f), -1.0f, eps, base + along,
+                       gp->max_steps, gp->relax, 0.0f, &v, &t, &s))
+            return (float3)(0.0f);                        /* no exit found */
+        along += t;
+#if VR_ABSORPTION
+        if (VR_ON(VR_BIT_ABSORPTION))
+            trans *= exp(-gp->absorption.xyz * t);
+#endif
+        gl = length(s.grad);
+        n = gl > 0.0f ? s.grad / gl : d;
+        trans *= 1.0f - glass_fresnel(clamp(dot(d, n), 0.0f, 1.0f), gp->ior);
+        if (!(fmax(trans.x, fmax(trans.y, trans.z)) > 1e-6f))
+            return (float3)(0.0f);
+        p = q + t * d;
+        o = p + 4.0f * eps * fmax(base + along, length(p)) * n;
+    }
+    return (float3)(0.0f);
+}
+#endif
 #endif
 
 /* Light i seen from p on a surface with normal n: unit direction *l towards it and its
@@ -83,8 +140,14 @@ inline float3 glass_light(const SdfScene* sc, __constant GlassParams* gp,
     if (dot(n, *l) <= 0.0f)
         return (float3)(0.0f);
 #if VR_SHADOWS
-    if (VR_ON(VR_BIT_SHADOWS))
+    if (VR_ON(VR_BIT_SHADOWS)) {
+#if VR_FULL && VR_REFRACTION
+        if (VR_ON(VR_BIT_REFRACTION))
+            e *= glass_shadow_full(sc, gp, p, *l, base, dist);
+        else
+#endif
         e *= glass_shadow(sc, gp, p, *l, base, dist);
+    }
 #endif
     return e;
 }
@@ -111,10 +174,42 @@ inline float3 glass_highlights(const SdfScene* sc, __constant GlassParams* gp,
 }
 #endif
 
-/* Radiance along one primary ray; *covered = the ray starts in or hits glass. */
+#if VR_FULL
+#define VR_GLASS_STACK 4      /* branches waiting to be traced */
+#define VR_GLASS_SPLITS 8     /* branches split off per camera path; then one is sampled */
+
+/* A branch of a path waiting to be traced: where it starts, its weight, the glow tint of
+   the glass it is in, the length travelled before o, its surface events and side. */
+typedef struct {
+    float3 o, d, thr, tint;
+    float path;
+    int events, inside;
+} GlassBranch;
+
+inline float glass_max3(float3 v)
+{
+    return fmax(v.x, fmax(v.y, v.z));
+}
+#endif
+
+/* Radiance along one camera ray through up to `bounces` surface events per path;
+   *covered = the ray starts in or hits glass. Inside glass each segment absorbs
+   (Beer-Lambert) and glows; at an event the Fresnel share F is reflected and 1 - F
+   refracted (total internal reflection: all reflected). A branch at its last event, or
+   that leaves the clip box, reads the environment along its direction.
+   --glass-model fast (VR_FULL 0): the path follows the refracted branch; the reflection
+   at an outer surface reads the environment only, and at an exit it is dropped.
+   --glass-model full (VR_FULL 1): both branches are traced like camera rays, so glass
+   shows in reflections and exits reflect back inside. The path goes on with the larger
+   branch and keeps the other (up to VR_GLASS_STACK waiting, VR_GLASS_SPLITS per path); a
+   kept branch weaker than gp->roulette (its largest channel) survives Russian roulette
+   with probability weight / roulette (and takes that much more weight): unbiased, and a
+   sample then differs from its expectation by at most `roulette` of the branch's radiance
+   per decision. Past the budget the weaker branch's weight joins the stronger one (it sees
+   what that one sees: energy is kept, the direction approximated). rng: (seed, pixel, sample) of vr_rand. */
 inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
                          __constant Light* lights, __global const float4* env,
-                         float3 o, float3 d, int* covered)
+                         float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
 {
     float3 rgb = (float3)(0.0f), thr = (float3)(1.0f);
     float path = 0.0f;                         /* length travelled before o */
@@ -128,98 +223,182 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
         tint = gp->eye_color.xyz;              /* the host's blend at the eye (glass.eye_color) */
 #endif
     *covered = inside;
-    for (int b = 0;; ++b) {
-        if (b >= gp->bounces && !inside)
-            break;
-        float t;
-        SdfSample s;
-        int hit = glass_trace(sc, gp, o, d, inside ? -1.0f : 1.0f, path + floor_len,
-                              INFINITY, &t, &s);
-        if (b == 0)
-            *covered |= hit;
+    int events = 0, first = 1;
+#if VR_FULL
+    GlassBranch stack[VR_GLASS_STACK];
+    int sp = 0, splits = 0;
+    uint dim = 2u;
+#endif
+    for (;;) {
+        int done = 1, add_env = 1;             /* done: the branch ends, reading env(d) */
+        if (events < gp->bounces || inside) {
+            float t;
+            SdfSample s;
+            int hit = glass_trace(sc, gp, o, d, inside ? -1.0f : 1.0f, path + floor_len,
+                                  INFINITY, &t, &s);
+            if (first)
+                *covered |= hit;
+            first = 0;
 #if VR_REFRACTION
-        /* Beer-Lambert and emission over the segment inside glass */
-        if (inside && VR_ON(VR_BIT_REFRACTION)) {
+            /* Beer-Lambert and emission over the segment inside glass */
+            if (inside && VR_ON(VR_BIT_REFRACTION)) {
 #if VR_ABSORPTION
-            if (VR_ON(VR_BIT_ABSORPTION)) {
-                float3 tau = gp->absorption.xyz * t;
+                if (VR_ON(VR_BIT_ABSORPTION)) {
+                    float3 tau = gp->absorption.xyz * t;
 #if VR_GLOW
-                /* integral of exp(-a s) over [0, t] = t (1 - exp(-a t)) / (a t) */
-                if (VR_ON(VR_BIT_GLOW)) {
-                    float3 w = select(-expm1(-tau) / tau, (float3)(1.0f), isless(tau, (float3)(1e-6f)));
-                    rgb += thr * gp->glow * tint * t * w;
+                    /* integral of exp(-a s) over [0, t] = t (1 - exp(-a t)) / (a t) */
+                    if (VR_ON(VR_BIT_GLOW)) {
+                        float3 w = select(-expm1(-tau) / tau, (float3)(1.0f),
+                                          isless(tau, (float3)(1e-6f)));
+                        rgb += thr * gp->glow * tint * t * w;
+                    }
+#endif
+                    thr *= exp(-tau);
+                }
+#if VR_GLOW
+                else if (VR_ON(VR_BIT_GLOW)) {
+                    rgb += thr * gp->glow * tint * t;
                 }
 #endif
-                thr *= exp(-tau);
-            }
-#if VR_GLOW
-            else if (VR_ON(VR_BIT_GLOW)) {
-                rgb += thr * gp->glow * tint * t;
-            }
-#endif
 #elif VR_GLOW
-            if (VR_ON(VR_BIT_GLOW))
-                rgb += thr * gp->glow * tint * t;
+                if (VR_ON(VR_BIT_GLOW))
+                    rgb += thr * gp->glow * tint * t;
 #endif
-        }
-#endif
-        if (!hit || b >= gp->bounces)
-            break;
-        path += t;
-        float3 p = o + t * d;
-        float gl = length(s.grad);
-        float3 n = gl > 0.0f ? s.grad / gl : -d;          /* outward normal */
-        float3 nf = inside ? -n : n;                     /* towards the incident side */
-        float eta = inside ? gp->ior : 1.0f / gp->ior;
-        float cos_i = clamp(-dot(d, nf), 0.0f, 1.0f);
-        float fr = glass_fresnel(cos_i, eta);
-        float3 refl = glass_reflect(d, nf);
-        float off = 4.0f * eps * fmax(path + floor_len, length(p));
-        float3 p_out = p + off * nf;                     /* incident side */
-        float3 col = gp->color.xyz;
-#if VR_COLORS
-        if (VR_ON(VR_BIT_COLORS))
-            col = s.color;
-#endif
-        if (!inside) {
-            rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);
-#if VR_LIT
-            rgb += thr * fr * glass_highlights(sc, gp, lights, p_out, nf, -d, path + floor_len);
-#endif
-        }
-#if VR_REFRACTION
-        if (VR_ON(VR_BIT_REFRACTION)) {
-            float3 td;
-            if (glass_refract(d, nf, eta, &td)) {
-                thr *= 1.0f - fr;
-                d = td;
-                o = p - off * nf;
-                inside = !inside;
-                tint = col;                              /* entering: this glass glows */
-            } else if (!inside) {
-                /* ior < 1, total reflection from outside: F = 1, already counted above */
-                return rgb;
-            } else {                                     /* total internal reflection */
-                d = refl;
-                o = p_out;
             }
-            continue;
-        }
+#endif
+            if (hit && events < gp->bounces) {
+                done = 0;
+                ++events;
+                path += t;
+                float3 p = o + t * d;
+                float gl = length(s.grad);
+                float3 n = gl > 0.0f ? s.grad / gl : -d;          /* outward normal */
+                float3 nf = inside ? -n : n;                     /* towards the incident side */
+                float eta = inside ? gp->ior : 1.0f / gp->ior;
+                float cos_i = clamp(-dot(d, nf), 0.0f, 1.0f);
+                float fr = glass_fresnel(cos_i, eta);
+                float3 refl = glass_reflect(d, nf);
+                float off = 4.0f * eps * fmax(path + floor_len, length(p));
+                float3 p_out = p + off * nf;                     /* incident side */
+                float3 col = gp->color.xyz;
+#if VR_COLORS
+                if (VR_ON(VR_BIT_COLORS))
+                    col = s.color;
+#endif
+#if VR_LIT
+                if (!inside)
+                    rgb += thr * fr * glass_highlights(sc, gp, lights, p_out, nf, -d,
+                                                       path + floor_len);
+#endif
+#if !VR_FULL
+                if (!inside)
+                    rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);
+#endif
+                int opaque = 1;
+#if VR_REFRACTION
+                if (VR_ON(VR_BIT_REFRACTION)) {
+                    opaque = 0;
+                    float3 td;
+                    if (!glass_refract(d, nf, eta, &td)) {
+                        /* total reflection: inside, all of it; outside (ior < 1) F = 1 */
+#if VR_FULL
+                        if (!inside)
+                            thr *= gp->reflectivity;
+#else
+                        if (!inside) {
+                            done = 1;                    /* counted above */
+                            add_env = 0;
+                        }
+#endif
+                        d = refl;
+                        o = p_out;
+                    } else {
+#if VR_FULL
+                        /* the refracted and the reflected branch; go on with the larger */
+                        GlassBranch tb = { p - off * nf, td, thr * (1.0f - fr), inside ? tint : col,
+                                           path, events, !inside };
+                        GlassBranch rb = { p_out, refl, thr * (fr * gp->reflectivity), tint,
+                                           path, events, inside };
+                        int keep_t = glass_max3(tb.thr) >= glass_max3(rb.thr);
+                        GlassBranch go = keep_t ? tb : rb, other = keep_t ? rb : tb;
+                        float w = glass_max3(other.thr);
+                        int keep = w > 0.0f;
+                        float rr = gp->roulette;
+                        if (keep && w < rr) {
+                            keep = vr_rand(seed, pixel, sample, dim++) * rr < w;
+                            other.thr *= rr / w;
+                            w = rr;
+                        }
+                        if (keep && (sp >= VR_GLASS_STACK || splits >= VR_GLASS_SPLITS)) {
+                            go.thr += other.thr;         /* past the budget: merged */
+                            keep = 0;
+                        }
+                        if (keep) {
+                            stack[sp++] = other;
+                            ++splits;
+                        }
+                        o = go.o;
+                        d = go.d;
+                        thr = go.thr;
+                        tint = go.tint;
+                        inside = go.inside;
+#else
+                        thr *= 1.0f - fr;
+                        d = td;
+                        o = p - off * nf;
+                        if (!inside)
+                            tint = col;                  /* entering: this glass glows */
+                        inside = !inside;
+#endif
+                    }
+                }
 #endif
 #if !VR_REFRACTION || VR_UBER
-        /* opaque: diffuse tint lit by the environment around n and the lights */
-        float3 diffuse = glass_env(gp, env, n);
+                if (opaque) {
+                    /* opaque: diffuse tint lit by the environment around n and the lights */
+                    float3 diffuse = glass_env(gp, env, n);
 #if VR_LIT
-        for (int i = 0; i < VR_N_LIGHTS; ++i) {
-            float3 l;
-            float3 e = glass_light(sc, gp, lights, i, p_out, n, path + floor_len, &l);
-            diffuse += e * fmax(dot(n, l), 0.0f) * (1.0f / VR_PI);
+                    for (int i = 0; i < VR_N_LIGHTS; ++i) {
+                        float3 l;
+                        float3 e = glass_light(sc, gp, lights, i, p_out, n, path + floor_len, &l);
+                        diffuse += e * fmax(dot(n, l), 0.0f) * (1.0f / VR_PI);
+                    }
+#endif
+                    rgb += thr * (1.0f - fr) * col * diffuse;
+#if VR_FULL
+                    thr *= fr * gp->reflectivity;        /* the reflection, traced */
+                    d = refl;
+                    o = p_out;
+                    done = !(glass_max3(thr) > 0.0f);
+#else
+                    done = 1;
+                    add_env = 0;
+#endif
+                }
+#endif
+            }
         }
+        if (done) {
+            if (add_env)
+                rgb += thr * glass_env(gp, env, d);
+#if VR_FULL
+            if (sp == 0)
+                break;
+            GlassBranch b = stack[--sp];
+            o = b.o;
+            d = b.d;
+            thr = b.thr;
+            tint = b.tint;
+            path = b.path;
+            events = b.events;
+            inside = b.inside;
+            continue;
+#else
+            break;
 #endif
-        return rgb + thr * (1.0f - fr) * col * diffuse;
-#endif
+        }
     }
-    return rgb + thr * glass_env(gp, env, d);
+    return rgb;
 }
 
 #endif

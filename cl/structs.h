@@ -110,7 +110,7 @@ typedef struct {  /* 224 bytes */
     float grid_inv;
     float grid_nudge;
     int grid_skips;
-    float _pad1;
+    float roulette;
     float4 eye_color;
 } GlassParams;
 

@@ -11,6 +11,7 @@ SOURCE = """
 #include "structs.h"
 #include "sdf.h"
 #include "glass.h"
+#include "shade_glass.h"
 
 #define PROBE_ARGS __global const float4* spheres, __global const TreeNode* nodes, \\
     __constant GlassParams* gp, __global const int2* bricks, __global const int2* cells, \\
@@ -53,6 +54,16 @@ __kernel void trace(PROBE_ARGS, __global const float4* o, __global const float4*
     vis[i] = v;
 }
 
+/* out: rgb transmittance of the shadow ray o + t d through refracting glass (--glass-model
+   full), base 1 */
+__kernel void shadow(PROBE_ARGS, __global const float4* o, __global const float4* d,
+                     __global float4* out)
+{
+    int i = get_global_id(0);
+    SdfScene sc = PROBE_SCENE;
+    out[i] = (float4)(glass_shadow_full(&sc, gp, o[i].xyz, d[i].xyz, 1.0f, INFINITY), 0.0f);
+}
+
 /* in: incident direction xyz, eta w; normal +z. out: refracted xyz (0 on TIR), Fresnel w */
 __kernel void optics(__global const float4* in, __global float4* out)
 {
@@ -86,11 +97,16 @@ class Probe:
         p = self.scene
         flags = {"VR_TREE": int(p.accel == "tree"), "VR_GRID": int(p.accel == "grid"),
                  "VR_TILED": 0, "VR_COLORS": 0,
-                 "VR_TREE_STACK": max(2, int(p.first_leaf).bit_length())}
+                 "VR_TREE_STACK": max(2, int(p.first_leaf).bit_length()),
+                 # shade_glass.h (the shadow probe): one sun, refracting absorbing glass
+                 "VR_UBER": 0, "VR_N_SUNS": 1, "VR_N_POINTS": 0, "VR_SHADOWS": 1,
+                 "VR_REFRACTION": 1, "VR_ABSORPTION": 1, "VR_GLOW": 0, "VR_ENV_MAP": 0,
+                 "VR_FULL": 1, "VR_STATS": 0}
         key = (id(dev), tuple(sorted(flags.items())))
         if key not in _PROGRAMS:
             prg = dev.build(SOURCE, flags, "glass probe")
-            _PROGRAMS[key] = {n: cl.Kernel(prg, n) for n in ("field", "lip", "trace", "optics")}
+            _PROGRAMS[key] = {n: cl.Kernel(prg, n)
+                              for n in ("field", "lip", "trace", "shadow", "optics")}
         self.kernels = _PROGRAMS[key]
         params = glass.glass_params(p, settings)
         spheres, grid = glass.kernel_arrays(p, params)
@@ -133,6 +149,11 @@ class Probe:
         out = self._run("trace", f4(np.asarray(o) - self.scene.centre, side), f4(d, relax),
                         n_out=len(o), scalars=(t1, cone), n_vis=len(o))
         return out[:, 3], out[:, :3]
+
+    def shadow(self, o, d):
+        """rgb transmittance of shadow rays o + t d (world) through the glass."""
+        out = self._run("shadow", f4(np.asarray(o) - self.scene.centre), f4(d), n_out=len(o))
+        return out[:, :3]
 
 
 def optics(dev, d, eta):

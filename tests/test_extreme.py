@@ -4,6 +4,7 @@ physical limit wherever one exists. Complements the cases already covered elsewh
 point light; test_cli: NaN voxels through the VDB reader; test_glass: IOR 1, blend 1e-30
 in the field, blend 50, zero radius, one point, 20 coincident points, a cloud 1e5 from
 the origin, the camera inside glass)."""
+import dataclasses
 import math
 import warnings
 
@@ -409,12 +410,26 @@ def white_env(tmp_path_factory):
 
 
 def furnace(env, **kw):
-    """Lossless glass in the white furnace: no absorption, glow or lights. Fresnel
-    splits each path into reflected and refracted parts that sum to 1, and the kernel
-    follows the reflection only at entry (the exit's internal reflection is dropped),
-    so every pixel is in [F(cos_i), 1] where covered and exactly 1 where not."""
+    """Lossless glass in the white furnace: no absorption, glow or lights. Fresnel splits
+    each path into reflected and refracted parts that sum to 1 and every branch ends in the
+    environment (radiance 1). glass_model fast follows the reflection only at entry (the
+    exit's internal reflection is dropped), so every pixel is in [F(cos_i), 1] where
+    covered and exactly 1 where not; full (the default) traces both, so every pixel's
+    expectation is 1 (assert_furnace)."""
     return glass.GlassSettings(env=env, absorption=(0.0, 0.0, 0.0), glow=0.0,
                                reflectivity=1.0, **kw)
+
+
+def assert_furnace(white, settings):
+    """A full-model furnace image: a sample differs from 1 only by the Russian roulette
+    of weak branches, at most `roulette` per decision and one decision per surface event
+    (so at most roulette x bounces), with mean zero (the image mean is 1 within four times
+    that over the square root of the pixel count)."""
+    assert settings.glass_model == "full"
+    rgb = white[..., :3]
+    bound = settings.roulette * settings.bounces + 1e-5
+    assert np.abs(rgb - 1.0).max() <= bound, f"max |L - 1| {np.abs(rgb - 1).max():.4f} > {bound}"
+    assert abs(rgb.mean() - 1.0) <= 4 * bound / np.sqrt(rgb[..., 0].size / settings.spp) + 1e-5
 
 
 def test_blend_to_zero_is_the_plain_union_image(cl_device):
@@ -440,9 +455,12 @@ def test_huge_blend_is_finite(cl_device, white_env, k):
     img = grender(cl_device, cloud, glass.GlassSettings(blend=k, bounces=3),
                   lights=[Sun((0, -1, 0), 2.0)])
     finite(img)
-    white = grender(cl_device, cloud, furnace(white_env, blend=k, bounces=3))
+    s = furnace(white_env, blend=k, bounces=3)
+    white = grender(cl_device, cloud, s)
     finite(white)
-    assert (white[..., :3] <= 1 + 1e-5).all()
+    assert_furnace(white, s)
+    fast = grender(cl_device, cloud, dataclasses.replace(s, glass_model="fast"))
+    assert (fast[..., :3] <= 1 + 1e-5).all()
 
 
 @pytest.mark.parametrize("s", [1e-6, 1e3])
@@ -483,9 +501,12 @@ def test_tiny_and_huge_radii_on_a_unit_cloud(cl_device, white_env, r):
     img = grender(cl_device, cloud, glass.GlassSettings(radius=r, bounces=3), cam,
                   [Sun((0.3, -1.0, -0.2), 3.0)])
     finite(img)
-    white = grender(cl_device, cloud, furnace(white_env, radius=r, bounces=3), cam)
+    s = furnace(white_env, radius=r, bounces=3)
+    white = grender(cl_device, cloud, s, cam)
     finite(white)
-    assert (white[..., :3] <= 1 + 1e-5).all()
+    assert_furnace(white, s)
+    fast = grender(cl_device, cloud, dataclasses.replace(s, glass_model="fast"), cam)
+    assert (fast[..., :3] <= 1 + 1e-5).all()
     if r < 1:
         assert img[..., 3].mean() < 0.05
     else:
@@ -539,7 +560,9 @@ def test_extreme_ior_is_finite_and_conserves_energy(cl_device, white_env, ior):
     img = grender(cl_device, cloud, glass.GlassSettings(ior=ior, bounces=8), cam,
                   [Sun((0.3, -1.0, -0.2), 3.0), PointLight((1.5, 1.5, 1.5), 3.0)])
     finite(img)
-    white = grender(cl_device, cloud, furnace(white_env, ior=ior, bounces=8), cam)
+    s = furnace(white_env, ior=ior, bounces=8)
+    assert_furnace(grender(cl_device, cloud, s, cam), s)
+    white = grender(cl_device, cloud, dataclasses.replace(s, glass_model="fast"), cam)
     finite(white)
     covered = white[..., 3] > 0
     assert covered.mean() > 0.1
@@ -562,11 +585,14 @@ def test_total_internal_reflection_in_the_white_furnace(cl_device, white_env, io
         cam = Camera((0.4, 1.2, 2.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, GSIZE, GSIZE)
     else:
         cam = Camera((0.0, 0.0, 0.0), (1.0, 0.05, 0.3), (0.0, 1.0, 0.0), 120.0, GSIZE, GSIZE)
-    white = grender(cl_device, sheet, furnace(white_env, ior=ior, blend=0.1, bounces=12), cam)
+    s = furnace(white_env, ior=ior, blend=0.1, bounces=12)
+    full = grender(cl_device, sheet, s, cam)
+    assert_furnace(full, s)
+    white = grender(cl_device, sheet, dataclasses.replace(s, glass_model="fast"), cam)
     finite(white)
     assert (white[..., :3] <= 1 + 1e-5).all() and (white[..., :3] > 0).all()
     if where == "inside":
-        assert (white[..., 3] == 1).all()
+        assert (white[..., 3] == 1).all() and (full[..., 3] == 1).all()
     lit = grender(cl_device, sheet, glass.GlassSettings(ior=ior, blend=0.1, bounces=12), cam,
                   [Sun((0.3, -1.0, -0.2), 3.0)])
     finite(lit)
@@ -582,10 +608,14 @@ def test_grazing_rays(cl_device, white_env):
     sheet = PointCloud(np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]]), np.full(len(g), 0.1))
     edge = Camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 17, 17)
     for cloud, c in ((one, cam), (sheet, edge)):
-        for s in (glass.GlassSettings(blend=0.05, bounces=6), furnace(white_env, blend=0.05, bounces=6)):
+        white = furnace(white_env, blend=0.05, bounces=6)
+        for s in (glass.GlassSettings(blend=0.05, bounces=6), white,
+                  dataclasses.replace(white, glass_model="fast")):
             img = grender(cl_device, cloud, s, c, [Sun((0.0, -1.0, -1.0), 2.0)] if s.env is None else [])
             finite(img)
-            if s.env is not None:
+            if s is white:
+                assert_furnace(img, s)
+            elif s.env is not None:
                 assert (img[..., :3] <= 1 + 1e-5).all()
             assert 0 < img[..., 3].mean() < 1
 

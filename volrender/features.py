@@ -78,6 +78,7 @@ class GlassFeatures:
     n_points: int = 0
     shadows: bool = True       # sphere-traced hard shadows toward lights
     refraction: bool = True    # False: opaque shading, no refraction code
+    full: bool = True          # both Fresnel branches traced (--glass-model full); else fast
     absorption: bool = True    # Beer-Lambert inside glass
     glow: bool = False         # hot-glass emission inside glass
     env_map: bool = False      # equirectangular image (False: procedural sky)
@@ -112,10 +113,11 @@ class GlassFeatures:
                       stats=variant == "stats")
         if variant == "uber":
             return cls(tree=tree, grid=grid, shadows=True, refraction=True, absorption=True,
-                       glow=True,
+                       glow=True, full=s.glass_model == "full",
                        env_map=True, colors=True, uber=True, **tiling)
         return cls(tree=tree, grid=grid, n_suns=n_suns, n_points=n_points,
                    shadows=s.shadows and n_suns + n_points > 0, refraction=refr,
+                   full=s.glass_model == "full",
                    absorption=refr and any(a > 0 for a in s.absorption),
                    glow=refr and s.glow > 0, env_map=scene.environment is not None,
                    colors=packed.colors is not None, **tiling)

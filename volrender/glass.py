@@ -31,6 +31,7 @@ UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in c
 SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
 SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
 ACCELS = ("grid", "tree", "none")
+GLASS_MODELS = ("full", "fast")
 
 
 @dataclass(frozen=True)
@@ -64,8 +65,21 @@ class GlassSettings(CommonSettings):
     cell_skip: bool = knob(True, "support cells: list every cell instead of letting rays skip "
                            "those away from the surface (the same field; tests, benchmarks)",
                            check=boolean, flag="--no-cell-skip", toml=("render", "cell_skip"))
-    bounces: int = knob(6, "surface events per path", check=in_range(1, 64, integer=True),
+    bounces: int = knob(6, "surface events (reflections, refractions) per path from the "
+                        "camera: a path tracer's depth bounces + 1", check=in_range(1, 64, integer=True),
                         toml=("render", "bounces"))
+    glass_model: str = knob("full", "full = every surface event reflects and refracts, both "
+                            "traced (glass in reflections, exits reflecting inside; the "
+                            "reference path tracer's image); fast = one refracted path, "
+                            "outer reflections see the environment only (the real-time "
+                            "look)", check=one_of(GLASS_MODELS), choices=GLASS_MODELS,
+                            toml=("render", "glass_model"))
+    roulette: float = knob(0.02, "--glass-model full: a branch weaker than this (its "
+                           "largest channel, relative to the camera ray) survives Russian "
+                           "roulette with probability weight / roulette, else every branch "
+                           "is traced; 0 = trace them all (slowest, no noise), 1 = sample "
+                           "one branch per event (a path tracer's choice, noisiest)",
+                           check=in_range(0, 1), toml=("render", "roulette"))
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
                       toml=("material", "ior"))
     absorption: tuple = knob((0.25, 1.0, 2.7), "Beer-Lambert coefficient inside glass, per "
@@ -325,7 +339,7 @@ def glass_params(packed: PackedSpheres, settings: GlassSettings, environment=Non
         env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=uber, n_suns=n_suns, n_points=n_points, relax=settings.relax,
-        hit_len=min(packed.hit_len, 3e38))
+        hit_len=min(packed.hit_len, 3e38), roulette=settings.roulette)
 
 
 def plan(scene, device, variant=None, launch=None):

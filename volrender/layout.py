@@ -139,7 +139,7 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("grid_inv", "float"),           # 1 / cell size
         ("grid_nudge", "float"),         # step past a skipped cell's exit face, world units
         ("grid_skips", "int"),           # most skips per ray segment
-        ("_pad1", "float"),
+        ("roulette", "float"),           # --glass-model full: weaker branches play Russian roulette
         ("eye_color", "float4"),         # rgb glow tint at the eye (per-point colours, eye in glass)
     ],
     # Support-cell builder (cl/build_cells.cl): boxes are cells or bricks of the grid.
