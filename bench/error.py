@@ -458,23 +458,14 @@ def default_errors(img, ref, var) -> dict:
 
 
 def oidn_denoise(rgba):
-    """Colour-only OIDN (pyoidn) of an RGBA render, or None where pyoidn is absent."""
+    """Colour-only OIDN (pyoidn.denoise, HDR, the `denoise` extra) of an RGBA render, or
+    None where pyoidn is absent."""
     try:
         import pyoidn
     except Exception:
         return None
-    rgb = np.ascontiguousarray(rgba[..., :3], np.float32)
-    out = np.zeros_like(rgb)
-    dev = pyoidn.Device()
-    dev.commit()
-    flt = pyoidn.Filter(dev, "RT")
-    flt.set_image(pyoidn.OIDN_IMAGE_COLOR, rgb, pyoidn.OIDN_FORMAT_FLOAT3)
-    flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, out, pyoidn.OIDN_FORMAT_FLOAT3)
-    flt.set_bool("hdr", True)
-    flt.commit()
-    flt.execute()
-    res = rgba.copy()
-    res[..., :3] = out
+    res = np.array(rgba, np.float32)
+    res[..., :3] = pyoidn.denoise(np.ascontiguousarray(np.maximum(res[..., :3], 0.0)), hdr=True)
     return res
 
 
