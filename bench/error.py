@@ -661,7 +661,7 @@ def plot(record, path):
             ax.loglog([r["time_ms"] for r in rows], [max(r[key], 1e-12) for r in rows],
                       markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute", "octaves") else "--" if g.startswith("alone") else "-",
                       label=g, alpha=0.8)
-            if g == "octaves":        # label each point with its octave count (and spp)
+            if g == "octaves" and kind == "ms":    # label each point with its octave count (and spp)
                 for r in rows:
                     ax.annotate(f"{r['settings']['ms_octaves']}" + ("" if r["spp"] == 4 else f"/{r['spp']}spp"),
                                 (r["time_ms"], max(r[key], 1e-12)), fontsize=6, xytext=(3, 2),
