@@ -16,6 +16,17 @@ against the path-traced image (1 octave: the error of single scattering itself).
 --fit-octaves, a grid over the octave scales (a, b, c) and counts, on all three scenes at
 once (the sum of their relative mean squared errors), which chose the defaults.
 
+Defaults (issue #22; --defaults, or --defaults-only): the five real files as `volrender
+render FILE` sees them (scene.load_scene: the default sun and sky, estimator auto, fire for
+the Mantaflow cache) at --defaults-size, against the path estimator with the same lights
+and settings (--defaults-ref-spp x 8 batches). Rows: the default (auto), single scattering
+(the march with 1 octave), the octave bands at 2, 4 and 8, the path estimator in passes
+to a noise target (--noise-target 0.1 and 0.05, volume.render_adaptive) and, where pyoidn
+imports, the path estimator at 4 and 16 spp denoised by OIDN (colour only). Errors:
+relative RMSE per pixel and after a 2x2 box (the reference's noise removed), image-mean
+ratio; time: CPU ms / cores (median of --repeat). WDAS also at 320x240 for the issue's
+target (mean within 10%, 2x2 relative RMSE <= 15%, <= 3x single scattering's time).
+
 Volumes (scenes/demo_cloud.vdb with the `run.sh demo` look, and smoke.vdb from
 ../shared/data/vdb when present): marching step (2, 1, 0.5, 0.25 voxels), shadow step
 (4, 2, 1, 0.5), samples per pixel (1, 4, 16), a small grid of combinations, and the
@@ -154,7 +165,8 @@ def volume_scenes(width, height):
     b = vdb.load_volume(demo)                                      # the `run.sh demo` look
     out.append(("demo_cloud", b, camera.frame_bounds(*b.world_bounds(), width, height, fov=28.0),
                 [Sun((-0.6, -1.0, -0.5), 10.0)],
-                VolumeSettings(density_scale=6.0, background=(0.32, 0.42, 0.58)), 2048))
+                VolumeSettings(density_scale=6.0, background=(0.32, 0.42, 0.58), estimator="march"),
+                2048))
     smoke = find_volume("smoke", _has_openvdb)
     if smoke is None:
         print(f"bench/error.py: {missing_data('smoke.vdb')}; measuring the demo cloud only",
@@ -162,7 +174,8 @@ def volume_scenes(width, height):
     else:
         b = vdb.load_volume(smoke)                                 # bench/volume.py's settings
         out.append(("smoke", b, camera.frame_bounds(*b.world_bounds(), width, height),
-                    [Sun((-0.6, -1.0, -0.5), 6.0)], VolumeSettings(density_scale=1.0), 1024))
+                    [Sun((-0.6, -1.0, -0.5), 6.0)], VolumeSettings(density_scale=1.0, estimator="march"),
+                    1024))
     return out
 
 
@@ -330,14 +343,14 @@ def time_to_error(points, target, key="rel_rmse"):
 
 
 def octave_fit(dev, scenes, refs, args):
-    """A grid over the octave count and scales: (count, a, b) at c = 0.5, then c for the
-    best (a, b) of each count. The objective sums each scene's squared relative RMSE
+    """A grid over the octave count and parameters (D, G, C; cl/march.h; named a, b, c
+    in the rows): (count, D, G) at C = 0.5, then C for the best (D, G) of each count. The objective sums each scene's squared relative RMSE
     against its path-traced reference (the march at 2 spp, default steps). Returns the
     rows, best first."""
-    counts = (2, 4) if args.quick else (2, 3, 4, 6, 8)
-    grid_a = (0.3, 0.5) if args.quick else (0.2, 0.3, 0.4, 0.5, 0.6)
-    grid_b = (0.5, 0.7) if args.quick else (0.5, 0.6, 0.7, 0.8, 0.9)
-    grid_c = (0.3, 0.9) if args.quick else (0.2, 0.35, 0.65, 0.8, 1.0)
+    counts = (2, 4) if args.quick else (2, 4, 8)
+    grid_a = (0.35, 0.5) if args.quick else (0.35, 0.5, 0.7)       # D
+    grid_b = (2.0, 2.8) if args.quick else (2.0, 2.5, 2.8, 3.2)    # G
+    grid_c = (0.2, 0.5) if args.quick else (0.0, 0.2, 0.5)         # C
     rows = []
 
     def score(n, a, bb, c):
@@ -414,6 +427,131 @@ def run_ms(dev, args, record):
         sc["bench_s"] = time.perf_counter() - t0
     if args.fit_octaves and scenes:
         record["octave_fit"] = octave_fit(dev, scenes, refs, args)[:40]
+
+
+# --------------------------------------------------------------------------- defaults (issue #22)
+
+DEFAULT_FILES = ("wdas_cloud_sixteenth", "smoke", "dragon_with_xform", "fluid_data_0056",
+                 "fluid_data_0190")
+
+
+def box2(a):
+    """2x2 box average (odd edges dropped)."""
+    h, w = a.shape[0] // 2 * 2, a.shape[1] // 2 * 2
+    a = a[:h, :w]
+    return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+
+
+def default_errors(img, ref, var) -> dict:
+    """Relative RMSE per pixel and after a 2x2 box, each with the reference's noise
+    removed, and the image-mean ratio."""
+    out = {}
+    rms = float(np.sqrt((ref[..., :3] ** 2).mean()))
+    for key, f in (("rel_rmse", lambda a: a), ("rel_rmse_box2", box2)):
+        d = f(img[..., :3].astype(np.float64)) - f(ref[..., :3])
+        v = f(var[..., :3]) / (4.0 if f is box2 else 1.0)
+        r = float(np.sqrt((f(ref[..., :3]) ** 2).mean()))
+        out[key] = max(float((d ** 2).mean()) - float(v.mean()), 0.0) ** 0.5 / max(r, 1e-30)
+    out["mean_ratio"] = float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30))
+    out["value_rms"] = rms
+    return out
+
+
+def oidn_denoise(rgba):
+    """Colour-only OIDN (pyoidn.denoise, HDR, the `denoise` extra) of an RGBA render, or
+    None where pyoidn is absent."""
+    try:
+        import pyoidn
+    except Exception:
+        return None
+    res = np.array(rgba, np.float32)
+    res[..., :3] = pyoidn.denoise(np.ascontiguousarray(np.maximum(res[..., :3], 0.0)), hdr=True)
+    return res
+
+
+def run_defaults(dev, args, record):
+    from volrender.render import render
+    sizes = [(stem, args.defaults_size) for stem in DEFAULT_FILES]
+    if not args.quick:
+        sizes.append(("wdas_cloud_sixteenth", (320, 240)))
+    for stem, (w, h) in sizes:
+        p = _find(stem)
+        if p is None:
+            print(f"bench/error.py: {stem} not found; skipping it", flush=True)
+            continue
+        t0 = time.perf_counter()
+        scene = scene_mod.load_scene(p, size=(w, h))
+        st = scene.settings
+
+        def with_(**kw):
+            c = scene_mod.VolumeContent(scene.content.bricks, replace(st, **kw), scene.content.store)
+            return scene.replace(content=c)
+        imgs = []
+        ms = 0.0
+        for k in range(args.ref_batches_defaults):
+            r = render(with_(estimator="path", spp=args.defaults_ref_spp, seed=30_000 + k), dev)
+            imgs.append(r.rgba.astype(np.float64))
+            ms += r.kernel_ms
+        imgs = np.stack(imgs)
+        ref, var = imgs.mean(0), imgs.var(0, ddof=1) / len(imgs)
+        summ = {"estimator": "path", "spp": args.defaults_ref_spp * len(imgs), "batches": len(imgs),
+                "kernel_ms_total": ms, "se_rel": float(np.sqrt(var[..., :3].mean()) /
+                                                       max(np.sqrt((ref[..., :3] ** 2).mean()), 1e-30))}
+        sc = {"scene": stem, "size": [w, h], "source": str(p), "notes": list(scene.notes),
+              "settings": {"estimator": st.estimator, "ms_octaves": st.octaves,
+                           "density_scale": st.density_scale, "albedo": list(st.albedo),
+                           "emission_grid": st.emission_grid,
+                           "temperature_grid": st.temperature_grid},
+              "lights": [repr(l) for l in scene.lights],
+              "environment": scene.environment.source if scene.environment else None,
+              "reference": summ, "rows": []}
+        record["defaults"].append(sc)
+        print(f"[{stem} {w}x{h}] defaults: {st.estimator}, {st.octaves} octaves; reference path "
+              f"{summ['spp']} spp, se {summ['se_rel']:.2%}", flush=True)
+        jobs = [("default", f"default (auto: {st.estimator}, {st.octaves} octaves)", with_()),
+                ("single", "single scattering (march, 1 octave)", with_(ms_octaves=1)),
+                *[("octaves", f"march {n} octaves", with_(ms_octaves=n)) for n in (2, 4, 8)],
+                *[("path", f"path {n} spp", with_(estimator="path", spp=n, seed=7 + n))
+                  for n in (1, 4, 16)]]
+        done = sweep([(i, (lambda sc_=sc_: render(sc_, dev).as_dict()))
+                      for i, (_, _, sc_) in enumerate(jobs)], args.repeat, args.basis)
+        for i, (group, label, _) in enumerate(jobs):
+            img, t = done[i]
+            row = {"group": group, "label": label, **t, **default_errors(img, ref, var)}
+            sc["rows"].append(row)
+        for n in (4, 16):
+            path = next(r for r in zip(jobs, range(len(jobs))) if r[0][1] == f"path {n} spp")
+            img, t = done[path[1]]
+            t1 = time.perf_counter()
+            den = oidn_denoise(img)
+            if den is None:
+                break
+            row = {"group": "oidn", "label": f"path {n} spp + OIDN (colour)",
+                   "time_ms": t["time_ms"] + 1e3 * (time.perf_counter() - t1),
+                   "denoise_ms": 1e3 * (time.perf_counter() - t1), **default_errors(den, ref, var)}
+            sc["rows"].append(row)
+        for target in (0.1, 0.05):
+            t1, c1 = time.perf_counter(), time.process_time()
+            r = render(with_(estimator="path", spp=2, noise_target=target, seed=11), dev)
+            row = {"group": "adaptive", "label": f"path to noise {target:g}",
+                   "time_ms": 1e3 * (time.process_time() - c1) / args.basis[1]
+                   if args.basis[0] == "cpu" else r.kernel_ms,
+                   "wall_ms": 1e3 * (time.perf_counter() - t1), "spp": r.info["spp"],
+                   "passes": r.info["passes"], "noise_estimate": r.info["noise"],
+                   **default_errors(r.rgba, ref, var)}
+            sc["rows"].append(row)
+        single = next(r for r in sc["rows"] if r["group"] == "single")
+        for row in sc["rows"]:
+            row["time_vs_single"] = row["time_ms"] / max(single["time_ms"], 1e-9)
+            print(f"[{stem} {w}x{h}] {row['label']:40s} {row['time_ms']:9.1f} ms "
+                  f"(x{row['time_vs_single']:.2f})  rel rmse {row['rel_rmse']:.1%}  2x2 "
+                  f"{row['rel_rmse_box2']:.1%}  mean x{row['mean_ratio']:.3f}", flush=True)
+        d = sc["rows"][0]
+        sc["target"] = {"mean_within_10pct": abs(d["mean_ratio"] - 1) <= 0.10,
+                        "box2_rel_rmse_le_15pct": d["rel_rmse_box2"] <= 0.15,
+                        "time_le_3x_single": d["time_vs_single"] <= 3.0}
+        pareto(sc["rows"], key="rel_rmse_box2")
+        sc["bench_s"] = time.perf_counter() - t0
 
 
 # --------------------------------------------------------------------------- glass
@@ -508,6 +646,7 @@ def plot(record, path):
     import matplotlib.ticker
     panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
     panels += [("ms", s) for s in record.get("multiple_scattering", [])]
+    panels += [("defaults", s) for s in record.get("defaults", [])]
     if not panels:
         return
     cols = min(2, len(panels))
@@ -516,13 +655,13 @@ def plot(record, path):
     markers = "osD^v<>pPX*h"
     for ax, (kind, sc) in zip(axes.flat, panels):
         groups = list(dict.fromkeys(r["group"] for r in sc["rows"]))
-        key = "rel_rmse" if kind == "ms" else "rmse"
+        key = {"ms": "rel_rmse", "defaults": "rel_rmse_box2"}.get(kind, "rmse")
         for i, g in enumerate(groups):
             rows = [r for r in sc["rows"] if r["group"] == g]
             ax.loglog([r["time_ms"] for r in rows], [max(r[key], 1e-12) for r in rows],
                       markers[i % len(markers)], ls="" if g in ("combined", "preset", "tree vs brute", "octaves") else "--" if g.startswith("alone") else "-",
                       label=g, alpha=0.8)
-            if g == "octaves":        # label each point with its octave count (and spp)
+            if g == "octaves" and kind == "ms":    # label each point with its octave count (and spp)
                 for r in rows:
                     ax.annotate(f"{r['settings']['ms_octaves']}" + ("" if r["spp"] == 4 else f"/{r['spp']}spp"),
                                 (r["time_ms"], max(r[key], 1e-12)), fontsize=6, xytext=(3, 2),
@@ -532,7 +671,12 @@ def plot(record, path):
                 where="post", color="k", lw=1.2, alpha=0.6, label="Pareto front")
         ax.scatter([r["time_ms"] for r in front], [max(r[key], 1e-12) for r in front],
                    s=110, facecolors="none", edgecolors="k", lw=1.2)
-        if kind == "ms":
+        if kind == "defaults":
+            w, h = sc["size"]
+            title = (f"defaults: {sc['scene']} {w}x{h} (ref: path {sc['reference']['spp']} spp, "
+                     "same lights)")
+            ax.axhline(0.15, color="C3", ls="--", lw=0.6, alpha=0.5)
+        elif kind == "ms":
             ax.axhline(sc["reference"]["se_rel"], color="grey", ls=":", lw=1,
                        label="reference noise (se / value rms)")
             for tg in MS_TARGETS:
@@ -554,6 +698,7 @@ def plot(record, path):
             axis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(2.0, 5.0)))
             axis.set_minor_formatter(fmt)
         ax.set_ylabel("relative RMSE vs path-traced reference" if kind == "ms" else
+                      "relative RMSE (2x2 box) vs path reference" if kind == "defaults" else
                       "RMSE (RGB) vs reference")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
@@ -587,6 +732,12 @@ def main(argv=None):
                     help="path reference spp per batch (default 1024; quick 64)")
     ap.add_argument("--fit-octaves", action="store_true",
                     help="grid over the octave scales and counts against the path reference")
+    ap.add_argument("--defaults", action="store_true",
+                    help="also measure the defaults on the five real files (issue #22)")
+    ap.add_argument("--defaults-only", action="store_true", help="only the defaults section")
+    ap.add_argument("--defaults-size", default="160x120", help="defaults section image size")
+    ap.add_argument("--defaults-ref-spp", type=int, default=None,
+                    help="defaults section: path reference spp per batch (default 128; quick 16)")
     ap.add_argument("--tag", default=None, help="added to the results' name: error_<device>-<tag>.json")
     args = ap.parse_args(argv)
     if args.quick and args.size == ap.get_default("size"):
@@ -595,6 +746,11 @@ def main(argv=None):
     args.ref_spp = args.ref_spp or (64 if args.quick else None)
     args.ref_batches = args.ref_batches or (4 if args.quick else 16)
     args.ms_ref_spp = args.ms_ref_spp or (64 if args.quick else 1024)
+    args.defaults_ref_spp = args.defaults_ref_spp or (16 if args.quick else 128)
+    args.ref_batches_defaults = 4 if args.quick else 8
+    args.defaults_size = tuple(int(v) for v in args.defaults_size.lower().split("x"))
+    if args.defaults_only:
+        args.defaults = args.no_volume = args.no_ms = args.no_glass = True
     try:
         args.ms_size = tuple(int(v) for v in (args.ms_size or ("32x24" if args.quick else "96x72"))
                              .lower().split("x"))
@@ -615,8 +771,11 @@ def main(argv=None):
               "time_label": ("kernel ms per frame (median of runs)" if args.time == "kernel" else
                              f"kernel-equivalent ms: CPU ms of the launches / {cores} cores (median)"),
               "load_average_start": os.getloadavg(), "volume": [], "glass": [],
-              "multiple_scattering": []}
+              "multiple_scattering": [], "defaults": []}
     t0 = time.perf_counter()
+    if args.defaults:
+        run_defaults(dev, args, record)
+        write_json(path, record)
     if not args.no_volume:
         run_volume(dev, width, height, args, record)
         write_json(path, record)

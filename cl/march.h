@@ -3,12 +3,26 @@
    environment's share. Include after volume.h, phase.h, lights.h and env.h. Reads
    VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_CHROMATIC, VR_MS_OCTAVES, VR_ENV.
 
-   Octaves (Wrenninge, Kulla and Lundqvist 2013, "Oz: the great and volumetric"): the
-   light scattered at a sample is sum_k b^k p(mu; c^k g) T_light^(a^k), k < VR_MS_OCTAVES,
-   with T_light = exp(-tau) the light's transmittance: octave k sees sigma_t scaled by
-   a^k, contributes b^k and scatters with g scaled by c^k, a stand-in for the light that
-   reaches the sample after more than one scattering. One shadow march gives tau for
-   every octave. VR_MS_OCTAVES 1 is plain single scattering, bit for bit as before. */
+   Octaves (issue #22; after Wrenninge, Kulla and Lundqvist 2013, "Oz: the great and
+   volumetric", made energy-conserving): the light that reaches a sample from a source
+   through shadow optical depth tau is split into N bands k = 0..N-1 at depth scales
+   A_k = A_inf^(u_k), u_k = k / (N - 1):
+       band 0:  p(mu; g) exp(-tau)                         (single scattering)
+       band k:  w p_k(mu) [exp(-A_k tau) - exp(-A_{k-1} tau)],
+   p_k the phase with g scaled by C^((u_{k-1} + u_k) / 2) and w = G albedo for lights,
+   p_k = p and w = albedo for the environment (the band's light scattered once more),
+   A_inf = min(1, D sqrt(3 (1 - albedo) (1 - g_mean))) the
+   diffusion-theory decay of light deep in the medium (per channel). The environment's
+   bands telescope: with albedo 1 (A_inf = 0, w = 1) they sum to p exactly, so a white furnace
+   returns its radiance at any N, D, G, C. A light's bands stand for its blocked light
+   reaching the sample by scattering, which near a lit surface builds up above the
+   single-scattered light (G > 1; fitted, docs/error_time.md); without scattering
+   (albedo 0) the bands vanish; where the medium is thin (tau -> 0) the extra bands vanish, and with
+   A_inf = 1 (albedo <= 0.43 at g 0.42) they are single scattering. One shadow march gives
+   tau for every band. The bands are a midpoint quadrature over u of one continuous model
+   (its phase varies with u), so more octaves converge to it; with C = 0 or 1 every N
+   gives the same image (the sum telescopes). VR_MS_OCTAVES 1 is plain single
+   scattering, bit for bit as before. */
 #ifndef VR_MARCH_H
 #define VR_MARCH_H
 
@@ -49,21 +63,39 @@ inline float vr_shadow(const VrGrid* g, __constant VolumeParams* vp, float3 p, f
 }
 
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
-/* The octave sum at cosine mu over shadow optical depth tau (one octave: p T). */
-inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau)
+/* The band sum at cosine mu over shadow optical depth tau (see the top; one octave: p T).
+   `light` 1: a light's bands (gain G, phase broadened), 0: the environment's (gain 1,
+   the phase kept). ms_decay holds ln A_inf per channel. */
+inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau, int light)
 {
-    VrSpec sum = 0.0f;
-    float ak = 1.0f, bk = 1.0f, ck = 1.0f;
-    for (int k = 0; k < VR_MS_OCTAVES; ++k) {
-        float4 ph = (float4)(vp->phase.x * ck, vp->phase.y * ck, vp->phase.z, 0.0f);
-        sum += bk * vr_phase(mu, ph) * vr_spec_transmit(ak * tau * VR_EXTINCTION(vp));
-        ak *= vp->ms.x;
-        bk *= vp->ms.y;
-        ck *= vp->ms.z;
+    VrSpec ext_tau = tau * VR_EXTINCTION(vp);
+    VrSpec prev = vr_spec_transmit(ext_tau);
+    VrSpec sum = vr_phase(mu, vp->phase) * prev;
+#if VR_MS_OCTAVES > 1
+#if VR_CHROMATIC
+    float3 ln_a = vp->ms_decay.xyz;
+#else
+    float ln_a = vp->ms_decay.x;
+#endif
+    VrSpec gain = (light ? vp->ms.x : 1.0f) * VR_ALBEDO(vp);   /* scattered once more */
+    float du = 1.0f / (float)(VR_MS_OCTAVES - 1);
+    for (int k = 1; k < VR_MS_OCTAVES; ++k) {
+        float u = (float)k * du;
+        VrSpec tk = vr_spec_transmit(exp(u * ln_a) * ext_tau);
+        float ph = vr_phase(mu, vp->phase);
+        if (light) {            /* the phase at the band's middle: N -> inf converges */
+            float ck = pow(vp->ms.y, u - 0.5f * du);
+            ph = vr_phase(mu, (float4)(vp->phase.x * ck, vp->phase.y * ck, vp->phase.z, 0.0f));
+        }
+        sum += gain * ph * (tk - prev);
+        prev = tk;
     }
+#else
+    (void)light;
+#endif
     return sum;
 }
-/* where the shadow march may stop: every octave's (and channel's) light below 1e-4 */
+/* where the shadow march may stop: every band's (and channel's) light below 1e-4 */
 #define VR_TAU_STOP(vp) ((vp)->ms.w)
 #endif
 
@@ -85,7 +117,7 @@ inline float3 vr_inscatter(const VrGrid* g, __constant VolumeParams* vp,
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
         float tau = vr_shadow_tau(g, vp, p, dl, tmax, vr_rand(seed, pixel, s, dim++),
                                   VR_TAU_STOP(vp));
-        sum += vr_octaves(vp, dot(prop, wo), tau) * lights[i].radiance.xyz / atten;
+        sum += vr_octaves(vp, dot(prop, wo), tau, 1) * lights[i].radiance.xyz / atten;
 #else
         float tr = vr_shadow(g, vp, p, dl, tmax, vr_rand(seed, pixel, s, dim++));
         sum += vr_phase(dot(prop, wo), vp->phase) * tr * lights[i].radiance.xyz / atten;
@@ -129,7 +161,7 @@ inline float3 vr_env_inscatter(const VrGrid* g, __constant VolumeParams* vp,
     float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, w);
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
     float tau = vr_march_tau(g, vp, p, dl, INFINITY, u3, VR_TAU_STOP(vp));
-    VrSpec f = vr_octaves(vp, dot(w, d), tau);
+    VrSpec f = vr_octaves(vp, dot(w, d), tau, 0);
 #else
     VrSpec f = p0 * vr_transmit(vr_march_tau(g, vp, p, dl, INFINITY, u3, VR_SHADOW_TAU_STOP));
 #endif

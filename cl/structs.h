@@ -34,7 +34,7 @@ typedef struct {  /* 32 bytes */
     float4 radiance;
 } Light;
 
-typedef struct {  /* 304 bytes */
+typedef struct {  /* 320 bytes */
     float4 world_to_local0;
     float4 world_to_local1;
     float4 world_to_local2;
@@ -50,6 +50,7 @@ typedef struct {  /* 304 bytes */
     float4 extinction;
     float4 env_radiance;
     float4 ms;
+    float4 ms_decay;
     float density_scale;
     float albedo;
     float step;

@@ -68,7 +68,15 @@ inline float3 vr_blackbody(__global const float4* bb, __constant VolumeParams* v
 {
     float f = clamp(vp->bb_a / fmax(kelvin, 1.0f) + vp->bb_b, 0.0f, (float)(vp->bb_n - 1));
     int i = min((int)f, vp->bb_n - 2);
-    return mix(bb[i].xyz, bb[i + 1].xyz, f - (float)i);
+    float4 c = mix(bb[i], bb[i + 1], f - (float)i);
+    /* the intensity law (emission_color.w = its constant; 0: the colour alone):
+       k T^4 x the colour of luminance 1 (c.w = 1 / luminance), volrender/blackbody.py */
+    float k = vp->emission_color.w;
+    if (k > 0.0f) {
+        float t2 = fmax(kelvin, 0.0f) * fmax(kelvin, 0.0f);
+        return c.xyz * (c.w * k * t2 * t2);
+    }
+    return c.xyz;
 }
 
 /* Emitted radiance per unit length per emission-grid value at cell c + f of brick

@@ -12,5 +12,11 @@ def render_points(cloud, camera, lights, settings, device, progress=None, varian
 
 
 def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
+    """Settings left at --estimator auto render as `march` here: these tests check the
+    marcher's estimand (single scattering, or the octaves asked for); auto's choice has
+    its own tests (test_defaults.py), through load_scene as the CLI renders."""
+    if settings.estimator == "auto":
+        import dataclasses
+        settings = dataclasses.replace(settings, estimator="march")
     scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
     return render(scene, device, progress=progress, launch=launch).as_dict()

@@ -122,7 +122,7 @@ def test_temperature_grid_colours_each_voxel(cl_device, estimator):
     cam = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 12.0, 16, 16)
     s = VolumeSettings(density_scale=0.0, emission_grid="emission", temperature_grid="temperature",
                        temperature_scale=1e4, emission_scale=2.0, estimator=estimator,
-                       spp=1 if estimator == "march" else 256)
+                       spp=1 if estimator == "march" else 256, emission_law="colour")
     img = render_volume(b, cam, [], s, cl_device)["rgba"][..., :3].astype(np.float64)
     left, right = img[6:10, 2:6].reshape(-1, 3), img[6:10, 10:14].reshape(-1, 3)
     for block, kelvin in ((left, 1200.0), (right, 4000.0)):
@@ -176,3 +176,41 @@ def test_blender_fire_shows_more_than_one_hue(cl_device, shared_data):
                                                    emission_scale=20.0), cl_device)["rgba"]
     hue = (one[..., 1] / np.maximum(one[..., 0], 1e-12))[lit]
     assert np.ptp(hue) < 1e-3                       # one blackbody colour without it
+
+
+@pytest.mark.parametrize("estimator", ["march", "path"])
+def test_blackbody_law_brightness_rises_as_t4(cl_device, estimator):
+    """The intensity law (the default with a temperature grid): each pixel is
+    emission_scale x chord x INTENSITY_K T^4 x the colour of luminance 1 (its numpy
+    oracle, blackbody.lookup_radiance), so 4000 K is (4000/1200)^4 x brighter in
+    luminance than 1200 K."""
+    b = two_temperatures()
+    cam = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 12.0, 16, 16)
+    s = VolumeSettings(density_scale=0.0, emission_grid="emission", temperature_grid="temperature",
+                       temperature_scale=1e4, emission_scale=2.0, estimator=estimator,
+                       spp=1 if estimator == "march" else 256)
+    assert s.blackbody_law
+    img = render_volume(b, cam, [], s, cl_device)["rgba"][..., :3].astype(np.float64)
+    lum = {}
+    for (rows, cols), kelvin in (((slice(6, 10), slice(2, 6)), 1200.0),
+                                 ((slice(6, 10), slice(10, 14)), 4000.0)):
+        block = img[rows, cols].reshape(-1, 3)
+        want = 2.0 * 0.4 * bb.lookup_radiance(kelvin)
+        np.testing.assert_allclose(block.mean(axis=0), want,
+                                   rtol=0.03 if estimator == "march" else 0.1)
+        lum[kelvin] = float((block @ bb.REC709_Y).mean())
+        np.testing.assert_allclose(want @ bb.REC709_Y, 0.8 * bb.INTENSITY_K * kelvin ** 4,
+                                   rtol=1e-3)
+    assert lum[4000.0] / lum[1200.0] == pytest.approx((4000 / 1200) ** 4,
+                                                      rel=0.04 if estimator == "march" else 0.15)
+
+
+def test_blackbody_law_oracle():
+    """blackbody.radiance: luminance INTENSITY_K T^4 (Blender's 1500 K -> 0.091, 3000 K ->
+    1.46), hue from the colour table; the kernel's table oracle agrees within 0.3%; cold
+    voxels fade as T^4 below the table."""
+    for kelvin, y in ((1500.0, 0.0913), (3000.0, 1.461)):
+        assert bb.radiance(kelvin) @ bb.REC709_Y == pytest.approx(y, rel=2e-3)
+    t = np.array([500.0, 900.0, 1800.0, 2700.0, 6000.0, 11000.0])
+    np.testing.assert_allclose(bb.lookup_radiance(t), bb.radiance(t), rtol=3e-3, atol=1e-12)
+    assert bb.radiance(400.0) @ bb.REC709_Y == pytest.approx(bb.INTENSITY_K * 400.0 ** 4, rel=1e-6)

@@ -106,7 +106,8 @@ def test_png_straight_alpha(tmp_path, rng):
     a[0, 0], a[0, 1] = 0.0, 1.0
     rgba = np.concatenate([c * a[..., None], a[..., None]], -1).astype(np.float32)
     rgba[0, 0, :3] = [0.2, 0.3, 0.4]              # nothing covers it: the background
-    px = decode_png(write_image(tmp_path / 's.png', rgba, tonemap='clamp').read_bytes())
+    px = decode_png(write_image(tmp_path / 's.png', rgba, tonemap='clamp',
+                                png_alpha='straight').read_bytes())
     assert (px[..., 3] == np.floor(a * 255 + 0.5)).all()
     want = to_srgb8(c, 0.0, 'clamp').astype(int)
     want[0, 0] = to_srgb8(np.array([0.2, 0.3, 0.4]), 0.0, 'clamp')
@@ -117,8 +118,25 @@ def test_png_straight_alpha(tmp_path, rng):
     over = rgba.copy()
     over[..., :3] += (1 - a[..., None]) * bg    # composited over a background
     px2 = decode_png(write_image(tmp_path / 'b.png', over, tonemap='clamp',
-                                 background=bg).read_bytes())
+                                 background=bg, png_alpha='straight').read_bytes())
     assert np.abs(px2[..., :3].astype(int) - px[..., :3])[covered].max() <= 1
+
+
+def test_png_is_opaque_by_default(tmp_path, rng):
+    """The default PNG is the picture as rendered: the premultiplied RGB (background, sky
+    and environment included) tone-mapped, alpha 1, whatever the render's alpha; 16 bits
+    alike. EXR keeps the premultiplied RGBA."""
+    rgba = rng.random((6, 5, 4)).astype(np.float32)
+    rgba[0, 0] = [0.2, 0.3, 0.4, 0.0]                # the sky, where nothing covers it
+    for bits in (8, 16):
+        px = read_image(write_image(tmp_path / f'o{bits}.png', rgba, tonemap='clamp',
+                                    png_bits=bits))
+        assert (px[..., 3] == (1 << bits) - 1).all()
+        assert (px[..., :3] == image.to_srgb(rgba[..., :3], 0.0, 'clamp', bits)).all()
+    back = read_image(write_image(tmp_path / 'o.exr', rgba))
+    np.testing.assert_array_equal(back, rgba)
+    with pytest.raises(UserError, match="alpha"):
+        write_image(tmp_path / 'x.png', rgba, png_alpha='premultiplied')
 
 
 def test_png_16_bit(tmp_path, rng):

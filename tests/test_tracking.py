@@ -196,7 +196,7 @@ def test_tracking_image_does_not_depend_on_the_launch(cl_device):
 
 
 def test_estimator_is_validated(tmp_path, capsys):
-    assert ESTIMATORS == ("march", "track", "path")
+    assert ESTIMATORS == ("auto", "march", "track", "path")
     with pytest.raises(UserError, match="estimator"):
         VolumeSettings(estimator="monte-carlo")
     out = tmp_path / "o.png"

@@ -15,6 +15,15 @@ magenta that this removes), out-of-gamut negatives clipped to 0, and divided by 
 largest channel: a chromaticity with its brightest channel 1. The emission grid gives
 the intensity. 1500 K -> (1, 0.14, 0); 3000 K -> (1, 0.51, 0.16); 12 000 K -> (0.53,
 0.67, 1).
+
+Intensity law (`radiance`, `--emission-law blackbody`, the default with a temperature
+grid; issue #22): the emitted radiance per unit length per emission-grid value is
+    L_e(T) = sigma_SB T^4 / pi x 1e-6 x rgb(T) / Y(rgb(T)),
+Blender's Principled Volume with Blackbody Intensity 1 (Cycles: the Stefan-Boltzmann
+exitance over pi, scaled by 1e-6, with the colour normalised to luminance 1, Y the
+Rec.709 luminance of the linear colour): it rises as T^4, 1000 K -> Y 0.018, 1500 K ->
+0.091, 3000 K -> 1.46. Below the table's range (800 K) the colour is clamped but the
+T^4 factor is not, so cold voxels fade to black.
 """
 from __future__ import annotations
 
@@ -23,6 +32,10 @@ import numpy as np
 T_MIN, T_MAX = 800.0, 12000.0     # the table's range, kelvin (clamped outside)
 TABLE_SIZE = 512                  # entries, uniform in 1/T (mired): interpolation error <= 0.0022
 WHITE_K = 6500.0
+SIGMA_SB = 5.670374419e-8         # Stefan-Boltzmann constant, W m^-2 K^-4
+# L_e = INTENSITY_K T^4 x (colour of luminance 1): Blender's blackbody intensity
+INTENSITY_K = SIGMA_SB * 1e-6 / np.pi
+REC709_Y = np.array([0.2126, 0.7152, 0.0722])
 
 # CIE 1931 2-degree observer: (nm, x-bar, y-bar, z-bar)
 CIE_1931_5NM = np.array([
@@ -171,12 +184,23 @@ def rgb(kelvin) -> np.ndarray:
     return v / v.max(axis=-1, keepdims=True)
 
 
+def radiance(kelvin) -> np.ndarray:
+    """The blackbody intensity law (module docstring): INTENSITY_K T^4 rgb(T) / Y(rgb(T)),
+    shape (..., 3); the colour clamped to [T_MIN, T_MAX] as the kernel's table is."""
+    t = np.asarray(kelvin, np.float64)
+    c = rgb(np.clip(t, T_MIN, T_MAX))
+    return (INTENSITY_K * np.maximum(t, 0.0) ** 4)[..., None] * c / (c @ REC709_Y)[..., None]
+
+
 def table(n: int = TABLE_SIZE, t_min: float = T_MIN, t_max: float = T_MAX) -> np.ndarray:
     """float32 (n, 4): rgb(T) at n temperatures uniform in 1/T, from t_max (entry 0) to
-    t_min (entry n - 1); the kernel interpolates linearly in 1/T and clamps outside."""
+    t_min (entry n - 1), and in w 1 / its luminance (the intensity law's normalisation);
+    the kernel interpolates linearly in 1/T and clamps outside."""
     inv = np.linspace(1.0 / t_max, 1.0 / t_min, n)
     out = np.zeros((n, 4), np.float32)
-    out[:, :3] = rgb(1.0 / inv)
+    c = rgb(1.0 / inv)
+    out[:, :3] = c
+    out[:, 3] = 1.0 / (c @ REC709_Y)
     return out
 
 
@@ -189,3 +213,18 @@ def lookup(kelvin, tab=None, t_min: float = T_MIN, t_max: float = T_MAX) -> np.n
     i = np.clip(np.floor(f).astype(int), 0, n - 2)
     a = (f - i)[..., None]
     return (1 - a) * tab[i, :3] + a * tab[i + 1, :3]
+
+
+def lookup_radiance(kelvin, tab=None) -> np.ndarray:
+    """What the kernel emits under the intensity law at `kelvin` (numpy oracle): the
+    table's colour and 1/luminance, interpolated, times INTENSITY_K T^4."""
+    tab = table() if tab is None else tab
+    t = np.asarray(kelvin, np.float64)
+    ext = np.concatenate([tab[:, :3], tab[:, 3:4] * np.ones((1, 3))], axis=1)
+    n = len(tab)
+    tc = np.clip(t, T_MIN, T_MAX)
+    f = (1.0 / tc - 1.0 / T_MAX) / (1.0 / T_MIN - 1.0 / T_MAX) * (n - 1)
+    i = np.clip(np.floor(f).astype(int), 0, n - 2)
+    a = (f - i)[..., None]
+    v = (1 - a) * ext[i] + a * ext[i + 1]
+    return (INTENSITY_K * np.maximum(t, 0.0) ** 4)[..., None] * v[..., :3] * v[..., 3:4]

@@ -129,7 +129,7 @@ def build_parser():
                                  "GENERATOR:COUNT, or SCENE.toml")
     r.add_argument("-o", "--output", required=True,
                    help="OUT.exr (linear premultiplied RGBA + layers), OUT.npy (float32 HxWx4) "
-                        "or OUT.png (tone-mapped sRGB RGBA, straight alpha); never one of the "
+                        "or OUT.png (tone-mapped sRGB, opaque; --transparent: straight alpha); never one of the "
                         "inputs; a symlink is written through")
     before = {a.dest for a in r._actions}
     add_render_options(r)
@@ -162,7 +162,7 @@ def build_parser():
     o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
                    help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
     o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
-                   help="PNG only: bits per channel of the sRGB RGBA (straight alpha) "
+                   help="PNG only: bits per channel of the sRGB "
                         "file (default: 8)")
     o.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")
@@ -342,6 +342,8 @@ def cmd_render(args):
         print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
               f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
+    if img.info.get("adaptive"):
+        print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
     for problem in look_problems(img, scene):
         warnings.warn(problem)
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)

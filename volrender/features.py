@@ -62,7 +62,7 @@ class VolumeFeatures:
                    skip_runs=s.skip_empty and (not gpu if s.skip_runs is None else s.skip_runs),
                    emission=emission, depth=s.depth, chromatic=s.chromatic,
                    env=env_mode(scene.environment),
-                   ms_octaves=s.ms_octaves if s.estimator == "march" else 1,
+                   ms_octaves=s.octaves if s.estimator == "march" else 1,
                    temperature=emission and s.temperature_grid is not None,
                    **cls.dispatch_fields(dispatch, tile_cap))
 

@@ -7,9 +7,11 @@ Formats (see DESIGN.md, "Outputs"):
   (``depth`` -> ``Z``, the name OpenEXR tools use for depth; ``transmittance`` -> ``T``);
   any other AOV name is used as the channel name unchanged.
 - ``.npy``: linear float32 ``H x W x 4``.
-- ``.png``: tone-mapped sRGB RGBA with straight (not premultiplied) alpha, 8 bits per
-  channel (Pillow) or 16 on request (``png_bits=16``, pypng: Pillow writes no 16-bit
-  colour PNGs); see ``png_pixels`` for what the colour means.
+- ``.png``: tone-mapped sRGB, 8 bits per channel (Pillow) or 16 on request
+  (``png_bits=16``, pypng: Pillow writes no 16-bit colour PNGs). Opaque by default
+  (``png_alpha='opaque'``: the picture as rendered, background, sky and environment
+  included, alpha 1, as Blender's film is unless made transparent); ``'straight'``
+  (``--transparent``) keeps straight alpha for compositing, see ``png_pixels``.
 
 All arrays are ``H x W x C`` with the top image row first. Every write goes through
 ``volrender.atomic`` (a temporary file renamed over the destination once complete), so a
@@ -34,6 +36,7 @@ from .files import check_input
 SUFFIXES = ('.exr', '.npy', '.png')
 TONEMAPS = ('filmic', 'clamp')
 PNG_BITS = (8, 16)
+PNG_ALPHAS = ('opaque', 'straight')
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
 
 # Filmic shoulder: identity up to the knee, then an exponential shoulder that meets the
@@ -144,8 +147,13 @@ def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
     return to_srgb(rgb, exposure, tonemap, 8)
 
 
-def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None) -> np.ndarray:
+def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None,
+               alpha='straight') -> np.ndarray:
     """The PNG's H x W x 4 codes (uint8 or uint16) of a premultiplied linear render.
+
+    alpha='opaque': the render's RGB as it is (what the picture shows: the background,
+    sky and environment composited behind), tone-mapped and sRGB-encoded, alpha 1.
+    alpha='straight' (below): for compositing.
 
     Alpha is the render's alpha, linear. The colour is straight: the covering part of the
     pixel, (RGB - (1 - alpha) * background) / alpha, tone-mapped and sRGB-encoded, where
@@ -156,7 +164,15 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None) ->
     with no opacity (emission where the density is 0) cannot be expressed with straight
     alpha: it survives in EXR/NPY only.
     """
+    if alpha not in PNG_ALPHAS:
+        raise ValueError(f"alpha must be one of {PNG_ALPHAS}, got {alpha!r}")
     rgba = np.asarray(rgba, np.float64)
+    top = (1 << bits) - 1
+    if alpha == 'opaque':
+        out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
+        out[..., :3] = to_srgb(rgba[..., :3], exposure, tonemap, bits)
+        out[..., 3] = top
+        return out
     rgb, alpha = rgba[..., :3], rgba[..., 3]
     a = np.where(np.isfinite(alpha), np.clip(alpha, 0.0, 1.0), 1.0)
     covered = a > 0
@@ -170,7 +186,6 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None) ->
         colour = np.where(covered[..., None], straight, rgb)
     out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
     out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
-    top = (1 << bits) - 1
     out[..., 3] = np.floor(a * top + 0.5)
     return out
 
@@ -229,7 +244,7 @@ def _write_npy(f, rgba, channels: dict, options: dict) -> None:
 def _write_png(f, rgba, channels: dict, options: dict) -> None:
     bits = options.get('png_bits', 8)
     px = png_pixels(rgba, options.get('exposure', 0.0), options.get('tonemap', 'filmic'), bits,
-                    options.get('background'))
+                    options.get('background'), options.get('png_alpha', 'opaque'))
     h, w = px.shape[:2]
     if bits == 8:
         from PIL import Image as PILImage
@@ -248,14 +263,15 @@ _WRITERS = {'.exr': _write_exr, '.npy': _write_npy, '.png': _write_png}
 
 
 def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 'filmic',
-                camera=None, png_bits: int = 8, background=None) -> Path:
+                camera=None, png_bits: int = 8, background=None,
+                png_alpha: str = 'opaque') -> Path:
     """Write a rendered image atomically; return the file written (symlinks followed).
 
     ``rgba``: float ``H x W x 4``, linear, premultiplied, row 0 = top of the image.
     ``aovs``: optional dict of layer name -> ``H x W`` float array, ``.exr`` only (channel
     names: ``AOV_CHANNELS``). ``exposure``, ``tonemap``, ``png_bits`` (8 or 16) and
-    ``background`` (the radiance composited behind, see ``png_pixels``) apply to ``.png``
-    only. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
+    ``background`` (the radiance composited behind, see ``png_pixels``) and ``png_alpha``
+    (``'opaque'``, the default, or ``'straight'``) apply to ``.png`` only. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
     ``camera``: a camera.Camera recorded in the EXR header (``camera_attributes``).
 
     Raises ``UserError`` for a bad path or a failed write (disk full, permissions); on any
@@ -267,6 +283,9 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
     _check_tonemap(tonemap)
     if png_bits not in PNG_BITS:
         raise UserError(f"PNG bit depth {png_bits!r} is not supported", fix="use 8 or 16")
+    if png_alpha not in PNG_ALPHAS:
+        raise UserError(f"PNG alpha {png_alpha!r} is not supported",
+                        fix=f"use one of {', '.join(PNG_ALPHAS)}")
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.shape[0] < 1 or rgba.shape[1] < 1:
         raise ValueError(f"rgba must be H x W x 4 with H, W >= 1, got shape {rgba.shape}")
@@ -279,7 +298,7 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
             raise ValueError(f"layer {name!r} has shape {data.shape}, expected {rgba.shape[:2]}")
         channels[_aov_channel(name)] = data
     options = dict(exposure=exposure, tonemap=tonemap, camera=camera, png_bits=png_bits,
-                   background=background)
+                   background=background, png_alpha=png_alpha)
     with atomic.replace(out, "image") as f:
         _WRITERS[out.suffix.lower()](f, rgba, channels, options)
     return out
@@ -321,7 +340,7 @@ def _read_png(path: Path) -> np.ndarray:
 
 def read_image(path) -> np.ndarray:
     """Read an image: ``H x W x 4`` float32 for .exr/.npy, ``H x W x 4`` uint8 (uint16
-    for 16-bit files) sRGB codes with straight alpha for .png.
+    for 16-bit files) sRGB codes (opaque, or straight alpha) for .png.
 
     An EXR without an A channel reads with alpha 1.
     """

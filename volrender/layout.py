@@ -79,7 +79,8 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("albedo_rgb", "float4"),        # per-channel albedo (VR_CHROMATIC); w unused
         ("extinction", "float4"),        # per-channel sigma_t scale s (VR_CHROMATIC); w unused
         ("env_radiance", "float4"),      # uniform environment radiance (VR_ENV 1); w unused
-        ("ms", "float4"),                # octave scales a, b, c; shadow tau stop (VR_MS_OCTAVES > 1)
+        ("ms", "float4"),                # octaves: G, C, unused, shadow tau stop (VR_MS_OCTAVES > 1)
+        ("ms_decay", "float4"),          # octaves: ln A_inf per channel (the closing band's depth scale)
         ("density_scale", "float"),      # sigma_t = density_scale * s * grid value
         ("albedo", "float"),             # grey albedo (VR_CHROMATIC 0)
         ("step", "float"),               # primary step, world units

@@ -46,6 +46,38 @@ MAX_LIGHTS = layout.MAX_LIGHTS    # VR_MAX_LIGHTS in cl/structs.h
 # Used when the user gives no light: from above, over the viewer's left shoulder.
 DEFAULT_LIGHTS = (Sun((-0.6, -1.0, -0.5), 6.0),)
 
+# The sky volumes get when no --env is given (issue #22; glass has its own procedural one,
+# cl/glass.h): radiance from a bright horizon to a blue zenith (glass's colours at
+# SKY_SCALE) over a hazy ground, as an equirectangular map turned to the up axis. Its
+# irradiance on a horizontal plane is about 0.17 of the default sun's. Fire (a Mantaflow
+# cache with flame) gets both at FIRE_LIGHT: dusk, so that its own light dominates.
+SKY_SCALE = 0.5
+SKY_HORIZON = (0.85, 0.9, 1.0)
+SKY_ZENITH = (0.2, 0.4, 0.85)
+SKY_GROUND = (0.55, 0.52, 0.48)
+SKY_SIZE = (128, 64)
+FIRE_LIGHT = 0.1
+
+
+def sky_texels(up=(0.0, 1.0, 0.0), size=SKY_SIZE, scale=SKY_SCALE) -> np.ndarray:
+    """float32 (H, W, 3) equirectangular texels of the default volume sky (cl/env.h's
+    convention: row 0 looks along +y, the centre along -z), its zenith along `up`."""
+    w, h = size
+    v = (np.arange(h) + 0.5) / h
+    u = (np.arange(w) + 0.5) / w
+    theta, phi = np.pi * v[:, None], (u[None, :] - 0.5) * 2.0 * np.pi
+    d = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta) * np.ones_like(phi),
+                  -np.sin(theta) * np.cos(phi)], axis=-1)
+    up = np.asarray(up, np.float64)
+    e = d @ (up / np.linalg.norm(up))
+    hor, zen, gnd = (np.asarray(c, np.float64) for c in (SKY_HORIZON, SKY_ZENITH, SKY_GROUND))
+    t = np.sqrt(np.clip(e, 0.0, 1.0))[..., None]
+    sky = hor + (zen - hor) * t
+    g = 1.0 - np.exp(-4.0 * np.clip(-e, 0.0, 1.0))[..., None]
+    ground = hor + (gnd - hor) * g
+    out = np.where((e >= 0)[..., None], sky, ground) * scale
+    return out.astype(np.float32)
+
 
 def counts(lights) -> tuple[int, int]:
     return (sum(isinstance(l, Sun) for l in lights), sum(isinstance(l, PointLight) for l in lights))

@@ -51,13 +51,17 @@ class Image:
         return self.rgba.shape[0]
 
     def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic",
-             png_bits: int = 8) -> Path:
-        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB RGBA,
-        straight alpha: image.png_pixels), atomically."""
+             png_bits: int = 8, transparent: bool | None = None) -> Path:
+        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB: opaque,
+        or with transparent (default: the scene's --transparent) straight alpha:
+        image.png_pixels), atomically."""
         from .image import write_image
+        if transparent is None:
+            transparent = bool(self.info.get("transparent", False))
         return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
                            camera=self.camera, png_bits=png_bits,
-                           background=self.info.get("background"))
+                           background=self.info.get("background"),
+                           png_alpha="straight" if transparent else "opaque")
 
     def as_dict(self) -> dict:
         """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
@@ -79,6 +83,8 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     if variant not in VARIANTS:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = device_mod.resolve(device)
+    if scene.kind == "volume" and volume.adaptive(scene.settings):     # passes (issue #22)
+        return volume.render_adaptive(scene, dev, progress=progress, launch=launch)
     cam = scene.camera
     t_plan = time.perf_counter()
     plan = PLANNERS[scene.kind](scene, dev, variant, launch)
@@ -110,7 +116,8 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
             aovs[name] = _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
-                 info={**plan.info, "setup_ms": setup_ms, "launches": launches})
+                 info={"transparent": bool(getattr(scene.settings, "transparent", False)),
+                       **plan.info, "setup_ms": setup_ms, "launches": launches})
 
 
 def _derived_aov(name, rgba):

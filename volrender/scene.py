@@ -524,6 +524,36 @@ def _scan_defaults(cloud, settings):
                       f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
 
 
+def _fire_defaults(path, settings, given):
+    """(settings, note): a Blender Mantaflow cache (vdb.mantaflow_cache, by its grid set)
+    with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
+    emission from flame, each voxel's blackbody colour and brightness (the intensity law,
+    blackbody.py) at 1000 K per temperature unit, Blender's Principled Volume default (the
+    cache stores temperature in units of it; it carries no kelvin of its own).
+    --emission-grid none turns it off."""
+    from . import vdb
+    if settings.emission_grid in ("", "none"):
+        return dataclasses.replace(settings, emission_grid=None), None
+    if Path(path).suffix.lower() != ".vdb" or settings.emission_grid is not None \
+            or settings.temperature_grid is not None:
+        return settings, None
+    grids = vdb.list_grids(path)
+    why = vdb.mantaflow_cache(grids)
+    by = {g.name: g for g in grids}
+    if not why or "flame" not in by or "temperature" not in by \
+            or by["flame"].value_type != "float" or by["temperature"].value_type != "float" \
+            or not by["flame"].active_voxels:
+        return settings, None
+    changes = {"emission_grid": "flame", "temperature_grid": "temperature"}
+    if "temperature_scale" not in given:
+        changes["temperature_scale"] = 1000.0
+    settings = dataclasses.replace(settings, **changes)
+    return settings, (f"fire: {why}; emission from grid 'flame', blackbody colour and "
+                      f"brightness (T^4) of {settings.temperature_offset:g} + "
+                      f"{settings.temperature_scale:g} K x 'temperature'; --emission-grid none "
+                      "turns it off")
+
+
 def _environment(path, where):
     """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
     if isinstance(path, tuple):
@@ -569,11 +599,18 @@ class Request:
         notes = []
         settings = self.settings
         environment = None
+        fire = False
         if self.kind == "volume":
             from . import vdb
             path = self.doc["volume"]["file"] if self.doc else Path(self.source)
+            settings, note = _fire_defaults(path, settings, self.given)
+            fire = note is not None
+            notes += [note] if note else []
             bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid,
                                      temperature_grid=settings.temperature_grid)
+            from .volume import auto_estimator
+            settings, note = auto_estimator(bricks, settings)
+            notes += [note] if note else []
             content = VolumeContent(bricks, settings)
         else:
             from . import points
@@ -599,13 +636,27 @@ class Request:
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
         camera = self.view.camera(lo, hi, hint)
+        if environment is None and self.kind == "volume":      # the default sky (issue #22)
+            from .camera import up_frame
+            from .lights import FIRE_LIGHT, SKY_SCALE, sky_texels
+            frame = up_frame(self.view.axis(hint))
+            dim = FIRE_LIGHT if fire and self.lights is None else 1.0
+            environment = Environment(sky_texels((0.0, 1.0, 0.0) if frame is None
+                                                 else tuple(frame[:, 1]), scale=SKY_SCALE * dim),
+                                      "default sky")
+            if self.lights is None:
+                notes.append("lights: the default sun and sky" + (f" at {dim:g} (dusk: the fire's "
+                             "own light dominates)" if dim != 1.0 else "") + " (--env 0 for no "
+                             "sky, --sun or --no-lights for other lights)")
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             from .camera import up_frame
-            from .lights import DEFAULT_LIGHTS, Sun
+            from .lights import DEFAULT_LIGHTS, FIRE_LIGHT, Sun
             frame = up_frame(self.view.axis(hint))
-            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)), l.irradiance, l.color)
-                           if frame is not None else l for l in DEFAULT_LIGHTS)
+            dim = FIRE_LIGHT if fire else 1.0
+            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
+                               else l.direction, l.irradiance * dim, l.color)
+                           for l in DEFAULT_LIGHTS)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes))
 

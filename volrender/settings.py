@@ -257,6 +257,11 @@ class CommonSettings:
                        "(1..64 per side, W*H <= 1024)", check=tile_size,
                        metavar="WxH", parse=pair("--tile", 1, 64), toml=("render", "tile"),
                        kind=SIZE)
+    transparent: bool = knob(False, "PNG: straight alpha (the background, sky and environment "
+                             "kept only where nothing covers the pixel, for compositing) instead "
+                             "of the opaque picture (default: opaque, as the render looks; EXR "
+                             "is always premultiplied RGBA)", check=boolean,
+                             toml=("render", "transparent"))
     env: str | tuple | None = knob(
         None, "environment: R,G,B (a uniform radiance; one value = grey) or an "
         "equirectangular map (.exr, .npy; centre looks along -z, top row up). Glass reflects "

@@ -192,15 +192,47 @@ def list_grids(path) -> list[GridInfo]:
                         fix="re-save it with a current OpenVDB") from None
 
 
+# Grid names Blender's Mantaflow writes into its caches (gas and liquid domains): a file
+# whose float grids include several of these, one of them a Mantaflow-only name, is a
+# Mantaflow cache whatever its metadata says (older Blenders write no
+# 'file_base_resolution', e.g. fluid_data_0190.vdb).
+MANTAFLOW_GAS = frozenset({"density", "flame", "temperature", "heat", "fuel", "react", "shadow",
+                           "color_r", "color_g", "color_b", "velocity", "velocity_previous", "density_inflow",
+                           "heat_inflow", "temperature_inflow", "fuel_inflow", "react_inflow", "phi_obstacle",
+                           "phi_inflow", "phi_out", "flags", "emission"})
+MANTAFLOW_LIQUID = frozenset({"phi", "phi_previous", "phi_particles", "phi_obstacle", "phi_inflow",
+                              "phi_out", "velocity", "velocity_previous", "flags", "particles"})
+# names no other writer we know of uses for a density-like grid
+MANTAFLOW_ONLY = frozenset({"shadow", "react", "fuel", "phi_obstacle", "phi_out", "phi_inflow",
+                            "phi_particles", "density_inflow", "heat_inflow"})
+
+
+def mantaflow_cache(grids) -> str:
+    """Why the file is a Blender Mantaflow cache ('' when it is not): recognised by its grid
+    set (at least three Mantaflow grid names, one of them Mantaflow's own, all of the file's
+    grids from the gas or the liquid set), or by the 'file_base_resolution' grid metadata
+    that newer Blenders add."""
+    names = {g.name for g in grids}
+    for kind, known in (("gas", MANTAFLOW_GAS), ("liquid", MANTAFLOW_LIQUID)):
+        own = sorted(names & MANTAFLOW_ONLY)
+        if len(names) >= 3 and names <= known and own:
+            return (f"a Blender Mantaflow {kind} cache (grids "
+                    f"{', '.join(sorted(names & {'density', 'flame', 'temperature', 'phi'} | set(own[:2])))})")
+    if any("file_base_resolution" in g.metadata_keys for g in grids):
+        return "a Blender (Mantaflow) cache: its grids carry 'file_base_resolution'"
+    return ""
+
+
 def up_axis_hint(grids) -> tuple[str | None, str]:
-    """(axis, reason): 'z' for files that Blender wrote (Blender is Z-up; its Mantaflow
-    caches carry no 'creator' but a 'file_base_resolution' grid metadata entry), None when
-    the file does not say."""
+    """(axis, reason): 'z' for files that Blender wrote (Blender is Z-up): a 'creator'
+    naming Blender, or a Mantaflow cache (mantaflow_cache: by its grid set; its caches carry
+    no 'creator'); None when the file does not say."""
     creator = next((g.creator for g in grids if g.creator), "")
     if "blender" in creator.lower():
         return "z", f"written by {creator!r}"
-    if any("file_base_resolution" in g.metadata_keys for g in grids):
-        return "z", "a Blender (Mantaflow) cache: its grids carry 'file_base_resolution'"
+    why = mantaflow_cache(grids)
+    if why:
+        return "z", why
     return None, ""
 
 

@@ -15,22 +15,31 @@ from .dispatch import Dispatch, Plan, is_gpu
 from .environment import env_distribution, env_mode, texels as env_texels
 from .errors import UserError
 from .features import VolumeFeatures
-from .settings import (MAX_VALUE, STRS, VEC, CommonSettings, boolean, floats, in_range, knob,
-                       one_of, rgb)
+from .settings import (MAX_VALUE, NUM, STRS, VEC, CommonSettings, boolean, floats, in_range,
+                       knob, number, one_of, rgb)
 
 G_MAX = 0.999          # |g| is clamped here: HG at |g| = 1 is a delta
 PIXELS_PER_LAUNCH = 1 << 16
 # march: jittered ray marching (biased by the step, low noise); track: delta/ratio
 # tracking on per-brick majorants, single scattering (unbiased; step and shadow_step are
 # unused); path: path tracing, the same walks, up to max_depth scattering events.
-ESTIMATORS = ("march", "track", "path")
+ESTIMATORS = ("auto", "march", "track", "path")
+# auto: the march with AUTO_OCTAVES octave bands where multiple scattering matters (a
+# scattered photon scatters again with probability >= AUTO_MS_PROBABILITY, auto_estimator),
+# else single scattering
+AUTO_OCTAVES = 4
+AUTO_MS_PROBABILITY = 0.2
+EMISSION_LAWS = ("auto", "colour", "blackbody")
+ADAPTIVE_MIN_PASSES = 4      # passes before the noise estimate is trusted
+ADAPTIVE_MAX_SPP = 1 << 20   # samples per pixel at most, over all passes
 MAX_DEPTH = 256        # path estimator's default depth: converged (< 0.1%) on the real files at albedo <= 0.99
 RR_DEPTH = 4           # path roulette from the 5th scattering event on
 MS_OCTAVES_MAX = 16
-# octave scales a, b, c: the best of bench error --fit-octaves (3 octaves; within 2% of the
-# best objective for 3..8 octaves), docs/error_time.md
-MS_SCALES = (0.2, 0.6, 0.5)
-# the shadow march of octave k stops once b^k exp(-a^k tau) < this (relative to the light)
+# octave parameters D, G, C (cl/march.h): the closing band's depth scale is
+# A_inf = min(1, D sqrt(3 (1 - albedo) (1 - g_mean))), a light's bands weigh G albedo and
+# scatter with g C^(u_k), the environment's weigh albedo; fitted by bench error --fit-octaves (docs/error_time.md)
+MS_SCALES = (0.5, 2.8, 0.2)
+# the shadow march stops once every band's transmittance is below this
 MS_CUTOFF = 1e-4
 AOVS = ("depth", "transmittance")
 # The finest march step, voxels: 50x the default's samples (bench error: finer steps buy
@@ -83,6 +92,13 @@ class VolumeSettings(CommonSettings):
     emission_temperature: float = knob(1500.0, "blackbody colour of the emission, kelvin "
                                        "(without --temperature-grid)", check=in_range(100, 1e5),
                                        toml=("volume", "emission_temperature"))
+    emission_law: str = knob("auto", "colour: the emission grid x scale gives the brightness, the "
+                             "blackbody its colour (brightest channel 1); blackbody: brightness "
+                             "also rises as T^4 (Stefan-Boltzmann, Blender's blackbody "
+                             "intensity: 1500 K -> 0.09, 3000 K -> 1.46 per unit length); auto: "
+                             "blackbody with --temperature-grid, else colour",
+                             check=one_of(EMISSION_LAWS), choices=EMISSION_LAWS,
+                             toml=("volume", "emission_law"))
     temperature_grid: str | None = knob(None, "grid whose values give each voxel's blackbody "
                                         "colour, e.g. temperature (the emission grid gives the "
                                         "intensity)", toml=("volume", "temperature_grid"),
@@ -97,8 +113,11 @@ class VolumeSettings(CommonSettings):
                        check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
     shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
                               check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
-    estimator: str = knob("march", "march: ray marching with --step/--shadow-step (biased by the "
-                          "step, low noise; single scattering, or --ms-octaves); track: delta/"
+    estimator: str = knob("auto", "auto: the march, with --ms-octaves 4 where albedo and optical "
+                          "depth make multiple scattering matter, else single scattering (the "
+                          "choice is printed); march: ray marching with --step/--shadow-step "
+                          "(biased by the step, low noise; single scattering, or --ms-octaves); "
+                          "track: delta/"
                           "ratio tracking on the brick majorants, single scattering (unbiased, "
                           "noisier; the march's reference); path: path tracing, multiple "
                           "scattering up to --max-depth (unbiased)", check=one_of(ESTIMATORS),
@@ -106,14 +125,19 @@ class VolumeSettings(CommonSettings):
     max_depth: int = knob(MAX_DEPTH, "path estimator: scattering events per path (1 = single "
                           "scattering); Russian roulette from the 5th on",
                           check=in_range(1, 100000, integer=True), toml=("volume", "max_depth"))
-    ms_octaves: int = knob(1, "march: multiple-scattering octaves (Wrenninge et al. 2013); "
-                           "1 = single scattering", check=in_range(1, MS_OCTAVES_MAX, integer=True),
-                           toml=("volume", "ms_octaves"))
-    ms_octave_scales: tuple = knob(MS_SCALES, "octave k scales sigma_t by A^k, its light by B^k and "
-                                   "g by C^k (fitted by bench error to path-traced images)",
-                                   metavar="A,B,C",
+    ms_octaves: int | None = knob(None, "march: multiple-scattering octave bands (energy-"
+                                  "conserving, cl/march.h); 1 = single scattering (default: "
+                                  "1 with --estimator march, auto's choice with auto)",
+                                  check=in_range(1, MS_OCTAVES_MAX, integer=True, allow_none=True),
+                                  toml=("volume", "ms_octaves"), kind=int, show_default=False)
+    ms_octave_scales: tuple = knob(MS_SCALES, "octave bands (cl/march.h): D scales the last band's "
+                                   "diffusion depth sqrt(3(1-albedo)(1-g)); a light's bands "
+                                   "weigh G x albedo and scatter with g C^(k/(N-1)); a white furnace "
+                                   "returns its light at any D, G, C (fitted by bench error to "
+                                   "path-traced images)",
+                                   metavar="D,G,C",
                                    parse=floats(3, name="--ms-octave-scales"),
-                                   check=rgb(0, 1, n=(3,)), toml=("volume", "ms_octave_scales"))
+                                   check=rgb(0, 100, n=(3,)), toml=("volume", "ms_octave_scales"))
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
@@ -125,6 +149,19 @@ class VolumeSettings(CommonSettings):
                                   check=lambda v: None if v is None or isinstance(v, bool)
                                   else "must be True, False or None", flag=None,
                                   show_default=False)
+    noise_target: float | None = knob(None, "render passes until the estimated noise, the "
+                                      "per-pixel standard error's RMS over the image's RMS "
+                                      "value, is below this (e.g. 0.05; from the spread of "
+                                      "independent passes of --spp samples, at least "
+                                      f"{ADAPTIVE_MIN_PASSES}); best with --estimator path",
+                                      check=in_range(1e-4, 10, allow_none=True),
+                                      toml=("render", "noise_target"), kind=NUM,
+                                      parse=number("--noise-target"), show_default=False)
+    time_limit: float | None = knob(None, "render passes until this many seconds have passed "
+                                    "(with --noise-target: whichever comes first)",
+                                    check=in_range(1e-3, 1e7, allow_none=True),
+                                    toml=("render", "time_limit"), kind=NUM,
+                                    parse=number("--time-limit"), show_default=False)
     aovs: tuple = knob((), "extra EXR layer (repeatable): depth -> Z (opacity-weighted mean "
                        "distance), transmittance -> T", flag="--aov", choices=AOVS,
                        check=_aovs_ok, toml=("volume", "aov"), kind=STRS, show_default=False)
@@ -148,6 +185,18 @@ class VolumeSettings(CommonSettings):
                             "gives it", fix="add --emission-grid (e.g. flame)")
 
     @property
+    def octaves(self) -> int:
+        """The octave bands the marcher runs (1: single scattering)."""
+        return self.ms_octaves or 1
+
+    @property
+    def blackbody_law(self) -> bool:
+        """Whether emission follows the blackbody intensity law (emission_law)."""
+        if self.emission_law == "auto":
+            return self.temperature_grid is not None
+        return self.emission_law == "blackbody"
+
+    @property
     def chromatic(self) -> bool:
         """Whether the medium differs between channels (albedo or sigma_t scale)."""
         return len(set(self.albedo)) > 1 or len(set(self.sigma_t_scale)) > 1
@@ -167,8 +216,50 @@ class VolumeSettings(CommonSettings):
 
 def emission_color(settings: VolumeSettings) -> np.ndarray:
     """rgb emitted per unit length per emission-grid value without a temperature grid:
-    emission_scale x the blackbody colour of emission_temperature (volrender.blackbody)."""
+    emission_scale x the blackbody colour of emission_temperature (volrender.blackbody),
+    or its radiance under the intensity law (blackbody.radiance)."""
+    if settings.blackbody_law:
+        return settings.emission_scale * blackbody.radiance(settings.emission_temperature)
     return settings.emission_scale * blackbody.rgb(settings.emission_temperature)
+
+
+def optical_size(bricks, settings: VolumeSettings) -> dict:
+    """A typical optical depth of the medium: the mean sigma_t over its non-zero voxels
+    (largest channel) times the edge of a cube of their volume (world units), and the
+    chance that a photon scattered inside scatters again, albedo (1 - exp(-tau))."""
+    own = np.asarray(bricks.data)[:, :-1, :-1, :-1]
+    nz = own[own > 0]
+    if nz.size == 0:
+        return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo)}
+    sigma = settings.density_scale * max(settings.sigma_t_scale) * float(nz.mean())
+    size = float(nz.size) ** (1.0 / 3.0) * bricks.voxel_size
+    tau = sigma * size
+    alb = max(settings.albedo)
+    return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
+
+
+def auto_estimator(bricks, settings: VolumeSettings):
+    """(settings, note): --estimator auto resolved for this volume. Multiple scattering
+    (the march with AUTO_OCTAVES energy-conserving octave bands, or --ms-octaves) where a
+    scattered photon scatters again with probability >= AUTO_MS_PROBABILITY (then it adds
+    >= 25% to single scattering's light), else single scattering. Other estimators pass
+    unchanged (no note)."""
+    from dataclasses import replace
+    if settings.estimator != "auto":
+        return settings, None
+    o = optical_size(bricks, settings)
+    why = (f"albedo {o['albedo']:.3g}, typical optical depth {o['tau']:.3g}: a scattered "
+           f"photon scatters again with probability {o['probability']:.2f}")
+    if o["probability"] >= AUTO_MS_PROBABILITY or (settings.ms_octaves or 1) > 1:
+        n = settings.ms_octaves or AUTO_OCTAVES
+        out = replace(settings, estimator="march", ms_octaves=n)
+        if n > 1:
+            return out, (f"estimator auto: multiple scattering (march, {n} octave bands; "
+                         f"{why}); --estimator path for the unbiased image")
+        return out, f"estimator auto: single scattering (march; --ms-octaves 1 given; {why})"
+    return (replace(settings, estimator="march", ms_octaves=1),
+            f"estimator auto: single scattering (march; {why}, below "
+            f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
 
 
 def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
@@ -192,19 +283,42 @@ def occupied_bricks(bricks) -> np.ndarray:
     return occ
 
 
+def mean_cosine(settings: VolumeSettings) -> float:
+    """The phase's mean cosine: w g1 + (1 - w) g2 (clamped g)."""
+    g1, g2, w = settings.clamped_phase()
+    return w * g1 + (1.0 - w) * g2
+
+
+def octave_decay(settings: VolumeSettings) -> np.ndarray:
+    """A_inf per channel: the closing octave band's optical-depth scale (cl/march.h),
+    min(1, D sqrt(3 (1 - albedo) (1 - g_mean))): the decay rate of diffuse light deep in
+    the medium relative to sigma_t (diffusion theory); 0 for albedo 1."""
+    d = settings.ms_octave_scales[0]
+    alb = np.asarray(settings.albedo, np.float64)
+    one_g = max(1.0 - mean_cosine(settings), 0.0)
+    return np.minimum(1.0, d * np.sqrt(3.0 * np.clip(1.0 - alb, 0.0, 1.0) * one_g))
+
+
 def octave_tau_stop(settings: VolumeSettings) -> float:
-    """Grey shadow optical depth past which every octave's light is below MS_CUTOFF of
-    the light's (b^k exp(-a^k tau) < MS_CUTOFF for all k; at least the single-scattering
-    25), in every channel (divided by the smallest sigma_t scale)."""
-    a, b, _ = settings.ms_octave_scales
+    """Grey shadow optical depth past which every band's light is below MS_CUTOFF of the
+    light's (exp(-A_inf s_c tau) < MS_CUTOFF in every channel c; at least the
+    single-scattering 25)."""
     stop = 25.0
-    for k in range(1, settings.ms_octaves):
-        ak, bk = a ** k, b ** k
-        if bk > 0:
-            stop = max(stop, (math.log(bk) - math.log(MS_CUTOFF)) / max(ak, 1e-30))
-    if settings.chromatic:
+    if settings.octaves > 1:
+        rate = octave_decay(settings) * (np.asarray(settings.sigma_t_scale, np.float64)
+                                         if settings.chromatic else 1.0)
+        low = float(np.min(rate))
+        stop = max(stop, -math.log(MS_CUTOFF) / low) if low > 0 else math.inf
+    elif settings.chromatic:
         stop /= max(min(settings.sigma_t_scale), 1e-30)
     return float(min(stop, 1e30))
+
+
+def octave_log_decay(settings: VolumeSettings) -> np.ndarray:
+    """ln A_inf per channel for VolumeParams.ms_decay (floored at -80: exp of it is 0 in
+    float32, and 0 x it stays finite)."""
+    with np.errstate(divide="ignore"):
+        return np.maximum(np.log(octave_decay(settings)), -80.0)
 
 
 def volume_params(bricks, settings: VolumeSettings | None = None, environment=None):
@@ -225,11 +339,14 @@ def volume_params(bricks, settings: VolumeSettings | None = None, environment=No
         local_to_world0=[*l2w[0, :3], 0], local_to_world1=[*l2w[1, :3], 0],
         local_to_world2=[*l2w[2, :3], 0],
         box_hi=[*(np.asarray(bricks.dims) * float(layout.BRICK)), 0], background=[*settings.background, 0],
-        emission_color=[*emission_color(settings), 0],
+        emission_color=[*emission_color(settings),
+                        blackbody.INTENSITY_K if settings.blackbody_law else 0.0],
         phase=[g1, g2, w, 0], dims=[*bricks.dims, 0],
         albedo_rgb=[*settings.albedo, 0], extinction=[*settings.sigma_t_scale, 0],
         env_radiance=[*(environment.uniform if mode == 1 else (0, 0, 0)), 0],
-        ms=[*settings.ms_octave_scales, octave_tau_stop(settings)],
+        ms=[settings.ms_octave_scales[1], settings.ms_octave_scales[2], 0.0,
+            octave_tau_stop(settings)],
+        ms_decay=[*octave_log_decay(settings), 0],
         density_scale=settings.density_scale, albedo=settings.albedo[0],
         step=settings.step * vs, shadow_step=settings.shadow_step * vs,
         point_r2_min=(0.5 * vs) ** 2, env_width=env_w, env_height=env_h,
@@ -243,10 +360,21 @@ def volume_params(bricks, settings: VolumeSettings | None = None, environment=No
 ENTRIES = {"march": "render_volume", "track": "path_volume", "path": "path_volume"}
 
 
+def resolved(scene):
+    """The scene with --estimator auto resolved (auto_estimator), and the note saying so
+    (None when nothing was to resolve)."""
+    from .scene import VolumeContent
+    settings, note = auto_estimator(scene.content.bricks, scene.content.settings)
+    if note is None:
+        return scene, None
+    content = VolumeContent(scene.content.bricks, settings, scene.content.store)
+    return scene.replace(content=content), note
+
+
 def check_steps(bricks, settings):
     """Refuse steps that would give a ray through this volume's box more samples than the
     kernels take (layout.MAX_RAY_SAMPLES, where float32 sample indices stop resolving)."""
-    if settings.estimator != "march":
+    if settings.estimator not in ("march", "auto"):
         return
     diag = float(np.linalg.norm(np.asarray(bricks.dims, np.float64) * layout.BRICK))
     for name, step in (("step", settings.step), ("shadow_step", settings.shadow_step)):
@@ -263,6 +391,7 @@ def plan(scene, device, variant=None, launch=None):
     tracer (track = path at max depth 1)."""
     if variant is not None:
         raise UserError(f"the {variant!r} variant exists for glass only")
+    scene, note = resolved(scene)
     bricks, settings = scene.content.bricks, scene.content.settings
     check_steps(bricks, settings)
     if settings.temperature_grid is not None and bricks.temperature is None:
@@ -296,4 +425,100 @@ def plan(scene, device, variant=None, launch=None):
     outputs = [("rgba", (H, W, 4)), ("depth", (H, W, 2) if settings.depth else (1,))]
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
-                info={"background": tuple(settings.background)})
+                info={"background": tuple(settings.background), "estimator": settings.estimator,
+                      "ms_octaves": settings.octaves,
+                      **({"estimator_note": note} if note else {})})
+
+
+# --------------------------------------------------------------------------- adaptive passes
+
+def adaptive(settings: VolumeSettings) -> bool:
+    """Whether a render runs in passes (--noise-target or --time-limit)."""
+    return settings.noise_target is not None or settings.time_limit is not None
+
+
+def noise_estimate(mean, m2, n_passes, n_samples):
+    """(per-pixel standard error of the mean (H, W, 3), relative noise): from the passes'
+    spread, m2 = sum_b n_b (mean_b - mean)^2 (Chan's update), the per-sample variance is
+    m2 / (B - 1) and the mean's variance that over N samples; relative noise = RMS of the
+    standard error over the RMS of the value."""
+    var = m2[..., :3] / max(n_passes - 1, 1) / max(n_samples, 1)
+    se = np.sqrt(np.maximum(var, 0.0))
+    rms = float(np.sqrt((mean[..., :3] ** 2).mean()))
+    return se, float(np.sqrt(var.mean())) / max(rms, 1e-30)
+
+
+def render_adaptive(scene, device=None, *, progress=None, launch=None):
+    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) of
+    settings.spp samples and more, until the estimated relative noise (noise_estimate) is
+    at most settings.noise_target (after ADAPTIVE_MIN_PASSES passes) or
+    settings.time_limit seconds have passed (the pass that would overrun it is sized to
+    fit, from the measured seconds per sample). Each pass after the first minimum set is
+    sized to reach the target from the noise so far (noise ~ 1/sqrt(N)), at most doubling
+    the samples. The image is the sample-weighted mean of the passes; info['noise'] its
+    relative noise estimate, info['noise_map'] the per-pixel standard error (H, W)."""
+    import dataclasses
+    import time
+    from .render import Image, render
+    s = scene.content.settings
+    base = dataclasses.replace(s, noise_target=None, time_limit=None)
+    target, limit = s.noise_target, s.time_limit
+    t0 = time.perf_counter()
+    batch = max(1, s.spp)
+    mean = m2 = None
+    aovs = {}
+    n = passes = 0
+    kernel_ms = cpu_ms = 0.0
+    noise, why, last = math.inf, "", None
+    while True:
+        st = dataclasses.replace(base, spp=batch, seed=s.seed + passes)
+        content = type(scene.content)(scene.content.bricks, st, scene.content.store)
+        img = render(scene.replace(content=content), device, progress=progress, launch=launch)
+        x = img.rgba.astype(np.float64)
+        if mean is None:
+            mean, m2 = x, np.zeros_like(x)
+        else:                             # Chan et al.: merge (n, mean) with (batch, x)
+            d = x - mean
+            tot = n + batch
+            mean = mean + d * (batch / tot)
+            m2 = m2 + d * d * (n * batch / tot)
+        for k, v in img.aovs.items():
+            aovs[k] = v if k not in aovs else aovs[k] + (v - aovs[k]) * (batch / (n + batch))
+        n += batch
+        passes += 1
+        kernel_ms += img.kernel_ms
+        cpu_ms += img.cpu_ms
+        last = img
+        elapsed = time.perf_counter() - t0
+        if passes >= 2:
+            _, noise = noise_estimate(mean, m2, passes, n)
+        if target is not None and passes >= ADAPTIVE_MIN_PASSES and noise <= target:
+            why = f"noise {noise:.3g} <= target {target:g}"
+            break
+        per_spp = elapsed / n
+        left = math.inf if limit is None else limit - elapsed
+        if left < per_spp * 1:
+            why = f"time limit {limit:g} s"
+            break
+        if n >= ADAPTIVE_MAX_SPP:
+            why = f"{ADAPTIVE_MAX_SPP} spp"
+            break
+        want = batch
+        if target is not None and passes >= ADAPTIVE_MIN_PASSES and math.isfinite(noise):
+            want = int(math.ceil(n * ((noise / target) ** 2 - 1.0) * 1.05))
+        elif passes >= ADAPTIVE_MIN_PASSES:
+            want = n                      # a time limit alone: doubling passes
+        batch = int(max(1, min(want, n if passes >= ADAPTIVE_MIN_PASSES else batch,
+                               left / per_spp if math.isfinite(left) else math.inf,
+                               ADAPTIVE_MAX_SPP - n)))
+    se, noise = noise_estimate(mean, m2, passes, n) if passes >= 2 else (None, math.inf)
+    info = dict(last.info)
+    info.update(spp=n, passes=passes, noise=noise, stopped=why,
+                adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
+                         f"stopped at {why}; estimated noise "
+                         + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"))
+    if se is not None:
+        info["noise_map"] = np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)
+    return Image(rgba=mean.astype(np.float32), aovs=aovs, kernel_ms=kernel_ms,
+                 wall_ms=1e3 * (time.perf_counter() - t0), cpu_ms=cpu_ms, device=last.device,
+                 flags=last.flags, camera=last.camera, info=info)
