@@ -84,7 +84,7 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = device_mod.resolve(device)
     if scene.kind == "volume" and volume.adaptive(scene.settings):     # passes (issue #22)
-        return volume.render_adaptive(scene, dev, progress=progress, launch=launch)
+        return render_passes(scene, dev, progress=progress, launch=launch)
     cam = scene.camera
     t_plan = time.perf_counter()
     plan = PLANNERS[scene.kind](scene, dev, variant, launch)
@@ -148,3 +148,78 @@ def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
         raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "
                         f"fits {where} ({limit / gib:.1f} GiB)",
                         fix=f"render a smaller size (--size, or [render].size; {hint} at most)")
+
+
+def render_passes(scene, device=None, *, progress=None, launch=None):
+    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) of
+    settings.spp samples and more, until the estimated relative noise (noise_estimate) is
+    at most settings.noise_target (after volume.ADAPTIVE_MIN_PASSES passes) or
+    settings.time_limit seconds have passed (the pass that would overrun it is sized to
+    fit, from the measured seconds per sample). Each pass after the first minimum set is
+    sized to reach the target from the noise so far (noise ~ 1/sqrt(N)), at most doubling
+    the samples. The image is the sample-weighted mean of the passes; info['noise'] its
+    relative noise estimate, info['noise_map'] the per-pixel standard error (H, W)."""
+    import dataclasses
+    import time
+    s = scene.content.settings
+    base = dataclasses.replace(s, noise_target=None, time_limit=None)
+    target, limit = s.noise_target, s.time_limit
+    t0 = time.perf_counter()
+    batch = max(1, s.spp)
+    mean = m2 = None
+    aovs = {}
+    n = passes = 0
+    kernel_ms = cpu_ms = 0.0
+    noise, why, last = math.inf, "", None
+    while True:
+        st = dataclasses.replace(base, spp=batch, seed=s.seed + passes)
+        content = dataclasses.replace(scene.content, settings=st)
+        img = render(scene.replace(content=content), device, progress=progress, launch=launch)
+        x = img.rgba.astype(np.float64)
+        if mean is None:
+            mean, m2 = x, np.zeros_like(x)
+        else:                             # Chan et al.: merge (n, mean) with (batch, x)
+            d = x - mean
+            tot = n + batch
+            mean = mean + d * (batch / tot)
+            m2 = m2 + d * d * (n * batch / tot)
+        for k, v in img.aovs.items():
+            aovs[k] = v if k not in aovs else aovs[k] + (v - aovs[k]) * (batch / (n + batch))
+        n += batch
+        passes += 1
+        kernel_ms += img.kernel_ms
+        cpu_ms += img.cpu_ms
+        last = img
+        elapsed = time.perf_counter() - t0
+        if passes >= 2:
+            _, noise = volume.noise_estimate(mean, m2, passes, n)
+        if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and noise <= target:
+            why = f"noise {noise:.3g} <= target {target:g}"
+            break
+        per_spp = elapsed / n
+        left = math.inf if limit is None else limit - elapsed
+        if left < per_spp * 1:
+            why = f"time limit {limit:g} s"
+            break
+        if n >= volume.ADAPTIVE_MAX_SPP:
+            why = f"{volume.ADAPTIVE_MAX_SPP} spp"
+            break
+        want = batch
+        if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and math.isfinite(noise):
+            want = int(math.ceil(n * ((noise / target) ** 2 - 1.0) * 1.05))
+        elif passes >= volume.ADAPTIVE_MIN_PASSES:
+            want = n                      # a time limit alone: doubling passes
+        batch = int(max(1, min(want, n if passes >= volume.ADAPTIVE_MIN_PASSES else batch,
+                               left / per_spp if math.isfinite(left) else math.inf,
+                               volume.ADAPTIVE_MAX_SPP - n)))
+    se, noise = volume.noise_estimate(mean, m2, passes, n) if passes >= 2 else (None, math.inf)
+    info = dict(last.info)
+    info.update(spp=n, passes=passes, noise=noise, stopped=why,
+                adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
+                         f"stopped at {why}; estimated noise "
+                         + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"))
+    if se is not None:
+        info["noise_map"] = np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)
+    return Image(rgba=mean.astype(np.float32), aovs=aovs, kernel_ms=kernel_ms,
+                 wall_ms=1e3 * (time.perf_counter() - t0), cpu_ms=cpu_ms, device=last.device,
+                 flags=last.flags, camera=last.camera, info=info)

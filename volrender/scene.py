@@ -678,9 +678,9 @@ def request(source, **overrides) -> Request:
         camera_file = Path(given.pop("camera")[0])
         by_field = {o.field: o.key for o in options().values() if o.owner == "view"}
         explicit = _explicit(overrides)
-        for field, value in read_camera_file(camera_file).items():
-            if by_field[field] not in explicit:
-                given[by_field[field]] = value
+        for name, value in read_camera_file(camera_file).items():
+            if by_field[name] not in explicit:
+                given[by_field[name]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
     view = View(**_field_values(given, ("view",)))
