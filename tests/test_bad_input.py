@@ -529,13 +529,21 @@ def _contents(path):
     return path.read_bytes()
 
 
+NOTES = ("volrender: estimator auto:", "volrender: lights:", "volrender: fire:",
+         "volrender: up axis")
+
+
+def error_lines(err):
+    """stderr's lines but the scene's notes (issue #22: the estimator auto picked, the
+    default lights), which come before a failure in the render itself."""
+    return [ln for ln in err.strip().splitlines() if not ln.startswith(NOTES)]
+
+
 def check(case, code, err, out_bytes, existing, workdir, before=None):
     assert "Traceback" not in err, err
     # the scene's notes (issue #22: the estimator auto picked, the default lights) come
     # before a failure in the render itself
-    notes = ("volrender: estimator auto:", "volrender: lights:", "volrender: fire:",
-             "volrender: up axis")
-    lines = [ln for ln in err.strip().splitlines() if not ln.startswith(notes)]
+    lines = error_lines(err)
     assert len(lines) == 1, err
     assert lines[0].startswith("volrender: error: "), err
     assert code == 2, (code, err)
@@ -580,7 +588,7 @@ def test_a_failed_build_writes_nothing_past_python(tmp_path, capfd):
     user must still see one line only (device.build collects it into the log)."""
     case = next(c for c in CASES if c.id == "build")
     code, err, _ = run_case(case, tmp_path)
-    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert code == 2 and len(error_lines(err)) == 1
     fd = capfd.readouterr()
     assert fd.err == "" and fd.out == "", fd
 

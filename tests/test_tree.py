@@ -270,7 +270,7 @@ def _sorting_reference(centers, depth, axis):
     start[1], count[1] = 0, n
     rank = np.empty((3, n), np.int64)
     for a in range(3):
-        rank[a, np.argsort(centers[:, a])] = np.arange(n)
+        rank[a, np.argsort(centers[:, a], kind="stable")] = np.arange(n)
     order, pts = np.arange(n), centers.copy()
     for d in range(depth):
         first = 1 << d

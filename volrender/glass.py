@@ -15,8 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cells as cells_mod, device as device_mod, layout, lights as lights_mod, tree as tree_mod
+from . import tree_device
 from .camera import DEFAULT_FOV, frame_bounds
-from .dispatch import Dispatch, Plan
+from .dispatch import Dispatch, Plan, is_gpu
 from .environment import texels as env_texels
 from .errors import UserError
 from .features import GlassFeatures
@@ -186,11 +187,13 @@ def _outward(a, down: bool):
 
 
 def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
-               max_runs=None) -> PackedSpheres:
+               max_runs=None, tree_on="auto") -> PackedSpheres:
     """Spheres, tree and support cells in the render frame, for every camera. The tree is
     built for accel tree and grid (it builds the cells); device: where the cells are built
     (default: the default device); samples (pixels x spp) sets the automatic cell edge's
-    budget (cells.cell_budget); max_runs caps the cells' list runs (cells.build)."""
+    budget (cells.cell_budget); max_runs caps the cells' list runs (cells.build). tree_on:
+    "device" (tree_device.py), "host" (tree.py's numpy build: the same tree) or "auto",
+    the device on GPUs and the host on CPUs, where numpy measured faster (bench build)."""
     centers = np.asarray(cloud.centers, np.float64)
     n = len(centers)
     radii = sphere_radii(cloud, settings) if n else np.zeros(0)
@@ -206,27 +209,40 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
     lo, hi = sphere_bounds(cloud, radii)
     centre = 0.5 * (lo + hi)
     order = np.arange(n)
+    # float32 render-frame centres: what the kernels read, and the keys the tree splits on
+    spheres = np.empty((n, 4), np.float32)
+    spheres[:, :3] = centers - centre
+    spheres[:, 3] = radii
     accel = settings.accel
     if accel in ("tree", "grid"):
-        t0 = time.perf_counter()
-        tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0)
-        tree_ms = 1e3 * (time.perf_counter() - t0)
-        if tree.depth > MAX_TREE_DEPTH:
-            raise UserError(f"tree depth {tree.depth} exceeds {MAX_TREE_DEPTH}",
+        depth = tree_mod.tree_depth(n, int(settings.leaf_size))
+        if depth > MAX_TREE_DEPTH:
+            raise UserError(f"tree depth {depth} exceeds {MAX_TREE_DEPTH}",
                             fix="raise the leaf size (--leaf-size, or [render].leaf_size)")
-        order, first_leaf = tree.order, tree.first_leaf
-        nodes = layout.record("TreeNode", tree.n_nodes)
-        # float32 sphere centres round by up to half an ulp of their magnitude: widen the
-        # boxes by one ulp so every float32 sphere stays inside its node's box
-        ulp = float(np.spacing(np.float32(np.abs(centers - centre).max() + radii.max())))
-        tlo, thi = tree.lo - centre - ulp, tree.hi - centre + ulp
-        tlo, thi = _outward(tlo, True), _outward(thi, False)
+        dev = device_mod.resolve(device) if device is not None or accel == "grid" \
+            or tree_on == "device" else None
+        on_device = tree_on == "device" or (tree_on == "auto" and dev is not None and is_gpu(dev))
+        t0 = time.perf_counter()
+        if on_device:
+            order, start, count, blo, bhi, spheres, _ = tree_device.build(
+                dev, spheres[:, :3], spheres, depth)
+        else:
+            tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0,
+                                  keys=spheres[:, :3])
+            order, start, count = tree.order, tree.start, tree.count
+            spheres = spheres[order]
+            blo, bhi = tree_mod.float32_boxes(spheres, start, count, depth)
+        tree_ms = 1e3 * (time.perf_counter() - t0)
+        first_leaf = 1 << depth
+        nodes = layout.record("TreeNode", 2 << depth)
+        # the float32 boxes hold their float32 spheres up to rounding: widen them by one ulp
+        # of the largest coordinate, outwards
+        ulp = float(np.spacing(np.float32(np.abs(spheres[:, :3]).max() + radii.max())))
+        tlo = _outward(blo.astype(np.float64) - ulp, True)
+        thi = _outward(bhi.astype(np.float64) + ulp, False)
         for a, ax in enumerate("xyz"):
             nodes[f"lo_{ax}"], nodes[f"hi_{ax}"] = tlo[:, a], thi[:, a]
-        nodes["start"], nodes["count"] = tree.start, tree.count
-    spheres = np.empty((n, 4), np.float32)
-    spheres[:, :3] = centers[order] - centre
-    spheres[:, 3] = radii[order]
+        nodes["start"], nodes["count"] = start, count
     colors = None
     if settings.point_colors and cloud.colors is not None:
         colors = np.zeros((n, 4), np.float32)

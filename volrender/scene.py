@@ -95,17 +95,18 @@ class GlassContent:
         from .glass import sphere_bounds, sphere_radii
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
 
-    def prepare(self, device=None, samples=None, max_runs=None):
+    def prepare(self, device=None, samples=None, max_runs=None, tree_on="auto"):
         """The glass.PackedSpheres of this cloud and settings on `device`, built once (the
         first call's samples, pixels x spp, set the automatic cell edge's budget, and its
-        max_runs caps the cells' list runs: cells.build); later calls return it."""
+        max_runs caps the cells' list runs: cells.build, and its tree_on where the tree is
+        built: glass.pack_scene); later calls return it."""
         from . import device as device_mod, glass
         dev = device_mod.resolve(device)
         key = (dev.device.int_ptr, *(getattr(self.settings, f) for f in glass.ACCEL_FIELDS))
         hit = self.store.get(key)
         if hit is not None and hit[0] is self.cloud:
             return hit[1]
-        packed = glass.pack_scene(self.cloud, self.settings, dev, samples, max_runs)
+        packed = glass.pack_scene(self.cloud, self.settings, dev, samples, max_runs, tree_on)
         self.store[key] = (self.cloud, packed)
         self.store["builds"] = self.store.get("builds", 0) + 1
         return packed

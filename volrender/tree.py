@@ -66,11 +66,14 @@ def tree_depth(n: int, leaf_size: int) -> int:
 
 
 def build(centers, radii, leaf_size: int = 8, margin: float = 0.0,
-          axis: str = "longest") -> Tree:
+          axis: str = "longest", keys=None) -> Tree:
     """Build the tree over spheres ``centers`` (N,3) with ``radii`` (N,) or a scalar.
 
     axis: 'longest' splits each node across the longest extent of its centres;
     'cycle' splits at depth d across axis d % 3 (x, y, z, x, ...).
+    keys: (N, 3) coordinates the splits compare instead of the centres (the renderer
+    passes its float32 render-frame centres, so the device build, tree_device.py, which
+    sorts those, makes the same tree); ties keep the points' order (stable sorts).
     """
     centers = np.asarray(centers, dtype=np.float64)
     if centers.ndim != 2 or centers.shape[1] != 3:
@@ -96,7 +99,7 @@ def build(centers, radii, leaf_size: int = 8, margin: float = 0.0,
                         fix="remove or repair NaN/Inf points and negative radii")
 
     depth = tree_depth(n, int(leaf_size))
-    order, start, count = _partition(centers, depth, axis)
+    order, start, count = _partition(centers if keys is None else np.asarray(keys), depth, axis)
     pts = centers[order]
     lo, hi = _bounds(pts, radii[order], start, count, depth, margin)
     return Tree(lo=lo, hi=hi, start=start, count=count, depth=depth,
@@ -110,12 +113,9 @@ def _partition(centers, depth, axis):
     children's (ties along an axis keep the order of the first argsort, so coincident
     points still split exactly in half)."""
     n = len(centers)
-    size = 2 << depth
-    start = np.zeros(size, dtype=np.int64)
-    count = np.zeros(size, dtype=np.int64)
-    start[1], count[1] = 0, n
+    start, count = node_ranges(n, depth)
     it = np.int32 if n < 2 ** 31 else np.int64
-    by_axis = [np.argsort(centers[:, a]).astype(it) for a in range(3)]
+    by_axis = [np.argsort(centers[:, a], kind="stable").astype(it) for a in range(3)]
     coords = np.ascontiguousarray(centers.T)
     pos = np.arange(n, dtype=it)
     order = pos.astype(np.int64)
@@ -139,9 +139,6 @@ def _partition(centers, depth, axis):
         left_node = left.astype(it)[node]
         ax_node = ax[node]
         split = np.where(ax_node == 0, by_axis[0], np.where(ax_node == 1, by_axis[1], by_axis[2]))
-        kids = np.arange(2 * first, 4 * first)
-        start[kids[0::2]], count[kids[0::2]] = s, left
-        start[kids[1::2]], count[kids[1::2]] = s + left, c - left
         if d == depth - 1:
             order = split.astype(np.int64)
             break
@@ -155,6 +152,44 @@ def _partition(centers, depth, axis):
             moved[s_node + np.where(f, lb, left_node + rel - lb)] = by_axis[a]
             by_axis[a] = moved
     return order, start, count
+
+
+def node_ranges(n: int, depth: int):
+    """(start, count) int64 of every heap node: the ranges of positions the median splits
+    give, which depend on n and the depth only (a node of c points sends ceil(c/2) left)."""
+    size = 2 << depth
+    start = np.zeros(size, dtype=np.int64)
+    count = np.zeros(size, dtype=np.int64)
+    start[1], count[1] = 0, n
+    for d in range(depth):
+        first = 1 << d
+        s, c = start[first:2 * first], count[first:2 * first]
+        left = (c + 1) // 2
+        start[2 * first:4 * first:2], count[2 * first:4 * first:2] = s, left
+        start[2 * first + 1:4 * first:2], count[2 * first + 1:4 * first:2] = s + left, c - left
+    return start, count
+
+
+def float32_boxes(spheres, start, count, depth):
+    """(lo, hi) float32 (2^(D+1), 3) node boxes of float32 spheres (N, 4: centre, radius;
+    tree order) computed in float32 (centre -+ radius, then min and max): the boxes the
+    device build (tree_device.py) computes, bit for bit. Empty nodes: +inf, -inf."""
+    size = 2 << depth
+    lo = np.full((size, 3), np.inf, np.float32)
+    hi = np.full((size, 3), -np.inf, np.float32)
+    first = 1 << depth
+    leaves = np.arange(first, 2 * first)
+    full = leaves[count[leaves] > 0]
+    sp = np.asarray(spheres, np.float32)
+    if len(full):
+        idx = start[full]
+        lo[full] = np.minimum.reduceat(sp[:, :3] - sp[:, 3:], idx, axis=0)
+        hi[full] = np.maximum.reduceat(sp[:, :3] + sp[:, 3:], idx, axis=0)
+    for d in range(depth - 1, -1, -1):
+        p = np.arange(1 << d, 2 << d)
+        lo[p] = np.minimum(lo[2 * p], lo[2 * p + 1])
+        hi[p] = np.maximum(hi[2 * p], hi[2 * p + 1])
+    return lo, hi
 
 
 def _bounds(pts, rad, start, count, depth, margin):
