@@ -139,3 +139,45 @@ def ray_sphere(o, d, c, r):
     t0, t1 = -b - root, -b + root
     t = np.where(t0 >= 0, t0, t1)
     return np.where((disc > 0) & (t >= 0), t, np.inf)
+
+
+def run_unprivileged(code, *args, timeout=60):
+    """stdout of `python -c code args` run by a user whom permission bits bind: this user
+    when it is not root, else `nobody` (the child drops root with setgroups, setgid and
+    setuid before it starts). Skips the calling test, saying why, when neither works (no
+    `nobody`, or no right to change users, as in some containers)."""
+    import os
+    import subprocess
+    import sys
+
+    import pytest
+    env = {k: v for k, v in os.environ.items() if k not in ("HOME", "XDG_CACHE_HOME")}
+    env["HOME"] = "/nonexistent"
+    preexec = None
+    if os.geteuid() == 0:
+        import pwd
+        try:
+            pw = pwd.getpwnam("nobody")
+        except KeyError:
+            pytest.skip("running as root, and there is no user `nobody` to drop to")
+
+        def preexec():
+            os.setgroups([])
+            os.setgid(pw.pw_gid)
+            os.setuid(pw.pw_uid)
+    try:
+        p = subprocess.run([sys.executable, "-c", code, *map(str, args)], preexec_fn=preexec,
+                           capture_output=True, text=True, env=env, cwd="/", timeout=timeout)
+    except subprocess.SubprocessError as exc:        # setuid refused in the child
+        pytest.skip(f"running as root and cannot become `nobody`: {exc}")
+    assert p.returncode == 0, p.stderr[-2000:]
+    return p.stdout
+
+
+def unprivileged_uid():
+    """The uid run_unprivileged runs as."""
+    import os
+    if os.geteuid() != 0:
+        return os.geteuid()
+    import pwd
+    return pwd.getpwnam("nobody").pw_uid
