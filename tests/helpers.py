@@ -165,13 +165,25 @@ def run_unprivileged(code, *args, timeout=60):
             os.setgroups([])
             os.setgid(pw.pw_gid)
             os.setuid(pw.pw_uid)
+    import volrender
+    here = os.path.realpath(volrender.__file__)
+    # the child names the volrender it imports first: it must be this one (a user who
+    # cannot read this checkout would import another, or none)
+    prelude = "import os, volrender; print(os.path.realpath(volrender.__file__))\n"
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [os.path.dirname(os.path.dirname(here)),
+                                                      env.get("PYTHONPATH")]))
     try:
-        p = subprocess.run([sys.executable, "-c", code, *map(str, args)], preexec_fn=preexec,
-                           capture_output=True, text=True, env=env, cwd="/", timeout=timeout)
+        p = subprocess.run([sys.executable, "-c", prelude + code, *map(str, args)],
+                           preexec_fn=preexec, capture_output=True, text=True, env=env, cwd="/",
+                           timeout=timeout)
     except subprocess.SubprocessError as exc:        # setuid refused in the child
         pytest.skip(f"running as root and cannot become `nobody`: {exc}")
+    first, _, rest = p.stdout.partition("\n")
+    if first != here:
+        pytest.skip(f"the unprivileged user cannot import this checkout's volrender ({here}): "
+                    f"got {first or p.stderr.strip().splitlines()[-1:]}")
     assert p.returncode == 0, p.stderr[-2000:]
-    return p.stdout
+    return rest
 
 
 def unprivileged_uid():
