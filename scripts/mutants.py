@@ -20,7 +20,7 @@ The working tree itself is never touched. Results:
 Before the mutants, the named tests run once on the unmutated copy (a baseline): a test
 that fails there would "kill" every mutant, so the run stops (--no-baseline skips it).
 --write puts the table into docs/testing.md between its mutants markers. Not part of CI:
-a full run takes about half an hour on 2 cores (each mutant recompiles its kernels).
+a full run takes about 20 minutes on 2 cores (each mutant recompiles its kernels).
 """
 from __future__ import annotations
 
