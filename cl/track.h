@@ -276,6 +276,15 @@ inline void vr_segment(const VrGrid* g, __global const float* maj,
 #if VR_EMISSION
         if (emit && ratio && live) {
             float e = vr_trilinear(emission, k.slot, c, f);
+            if (k.bulk > 0.0f) {
+                /* the emission linear across the interval like the density: its mean
+                   there times the integral of T, exact where e is proportional to
+                   sigma (the start alone reads ~0 at a stiff medium's edge, where the
+                   first interval already holds all the optical depth) */
+                float3 f1;
+                int3 c1 = vr_track_cell(&k, o + (k.t + k.bulk) * d, &f1);
+                e = 0.5f * (e + vr_trilinear(emission, k.slot, c1, f1));
+            }
             if (e > 0.0f)
                 out->le += out->w * e * len * vr_emission_color(vp, temperature, bb, k.slot, c, f);
         }

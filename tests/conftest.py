@@ -8,6 +8,18 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("VOLRENDER_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
 
+def pytest_configure(config):
+    """One device for the whole suite. The tests that render through the CLI, the API or
+    a subprocess pass no device, so they get $VOLRENDER_DEVICE's (else PoCL): point it at
+    $VOLRENDER_TEST_DEVICE, the device of the cl_device fixture, or remove it when that
+    is unset, so that a GPU run of the suite is a GPU run throughout."""
+    spec = os.environ.get("VOLRENDER_TEST_DEVICE")
+    if spec:
+        os.environ["VOLRENDER_DEVICE"] = spec
+    else:
+        os.environ.pop("VOLRENDER_DEVICE", None)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from volrender import cells, cli, glass, points, reference
 from volrender.camera import Camera
+from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
 from volrender.points import PointCloud
 from volrender.render import render as render_scene
@@ -311,8 +312,9 @@ def test_accel_settings():
     assert glass.GlassSettings().accel == "grid"
     assert glass.GlassSettings(use_tree=False).accel == "none"     # --no-tree
     assert glass.GlassSettings(accel="tree").use_tree
-    for bad in ({"accel": "bvh"}, {"cell_size": -1.0}, {"cell_size": float("nan")}):
-        with pytest.raises(Exception, match="accel|cell"):
+    for bad, name in (({"accel": "bvh"}, "accel"), ({"cell_size": -1.0}, "cell"),
+                      ({"cell_size": float("nan")}, "cell")):
+        with pytest.raises(UserError, match=name):
             glass.GlassSettings(**bad)
 
 

@@ -244,3 +244,17 @@ def test_tree_command_screenshot_and_export(tmp_path, capsys):
     assert code == 0, err
     code, _, err = run(capsys, "tree", "blob:400", "--depth", "99", "--screenshot", tmp_path / "x.png")
     assert code == 2 and "depth" in err and "Traceback" not in err
+
+
+def test_the_cli_and_the_api_render_on_the_test_device(cl_device, capsys, tmp_path):
+    """Renders given no device (cli.main, volrender.render, a subprocess) use the suite's
+    device, $VOLRENDER_TEST_DEVICE (conftest points $VOLRENDER_DEVICE at it), not PoCL
+    whatever the run: a GPU run of the suite is one throughout."""
+    import volrender
+    code, _, err = run(capsys, "render", "blob:30", "-o", tmp_path / "a.npy", *SMALL)
+    assert code == 0 and err.strip().endswith(f"on {cl_device.name}"), err
+    img = volrender.render(volrender.load_scene("blob:30", size=(6, 4)))
+    assert img.device == cl_device.name
+    proc = subprocess.run([sys.executable, "-m", "volrender", "render", "blob:30", "-o",
+                           str(tmp_path / "b.npy"), *SMALL], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stderr.strip().endswith(f"on {cl_device.name}"), proc.stderr

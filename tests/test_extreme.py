@@ -656,14 +656,19 @@ def test_volume_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
 
 
 @pytest.mark.parametrize("knobs", [
-    dict(glow=BIG, color=(BIG, BIG, BIG), absorption=(0.0, 0.0, 0.0), spp=5),
-    dict(reflectivity=BIG, refraction=False),
+    dict(glow=BIG, color=(BIG, BIG, BIG), absorption=(0.0, 0.0, 0.0), spp=5, bright="clamp"),
+    dict(reflectivity=BIG, refraction=False, bright=1e28),
     dict(glow=BIG, absorption=(BIG, BIG, BIG)),                # inf * 0 inside the glass
-    dict(lights="suns"), dict(lights="point at a centre", shininess=1e5),
+    dict(lights="suns", bright=1e29), dict(lights="point at a centre", shininess=1e5),
 ], ids=["glow_color", "reflectivity", "absorption", "suns", "point_light"])
 def test_glass_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
+    """Finite, and bright where the knobs make it so, not blanked: glow x colour 1e60 per
+    unit is clamped per sample at layout.SAMPLE_MAX (that, whatever the spp); a
+    reflectivity of 1e30 gives F 1e30 (F >= 0.04) times the sky, 64 suns of 1e30 their
+    highlights."""
     from volrender import layout
     knobs = dict(knobs)
+    bright = knobs.pop("bright", None)
     cloud = points.blob(40, seed=26)
     lights = [Sun((0.3, -1.0, -0.2), 3.0)]
     mode = knobs.pop("lights", None)
@@ -673,9 +678,16 @@ def test_glass_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
         lights = [PointLight(tuple(cloud.centers[0]), BIG)]
     img = grender(cl_device, cloud, glass.GlassSettings(bounces=4, **knobs), lights=lights)
     finite(img)
+    if bright == "clamp":
+        # the mean of 5 clamped samples in float32: within 2 ulps
+        assert img[..., :3].max() == pytest.approx(float(np.float32(layout.SAMPLE_MAX)), rel=2.5e-7)
+    elif bright is not None:
+        assert img[..., :3].max() > bright
 
 
 def test_environment_texels_beyond_the_range_are_clamped(cl_device, tmp_path):
+    """Texels of 3e38 (and a NaN) read as settings.MAX_VALUE (and 0): the rays that miss
+    the glass see exactly MAX_VALUE, not a blanked or overflowed sample."""
     env = np.full((8, 16, 4), 3e38, np.float32)
     env[0, 0, 0] = np.nan
     write_image(tmp_path / "hot.exr", env)
@@ -683,6 +695,10 @@ def test_environment_texels_beyond_the_range_are_clamped(cl_device, tmp_path):
         s = glass.GlassSettings(env=str(tmp_path / "hot.exr"), reflectivity=BIG, spp=3)
         img = grender(cl_device, points.blob(30, seed=27), s)
     finite(img)
+    miss = img[..., 3] == 0
+    assert miss.sum() > 10
+    # the mean of 3 samples in float32: within 2 ulps
+    np.testing.assert_allclose(img[miss][:, :3], MAX_VALUE, rtol=2.5e-7)
 
 
 def test_ranges_refuse_what_would_overflow():

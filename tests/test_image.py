@@ -309,13 +309,7 @@ def test_outputs_symlinks_modes_and_what_is_refused(tmp_path):
     finally:
         os.umask(mask)
     assert (fresh.stat().st_mode & 0o777) == 0o644
-    ro = tmp_path / 'ro.npy'
-    ro.write_bytes(b'keep')
-    ro.chmod(0o444)
-    if not os.access(ro, os.W_OK):               # root may write anything
-        with pytest.raises(UserError, match='read-only'):
-            write_image(ro, np.zeros((1, 1, 4), np.float32))
-        assert ro.read_bytes() == b'keep'
+    # a read-only output: test_a_read_only_output_is_refused_and_kept
     os.mkfifo(tmp_path / 'pipe.png')
     with pytest.raises(UserError, match='FIFO'):
         check_output(tmp_path / 'pipe.png')
@@ -362,17 +356,60 @@ def test_check_output_missing_directory(tmp_path):
         check_output(tmp_path / 'dir.exr')
 
 
-def test_check_output_unwritable_directory(tmp_path, monkeypatch):
-    ro = tmp_path / 'ro'
+REFUSE = """
+import sys
+from volrender.errors import UserError
+from volrender.image import {call}
+try:
+    {call}(sys.argv[1]{extra})
+except UserError as exc:
+    print("REFUSED", exc)
+else:
+    print("ACCEPTED")
+"""
+
+
+@pytest.fixture
+def shared_tmp():
+    """A folder the unprivileged user of run_unprivileged may enter (pytest's tmp_path
+    is private to root) and own."""
+    import shutil
+    import tempfile
+    from helpers import unprivileged_uid
+    base = tempfile.mkdtemp(prefix='volrender-perm-')
+    os.chmod(base, 0o755)
+    try:
+        os.chown(base, unprivileged_uid(), -1)
+    except (OSError, KeyError):
+        pass                        # not root: it is ours already
+    yield __import__('pathlib').Path(base)
+    shutil.rmtree(base, ignore_errors=True)
+
+
+def test_check_output_unwritable_directory(shared_tmp):
+    """A folder its user may not write: refused, as a user whom permission bits bind
+    (this one, or `nobody` when the tests run as root, who may write anywhere)."""
+    from helpers import run_unprivileged
+    ro = shared_tmp / 'ro'
     ro.mkdir()
     ro.chmod(0o555)
-    try:
-        if os.access(ro, os.W_OK):  # root ignores permission bits: fake the answer
-            monkeypatch.setattr(image.os, 'access', lambda p, mode: False)
-        with pytest.raises(UserError, match='not writable'):
-            check_output(ro / 'a.png')
-    finally:
-        ro.chmod(0o755)
+    out = run_unprivileged(REFUSE.format(call='check_output', extra=''), ro / 'a.png')
+    assert out.startswith('REFUSED') and 'not writable' in out, out
+    assert list(ro.iterdir()) == []
+
+
+def test_a_read_only_output_is_refused_and_kept(shared_tmp):
+    """A read-only file in a folder the user may write: refused and left as it was (as
+    an unprivileged user, for whom the mode means what it says)."""
+    from helpers import run_unprivileged
+    ro = shared_tmp / 'ro.npy'
+    ro.write_bytes(b'keep')
+    ro.chmod(0o444)
+    out = run_unprivileged(REFUSE.format(call='write_image', extra=', __import__("numpy").zeros('
+                                         '(1, 1, 4), "float32")'), ro)
+    assert out.startswith('REFUSED') and 'read-only' in out, out
+    assert ro.read_bytes() == b'keep'
+    assert sorted(p.name for p in shared_tmp.iterdir()) == ['ro.npy']
 
 
 def test_aovs_only_for_exr(tmp_path):

@@ -285,10 +285,15 @@ def test_a_feature_without_effect_matches_it_switched_off(cl_device, feature):
     elif feature == "point":
         on = render_volume(base, cam, lights + [PointLight((0, 3, 0), 0.0)], s, cl_device)
     elif feature == "shadows":
-        off = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "density_scale": 0.0}),
-                            cl_device)["rgba"]
-        on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "density_scale": 0.0,
-                                                                "shadows": False}), cl_device)
+        # shadow rays toward a light of irradiance 0 cannot matter; the medium, lit by a
+        # uniform environment (which --no-shadows leaves attenuated), is not black
+        dark = [Sun((0, -1, -1), 0.0)]
+        lit = {**s.__dict__, "env": (0.3, 0.4, 0.5)}
+        off = render_volume(base, cam, dark, VolumeSettings(**lit), cl_device)
+        on = render_volume(base, cam, dark, VolumeSettings(**{**lit, "shadows": False}), cl_device)
+        assert off["flags"]["VR_SHADOWS"] == 1 and on["flags"]["VR_SHADOWS"] == 0
+        off = off["rgba"]
+        assert off[..., 3].max() > 0.5 and off[..., :3].max() > 0.05
     else:
         on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "phase": (0.5, 0.9, 0.99999)}),
                            cl_device)

@@ -1,6 +1,5 @@
 import dataclasses
 import os
-import time
 
 import numpy as np
 import pytest
@@ -247,19 +246,17 @@ def test_property_invariants_and_queries(n, leaf_size, margin, kind, axis, zero_
         assert np.isin(brute_sphere_scan(c, r, margin, x, radius), got).all()
 
 
-# ---------------------------------------------------------------- timing (opt-in)
+# ---------------------------------------------------------------- large builds (opt-in)
+# Build times are measured by bench/build.py (tree_ms against the sphere count), not here.
 
 @pytest.mark.slow
 @pytest.mark.skipif(not os.environ.get("VOLRENDER_SLOW"), reason="set VOLRENDER_SLOW=1")
 @pytest.mark.parametrize("n", [10 ** 5, 10 ** 6])
-def test_build_timing(n):
+def test_large_builds_keep_the_invariants(n):
     pc = blob(n, seed=0)
     for axis in ("longest", "cycle"):
-        t0 = time.perf_counter()
         t = build(pc.centers, pc.radii, leaf_size=8, margin=0.01, axis=axis)
-        print(f"\nbuild n={n} axis={axis}: {time.perf_counter() - t0:.2f} s "
-              f"(depth {t.depth}, {os.cpu_count()} CPUs)")
-    check_invariants(t, pc.centers, pc.radii)
+        check_invariants(t, pc.centers, pc.radii)
 
 
 def _sorting_reference(centers, depth, axis):

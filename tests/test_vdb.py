@@ -9,7 +9,12 @@ import pytest
 from volrender import vdb as V
 from volrender.errors import UserError
 
-pv = pytest.importorskip("pyopenvdb")
+try:                      # OpenVDB's binding (Debian's python3-openvdb): only some tests need it
+    import pyopenvdb as pv
+except ImportError:
+    pv = None
+needs_openvdb = pytest.mark.skipif(pv is None, reason="needs OpenVDB's Python binding "
+                                   "(pyopenvdb, `bash run.sh setup`) to write or read .vdb grids")
 
 AFFINE = np.array([[0.08, 0.07, -0.05, 1.5],      # rotation-ish, scale and shear
                    [-0.05, 0.09, 0.05, -2.0],
@@ -103,6 +108,7 @@ def test_majorant_bounds_density_and_empty_bricks_are_zero(rng):
 
 # ----------------------------------------------------------------- VDB conversion
 
+@needs_openvdb
 def test_chunked_vdb_equals_from_dense(tmp_path, rng):
     v = rng.uniform(0.5, 2.0, size=(37, 21, 45)).astype(np.float32)   # all active
     v[10:20, 5:15, 10:40] = 0                                          # a hole
@@ -139,6 +145,7 @@ def test_chunked_vdb_equals_from_dense(tmp_path, rng):
     assert b.sample_world(x[:3])[0] == 0.0
 
 
+@needs_openvdb
 @pytest.mark.parametrize("voxel, offset", [(0.0128, (0.0, 0.0, 0.0)), (3.3, (-100.0, 5.0, 1e4))])
 def test_world_bounds_follow_the_transform(tmp_path, voxel, offset):
     m = np.diag([voxel, voxel, voxel, 1.0])
@@ -154,6 +161,7 @@ def test_world_bounds_follow_the_transform(tmp_path, voxel, offset):
     assert b.sample_world((m @ [5, -1, 3, 1.0])[:3])[0] == pytest.approx(1.0)
 
 
+@needs_openvdb
 def test_affine_map_matches_openvdb(shared_data, rng):
     f = shared_data / "vdb" / "dragon_with_xform.vdb"
     b = V.load_bricks(f)
@@ -173,6 +181,7 @@ def test_affine_map_matches_openvdb(shared_data, rng):
     np.testing.assert_allclose(b.sample_world(world), want, atol=1e-5)
 
 
+@needs_openvdb
 def test_sparse_huge_bbox_is_quick_and_small(tmp_path):
     g = pv.FloatGrid()
     blob = np.ones((4, 4, 4), np.float32)
@@ -187,6 +196,7 @@ def test_sparse_huge_bbox_is_quick_and_small(tmp_path):
     assert b.sample_local([[2, 3002, 2], [3002, 2, 42]]).tolist() == [1.0, 2.0]
 
 
+@needs_openvdb
 def test_skipping_empty_regions_and_reading_tiles(tmp_path, rng):
     v = rng.uniform(0.5, 1, (40, 9, 20)).astype(np.float32)
     v[-3:, -5:, -2:] = 2.0
@@ -202,6 +212,7 @@ def test_skipping_empty_regions_and_reading_tiles(tmp_path, rng):
     assert b.sample_local(np.array([[200.0, 200, 200]]) - b.origin)[0] == 0.5
 
 
+@needs_openvdb
 def test_nonzero_background_reads_inside_the_active_box_only(tmp_path):
     g = pv.FloatGrid(background=0.25)
     v = np.full((9, 9, 9), 0.25, np.float32)
@@ -214,6 +225,7 @@ def test_nonzero_background_reads_inside_the_active_box_only(tmp_path):
     assert b.sample_local([[5, 5, 5], [0, 5, 5], [10, 10, 10]]).tolist() == [0.25, 0, 0]
 
 
+@needs_openvdb
 def test_nan_and_negative_voxels_are_sanitised(tmp_path):
     v = np.ones((6, 6, 6), np.float32)
     v[2, 2, 2], v[3, 3, 3] = np.inf, -5
@@ -387,6 +399,7 @@ def test_wrong_grid_name_lists_grids(shared_data):
     assert "density (float, fog volume)" in msg and "velocity (vec3s, staggered)" in msg
 
 
+@needs_openvdb
 def test_kinds_of_grid_that_are_refused(tmp_path, shared_data):
     d = shared_data / "vdb"
     cases = [(d / "fluid_data_0190.vdb", "velocity", "holds vectors \\(vec3s\\)"),
@@ -412,6 +425,7 @@ def test_kinds_of_grid_that_are_refused(tmp_path, shared_data):
         V.load_volume(write_grid(tmp_path / "frustum.vdb", grid=fr))
 
 
+@needs_openvdb
 def test_emission_grid_must_share_transform(tmp_path):
     g1, g2 = pv.FloatGrid(), pv.FloatGrid()
     for g, name, vs in ((g1, "density", 0.1), (g2, "flame", 0.2)):
@@ -423,6 +437,7 @@ def test_emission_grid_must_share_transform(tmp_path):
         V.load_bricks(tmp_path / "f.vdb", emission_grid="flame")
 
 
+@needs_openvdb
 def test_blender_fire_cache_with_int32_grid_loads_density(shared_data):
     f = shared_data / "vdb" / "fluid_data_0056.vdb"
     with pytest.raises(TypeError):
@@ -436,6 +451,7 @@ def test_blender_fire_cache_with_int32_grid_loads_density(shared_data):
     assert b.emission_max.max() == pytest.approx(0.998, abs=1e-3)
 
 
+@needs_openvdb
 def test_duplicate_names_warn_and_use_the_first(shared_data):
     f = shared_data / "vdb" / "edge_cases" / "grids.vdb"
     assert [g.name for g in V.list_grids(f)] == ["density"] * 3
@@ -445,16 +461,26 @@ def test_duplicate_names_warn_and_use_the_first(shared_data):
     assert b.active_voxels == 491
 
 
+@needs_openvdb
 def test_list_grids_matches_openvdb_where_it_works(shared_data):
+    """Our header parser against OpenVDB's own on every real file OpenVDB 10's Python
+    binding reads: 6 of the 9 (it refuses int32 and double trees, which list_grids
+    parses); the comparison must have happened on at least those 6."""
+    compared, refused = [], []
     for f in sorted((shared_data / "vdb").rglob("*.vdb")):
         mine = sorted((g.name, g.value_type, g.grid_class) for g in V.list_grids(f))
         try:
             ref = pv.readAllGridMetadata(str(f))
-        except Exception:
+        except TypeError as exc:                   # "Tree_int32_5_4_3 is not a supported ..."
+            assert "not a supported OpenVDB grid type" in str(exc), (f.name, exc)
+            refused.append(f.name)
             continue
         assert mine == sorted((g.name, g.valueTypeName, g.gridClass) for g in ref), f.name
+        compared.append(f.name)
+    assert len(compared) >= 6, (compared, refused)
 
 
+@needs_openvdb
 def test_every_real_grid_loads_or_gives_user_error(shared_data):
     loaded = 0
     with warnings.catch_warnings():
@@ -489,6 +515,7 @@ def test_npz_and_listing_work_without_openvdb(monkeypatch, tmp_path, shared_data
         V.load_volume(shared_data / "vdb" / "fluid_data_0190.vdb")
 
 
+@needs_openvdb
 def test_demo_cloud_is_a_small_fog_volume():
     from pathlib import Path
     f = Path(__file__).resolve().parents[1] / "scenes" / "demo_cloud.vdb"
