@@ -81,7 +81,7 @@ def run(pattern, n_frames, out, n_workers, size, density, chunk, dev_spec, fmt):
         warm.mkdir(exist_ok=True)
         # one untimed frame per worker: each builds its programs
         frame1 = sequence.parse_pattern(str(pattern)).path(1)
-        cam, _ = sequence.sequence_camera({1: frame1}, opts)
+        cam = sequence.sequence_camera({1: frame1}, opts)[0]
         kw = {**opts, **sequence.camera_overrides(cam)}
         futs = [client.submit(sequence.render_chunk, [(1, frame1, warm / f"w{i}.{fmt}")], kw, {},
                               pure=False, workers=[w]) for i, w in enumerate(client.scheduler_info()["workers"])]

@@ -288,12 +288,28 @@ def look_problems(img, scene) -> list[str]:
 SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
 
 
+def time_breakdown(scene, img, write_s) -> str:
+    """Where a render's time went (-v): load, radii (clouds without radii), tree and cells
+    (glass: the scene's acceleration, 0 when reused), the program set-up, the kernels, the
+    rest of the launches and the write."""
+    parts = [("load", scene.timings.get("load", 0.0)), ("radii", scene.timings.get("radii"))]
+    if scene.kind == "glass":
+        parts += [("tree", img.info.get("tree_ms", 0.0) / 1e3),
+                  ("cells", img.info.get("cells_ms", 0.0) / 1e3)]
+    build = sum(v for k, v in parts[2:]) if scene.kind == "glass" else 0.0
+    setup = max(img.info.get("setup_ms", 0.0) / 1e3 - build, 0.0)
+    parts += [("setup", setup), ("kernel", img.kernel_ms / 1e3),
+              ("launch overhead", max(img.wall_ms - img.kernel_ms, 0.0) / 1e3), ("write", write_s)]
+    return ", ".join(f"{k} {v:.3f} s" for k, v in parts if v is not None)
+
+
 def cmd_sequence(args):
     from .sequence import render_sequence
     r = render_sequence(args.input, args.output, args.frames, workers=args.workers,
                         scheduler=args.scheduler, chunk=args.chunk,
                         skip_existing=args.skip_existing, device=args.device,
                         progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
+                        say=lambda note: print(f"volrender: {note}", file=sys.stderr),
                         **render_overrides(args))
     for rec in r.failed:
         print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
@@ -346,7 +362,11 @@ def cmd_render(args):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
     for problem in look_problems(img, scene):
         warnings.warn(problem)
+    t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
+    if args.verbose:
+        print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
+              file=sys.stderr)
     if args.camera_out:
         from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)

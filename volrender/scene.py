@@ -126,6 +126,7 @@ class Scene:
     source: str = ""
     inputs: tuple = ()                # every file the scene reads (resolved paths)
     notes: tuple = ()                 # choices made while resolving (the CLI prints them)
+    timings: dict = field(default_factory=dict, compare=False)  # seconds: load, radii
 
     @property
     def kind(self) -> str:
@@ -597,6 +598,9 @@ class Request:
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
     def load(self) -> Scene:
+        import time
+        t0 = time.perf_counter()
+        timings = {}
         notes = []
         settings = self.settings
         environment = None
@@ -626,7 +630,9 @@ class Request:
             else:
                 cloud = points.load_points(self.source)
             if cloud.radii is None and (settings.radius is None or settings.blend is None):
+                t1 = time.perf_counter()
                 settings, note = _scan_defaults(cloud, settings)
+                timings["radii"] = time.perf_counter() - t1
                 notes.append(note)
             content = GlassContent(cloud, settings)
         if settings.env is not None:
@@ -658,8 +664,9 @@ class Request:
             lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
                                else l.direction, l.irradiance * dim, l.color)
                            for l in DEFAULT_LIGHTS)
+        timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
-                     tuple(notes))
+                     tuple(notes), timings)
 
 
 def request(source, **overrides) -> Request:

@@ -1,15 +1,17 @@
 """Frame sequences: one camera for the whole animation, frames as Dask tasks.
 
     volrender render 'smoke_####.vdb' -o 'out/smoke_####.exr' --frames 1-240
+    volrender render 'particles_####.ply' -o 'out/glass_####.png' --frames 1-48
     volrender.render_sequence("smoke_####.vdb", "out/smoke_####.exr", frames="1-240")
 
 Patterns: `####` (any number of #: zero-padded to that width), `%04d` / `%d` (printf),
 or a glob (`smoke_*.vdb`: the frame number is the last run of digits in each name).
 `--frames A-B[:STEP]` (also `N`, and comma-separated lists) picks frames; missing input
 frames are named before anything renders. The camera is resolved once, from the union
-of every frame's bounds read from the files' metadata (no voxels loaded), or from the
-options / `--camera`; the other options (density scale, exposure, ...) are the same for
-every frame.
+of every frame's bounds (volumes: read from the files' metadata, no voxels loaded; point
+clouds: each frame read once), or from the options / `--camera`; the other options
+(density scale, exposure, ...) are the same for every frame, and a point-cloud sequence
+takes one radius and blend, given or chosen from its first frame.
 
 Frames run as Dask tasks (`chunk` frames each, so a worker builds its programs once):
 `workers=N` starts a LocalCluster on this machine (default: one worker per GPU, else one
@@ -169,21 +171,45 @@ def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
 # --------------------------------------------------------------------------- one camera
 
 def sequence_camera(paths, overrides):
-    """(camera, {frame: error}): the options' camera framed on the union of every frame's
-    bounds (from metadata), so nothing jumps from frame to frame; frames whose metadata
-    cannot be read are left out of the union and returned as failed."""
+    """(camera, {frame: error}, options for every frame, notes): the options' camera
+    framed on the union of every frame's bounds, so nothing jumps from frame to frame.
+    Volumes: bounds from the files' metadata (no voxels loaded). Point clouds: each frame
+    is read once for its bounds, and the radius and blend are one for the whole sequence,
+    given or chosen from the first frame (said in the notes). Frames whose bounds cannot
+    be read are left out of the union and returned as failed."""
     import numpy as np
     from . import vdb
     from .scene import request
     first = next(iter(paths.values()))
     req = request(first, **overrides)
-    if req.kind != "volume":
-        raise UserError("sequences render volumes (.vdb, .npz)", path=first,
-                        fix="give a pattern of volume files")
+    if req.origin not in ("volume", "points"):
+        raise UserError("sequences render volumes (.vdb, .npz) or point clouds (.ply, .npy, "
+                        ".xyz, .csv, .txt)", path=first, fix="give a pattern of such files")
+    extra, notes = {}, []
+    if req.kind == "glass":
+        from . import points
+        from .glass import blend_width, sphere_bounds, sphere_radii
+        scene0 = req.load()
+        settings = scene0.content.settings
+        notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
+        if settings.radius is not None:
+            extra["radius"] = settings.radius
+        k = blend_width(sphere_radii(scene0.content.cloud, settings), settings)
+        extra["blend"] = k
+        if settings.blend is None:
+            notes.append(f"blend {k:.4g} for every frame (from the first frame's radii); "
+                         "set --blend")
+
+        def bounds(path):
+            cloud = scene0.content.cloud if path == first else points.load_points(path)
+            return (*sphere_bounds(cloud, sphere_radii(cloud, settings)), None)
+    else:
+        def bounds(path):
+            return vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
     lo, hi, hint, bad = np.full(3, np.inf), np.full(3, -np.inf), None, {}
     for frame, path in paths.items():
         try:
-            a, b, h = vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
+            a, b, h = bounds(path)
         except UserError as exc:
             bad[frame] = str(exc)
             continue
@@ -191,7 +217,7 @@ def sequence_camera(paths, overrides):
         hint = hint or h
     if not bad.keys() < paths.keys():
         raise UserError(f"no frame of the sequence can be read (frame {min(bad)}: {bad[min(bad)]})")
-    return req.view.camera(lo, hi, hint), bad
+    return req.view.camera(lo, hi, hint), bad, extra, notes
 
 
 def camera_overrides(camera) -> dict:
@@ -230,7 +256,8 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             t2 = time.perf_counter()
             img.save(out, **save_kw)
             t3 = time.perf_counter()
-            rec.update(status="ok", device=img.device, load_s=t1 - t0,
+            build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
+            rec.update(status="ok", device=img.device, load_s=t1 - t0, build_s=build_s,
                        setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
                        render_s=t2 - t1, write_s=t3 - t2)
         except UserError as exc:
@@ -302,6 +329,9 @@ class SequenceResult:
     wall_s: float = 0.0
     workers: int = 0
     record_path: Path | None = None
+    notes: list = field(default_factory=list)     # choices made for every frame
+    camera: object = None                         # the one camera of every frame
+    options: dict = field(default_factory=dict)   # options chosen for every frame (radius, blend)
 
     @property
     def failed(self) -> list:
@@ -321,11 +351,12 @@ def record_path(output: Pattern) -> Path:
 
 def render_sequence(pattern, output, frames=None, client=None, *, workers=None, scheduler=None,
                     chunk=None, skip_existing=False, device=None, progress=None, exposure=0.0,
-                    tonemap="filmic", **overrides) -> SequenceResult:
+                    tonemap="filmic", say=None, **overrides) -> SequenceResult:
     """Render every frame of `pattern` to `output` (see the module docstring). `client`: a
     dask.distributed.Client to use (else one is created from `scheduler` or `workers`).
     Raises UserError before rendering for bad patterns and missing frames; failed frames
-    are in the result's `failed` (the others are written)."""
+    are in the result's `failed` (the others are written). `say`: called with each note
+    (choices made for every frame) before the frames render."""
     from . import image
     src = parse_pattern(pattern)
     dst = parse_pattern(output, output=True)
@@ -341,8 +372,10 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     if clash:
         raise UserError(f"an output frame is also an input: {sorted(clash)[0]}",
                         fix="write the frames somewhere else")
-    camera, bad = sequence_camera(paths, overrides)
-    frame_kw = {**overrides, **camera_overrides(camera)}
+    camera, bad, extra, notes = sequence_camera(paths, overrides)
+    for note in notes if say else ():
+        say(note)
+    frame_kw = {**overrides, **extra, **camera_overrides(camera)}
     frame_kw.pop("camera", None)
     save_kw = {"exposure": exposure, "tonemap": tonemap}
     jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
@@ -365,7 +398,8 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
             if own is not None:
                 _stop_client(*own)
     result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
-                            time.perf_counter() - t0, n_workers)
+                            time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
+                            options=extra)
     result.record_path = _write_record(dst, result, pattern, output)
     return result
 
@@ -450,7 +484,8 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
 def _write_record(dst, result, pattern, output):
     from .atomic import write_bytes
     path = record_path(dst)
-    payload = {"input": str(pattern), "output": str(output), "wall_s": result.wall_s,
+    payload = {"input": str(pattern), "output": str(output), "options": result.options,
+               "wall_s": result.wall_s,
                "workers": result.workers, "fps": result.fps,
                "failed": [r["frame"] for r in result.failed], "frames": result.records}
     try:

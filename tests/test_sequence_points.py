@@ -1,0 +1,87 @@
+"""Point-cloud sequences: one camera framing every frame's cloud, one radius and blend
+from the first frame, 2 Dask workers giving the serial bytes, a malformed frame that fails
+alone with its number, and --skip-existing resuming."""
+import json
+
+import numpy as np
+import pytest
+
+import volrender
+from volrender import cli, points
+from test_sequence import client  # noqa: F401  (the module's 2-worker cluster)
+
+SIZE = (32, 24)
+
+
+@pytest.fixture(scope="module")
+def cloud_frames(tmp_path_factory):
+    """Four .npy frames of a scan-like cloud (no radii) moving right across the frame."""
+    d = tmp_path_factory.mktemp("points")
+    base = points.blob(600, seed=4).centers
+    for f in range(1, 5):
+        np.save(d / f"p_{f:04d}.npy", (base + [0.8 * f, 0.0, 0.0]).astype(np.float32))
+    return d
+
+
+def _render(src, out, **kw):
+    out.mkdir(exist_ok=True)
+    return volrender.render_sequence(str(src / "p_####.npy"), str(out / "g_####.exr"),
+                                     frames="1-4", size=SIZE, bounces=2, **kw)
+
+
+def test_point_sequence_is_one_camera_and_one_blend(cloud_frames, tmp_path):
+    notes = []
+    r = _render(cloud_frames, tmp_path / "a", workers=0, say=notes.append)
+    assert [rec["status"] for rec in r.records] == ["ok"] * 4
+    assert any("blend" in n for n in notes) and any("radius" in n for n in notes)
+    assert set(r.options) == {"radius", "blend"} and r.options["blend"] > 0
+    rec = json.loads(r.record_path.read_text())
+    assert all(f["build_s"] >= 0 and f["kernel_s"] > 0 for f in rec["frames"])
+    # the camera frames the union: the cloud moves right, so its image moves right
+    cols = []
+    for f in range(1, 5):
+        a = volrender.image.read_image(tmp_path / "a" / f"g_{f:04d}.exr")[..., 3]
+        cols.append((a.sum(0) * np.arange(SIZE[0])).sum() / a.sum())
+    assert np.all(np.diff(cols) > 2) and cols[0] < SIZE[0] / 2 < cols[-1]
+    # every frame has the first frame's radius and blend: frame 4 rendered alone with
+    # them and this camera is the same image
+    c = r.camera
+    one = volrender.load_scene(str(cloud_frames / "p_0004.npy"), size=SIZE, bounces=2,
+                               origin=tuple(c.origin), target=tuple(c.target), up=tuple(c.up),
+                               fov=c.fov, **r.options)
+    np.testing.assert_array_equal(volrender.render(one).rgba,
+                                  volrender.image.read_image(tmp_path / "a" / "g_0004.exr"))
+
+
+def test_point_sequence_on_dask_is_the_serial_bytes(cloud_frames, tmp_path, client):  # noqa: F811
+    _render(cloud_frames, tmp_path / "s", workers=0)
+    r = _render(cloud_frames, tmp_path / "d", client=client)
+    assert r.workers == 2 and not r.failed
+    for f in range(1, 5):
+        name = f"g_{f:04d}.exr"
+        assert (tmp_path / "s" / name).read_bytes() == (tmp_path / "d" / name).read_bytes(), f
+
+
+def test_a_malformed_frame_fails_alone_and_skip_existing_resumes(cloud_frames, tmp_path,
+                                                                capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    for f in range(1, 5):
+        (src / f"p_{f:04d}.npy").write_bytes((cloud_frames / f"p_{f:04d}.npy").read_bytes())
+    (src / "p_0003.npy").write_bytes(b"\x93NUMPY garbage")
+    out = tmp_path / "o"
+    out.mkdir()
+    code = cli.main(["render", str(src / "p_####.npy"), "-o", str(out / "g_####.png"),
+                     "--frames", "1-4", "--size", "32x24", "--bounces", "2", "--workers", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "frame 3" in err and "Traceback" not in err
+    assert sorted(p.name for p in out.iterdir() if p.suffix == ".png") == \
+        ["g_0001.png", "g_0002.png", "g_0004.png"]
+    before = {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")}
+    np.save(src / "p_0003.npy", np.load(cloud_frames / "p_0003.npy"))
+    code = cli.main(["render", str(src / "p_####.npy"), "-o", str(out / "g_####.png"),
+                     "--frames", "1-4", "--size", "32x24", "--bounces", "2", "--workers", "0",
+                     "--skip-existing"])
+    assert code == 0
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.png") if p.name in before} == before
+    assert (out / "g_0003.png").is_file()
