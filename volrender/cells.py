@@ -442,17 +442,21 @@ def _occupancy(c, edge):
     return np.unique(key, return_counts=True)[1]
 
 
-def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
-    """The cell edge, grown until the bricks that hold a sphere centre, with their
-    neighbours within the blend, hold at most max_cells cells (a cheap estimate of the
-    bricks the surface passes through, before any is classified)."""
+def estimate_cells(spheres, blend, box_lo, cell) -> int:
+    """Cells in the bricks the surface passes through at edge `cell`, estimated before
+    anything is classified: the bricks holding a sphere centre, with their neighbours
+    within the blend and the largest radius (bench/edge.py measures its error)."""
     c = np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
     r = float(np.max(spheres[:, 3])) if len(spheres) else 0.0
+    edge = B * max(cell, 1e-30)
+    grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
+    return int(len(_occupancy(c, edge)) * min(grow, 3.0) ** 2 * B3)
+
+
+def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
+    """The cell edge, grown until estimate_cells is at most max_cells."""
     for _ in range(60):
-        edge = B * max(cell, 1e-30)
-        occupied = len(_occupancy(c, edge))
-        grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
-        if occupied * min(grow, 3.0) ** 2 * B3 <= max_cells:
+        if estimate_cells(spheres, blend, box_lo, cell) <= max_cells:
             return cell
         cell *= 1.25
     return cell
