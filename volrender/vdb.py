@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
 import re
 import struct
 import warnings
@@ -27,7 +28,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError, printable
-from .files import check_input, npy_header
+from .files import check_input, check_memory, npy_header
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
@@ -68,6 +69,7 @@ class GridInfo:
     active_voxels: int | None = None
     creator: str = ""          # the file's 'creator' metadata (the writing application)
     metadata_keys: tuple = ()  # names of the grid's metadata entries
+    memory_bytes: int | None = None   # 'file_mem_bytes': the grid's size in memory
 
     def describe(self) -> str:
         return f"{self.name} ({self.value_type}, {self.grid_class})"
@@ -112,8 +114,10 @@ def _read_metamap(r: _Reader) -> dict:
         raw = r.read(n)
         if type_name == "string":
             meta[name] = raw.decode("utf-8", "replace")
-        elif type_name in ("int32", "int64") and n in (4, 8):
+        elif (type_name, n) in (("int32", 4), ("int64", 8)):
             meta[name] = struct.unpack("<i" if n == 4 else "<q", raw)[0]
+        elif (type_name, n) == ("vec3i", 12):
+            meta[name] = struct.unpack("<3i", raw)
         else:
             meta[name] = None          # present, value not decoded
     return meta
@@ -127,50 +131,63 @@ def _value_type(tree_type: str) -> str:
 
 def _parse_vdb(path: Path) -> list[GridInfo] | None:
     """Grid descriptors straight from the file; None when only OpenVDB can tell."""
-    size = path.stat().st_size
     with open(path, "rb") as f:
-        r = _Reader(f, size)
-        if size < 8 or r.unpack("q") != VDB_MAGIC:
-            raise UserError("not an OpenVDB file (bad magic number)", path=path,
-                            fix="give a .vdb written by OpenVDB, Houdini, Blender or EmberGen")
-        try:
-            version = r.unpack("I")
-            if version < 222:              # older headers vary; let OpenVDB read them
-                return None
-            r.unpack("II")                 # library major, minor
-            has_offsets = r.read(1) != b"\0"
-            r.read(36)                     # UUID as text
-            creator = _read_metamap(r).get("creator") or ""    # file metadata
-            if not has_offsets:
-                return None
-            count = r.unpack("i")
-            if count < 0:
-                raise _Corrupt("negative grid count")
-            if count * _MIN_DESCRIPTOR > size - f.tell():
-                raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
-            grids = []
-            for _ in range(count):
-                name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
-                tree = r.string().removesuffix("_HalfFloat")
-                r.string()                 # instance parent
-                grid_pos, block_pos, end_pos = r.unpack("qqq")
-                # each grid lies after its descriptor, in order: never trust an offset
-                # that points backwards (it would make this loop read the same bytes forever)
-                if not f.tell() <= grid_pos <= block_pos <= end_pos:
-                    raise _Corrupt(f"grid {name!r} has offsets out of order "
-                                   f"({grid_pos}, {block_pos}, {end_pos})")
-                if end_pos > size:
-                    raise _Corrupt(f"grid {name!r} ends past the end of the file")
-                f.seek(grid_pos)
-                r.unpack("I")              # per-grid compression flags
-                meta = _read_metamap(r)
-                grids.append(GridInfo(name, _value_type(tree), meta.get("class", "unknown"),
-                                      meta.get("file_voxel_count"), str(creator), tuple(meta)))
-                f.seek(end_pos)
-            return grids
-        except (_Corrupt, struct.error, UnicodeError) as e:
-            raise UserError(f"truncated or corrupt OpenVDB file ({e})", path=path,
-                            fix="re-export or re-download it") from None
+        return parse_vdb_header(f, os.fstat(f.fileno()).st_size, path)
+
+
+def _int_or_none(v):
+    return v if isinstance(v, int) and v >= 0 else None
+
+
+def parse_vdb_header(f, size: int, path) -> list[GridInfo] | None:
+    """The grid descriptors and per-grid metadata of the .vdb stream `f` (`size` bytes: a
+    file or io.BytesIO; `path` names it in messages), reading no voxel data; None for
+    files only OpenVDB can tell about (headers before version 222, no grid offsets)."""
+    r = _Reader(f, size)
+    if size < 8 or r.unpack("q") != VDB_MAGIC:
+        raise UserError("not an OpenVDB file (bad magic number)", path=path,
+                        fix="give a .vdb written by OpenVDB, Houdini, Blender or EmberGen")
+    try:
+        version = r.unpack("I")
+        if version < 222:              # older headers vary; let OpenVDB read them
+            return None
+        r.unpack("II")                 # library major, minor
+        has_offsets = r.read(1) != b"\0"
+        r.read(36)                     # UUID as text
+        creator = _read_metamap(r).get("creator") or ""    # file metadata
+        if not has_offsets:
+            return None
+        count = r.unpack("i")
+        if count < 0:
+            raise _Corrupt("negative grid count")
+        if count * _MIN_DESCRIPTOR > size - f.tell():
+            raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
+        grids = []
+        for _ in range(count):
+            name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
+            tree = r.string().removesuffix("_HalfFloat")
+            r.string()                 # instance parent
+            grid_pos, block_pos, end_pos = r.unpack("qqq")
+            # each grid lies after its descriptor, in order: never trust an offset
+            # that points backwards (it would make this loop read the same bytes forever)
+            if not f.tell() <= grid_pos <= block_pos <= end_pos:
+                raise _Corrupt(f"grid {name!r} has offsets out of order "
+                               f"({grid_pos}, {block_pos}, {end_pos})")
+            if end_pos > size:
+                raise _Corrupt(f"grid {name!r} ends past the end of the file")
+            f.seek(grid_pos)
+            r.unpack("I")              # per-grid compression flags
+            meta = _read_metamap(r)
+            grid_class = meta.get("class")
+            grids.append(GridInfo(name, _value_type(tree),
+                                  grid_class if isinstance(grid_class, str) else "unknown",
+                                  _int_or_none(meta.get("file_voxel_count")), str(creator),
+                                  tuple(meta), _int_or_none(meta.get("file_mem_bytes"))))
+            f.seek(end_pos)
+        return grids
+    except (_Corrupt, struct.error, UnicodeError) as e:
+        raise UserError(f"truncated or corrupt OpenVDB file ({e})", path=path,
+                        fix="re-export or re-download it") from None
 
 
 def _check_file(path) -> Path:
@@ -645,18 +662,28 @@ def load_npz(path) -> Bricks:
     data, a well-conditioned transform; NaN/Inf and negative voxels become 0 with a
     warning, as in a .vdb."""
     p = _check_file(path)
+    with open(p, "rb") as f:
+        return read_npz(f, os.fstat(f.fileno()).st_size, p)
+
+
+def read_npz(f, size: int, p) -> Bricks:
+    """`load_npz` of the open binary stream `f` of `size` bytes (a file or io.BytesIO);
+    `p` names it in messages."""
     fix = "convert the .vdb again (volrender convert)"
     try:
-        z = np.load(p, allow_pickle=False)
+        z = np.load(f, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise UserError(f"not a readable .npz file ({_one_line(e)})", path=p, fix=fix) from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
     with z:
         try:
-            problem = _check_npz_members(z, p.stat().st_size)
+            problem = _check_npz_members(z, size)
             if problem:
                 raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
+            # every member once as read, once as validated (cast, sanitised)
+            check_memory(2 * sum(i.file_size for i in z.zip.infolist()), p,
+                         "this brick cache", "convert a smaller or cropped grid, or free memory")
             if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
                 raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
             if int(z["version"]) not in NPZ_VERSIONS:
@@ -759,6 +786,7 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
     info = _pick(p, grids, grid, default=True)
     einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
     tinfo = _pick(p, grids, temperature_grid) if temperature_grid is not None else None
+    _check_load_memory(p, info, [x for x in (einfo, tinfo) if x is not None])
     vdb = import_openvdb()
     g, m, box = _read_grid(vdb, p, info)
     if box is None:
@@ -805,6 +833,27 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
         _warn_sanitised(p, tinfo.name, stats[-1])
         b.temperature, b.temperature_grid_name = out[-1], tinfo.name
     return b
+
+
+def load_memory_estimate(infos) -> int | None:
+    """Bytes that loading these grids takes at the least, from their metadata (None where
+    it does not say): each grid as OpenVDB holds it ('file_mem_bytes', else 4 bytes an
+    active voxel), plus the bricks, at least one per 512 active voxels of the density
+    grid, 9^3 float32 each per grid, twice (the bricks are sorted into a copy)."""
+    density = infos[0]
+    if density.active_voxels is None:
+        return None
+    grids = sum(g.memory_bytes if g.memory_bytes is not None else 4 * (g.active_voxels or 0)
+                for g in infos)
+    bricks = -(-density.active_voxels // BRICK ** 3)
+    return grids + 2 * bricks * APRON ** 3 * 4 * len(infos)
+
+
+def _check_load_memory(path, info, others):
+    need = load_memory_estimate([info, *others])
+    if need is not None:
+        check_memory(need, path, f"grid {info.name!r} ({info.active_voxels} active voxels)",
+                     "crop or resample the grid to fewer voxels, or free memory")
 
 
 def _cbrt_det(m):
