@@ -23,6 +23,7 @@ written beside the outputs.
 """
 from __future__ import annotations
 
+import fnmatch
 import glob as globmod
 import logging
 import json
@@ -87,9 +88,9 @@ def _glob_regex(pattern: str) -> str:
             if j < 0:
                 out.append(re.escape(c))
             else:
-                body = pattern[i + 1:j]
-                body = "^" + body[1:] if body.startswith("!") else body
-                out.append(f"([{body}])")
+                # fnmatch's own translation of the set: it escapes what a regex set would
+                # read otherwise and drops reversed ranges ('[v-9]'), as glob does
+                out.append("(" + fnmatch.translate(pattern[i:j + 1])[4:-3] + ")")
                 i = j
         else:
             out.append(re.escape(c))
@@ -123,23 +124,37 @@ def parse_pattern(text: str, *, output=False) -> Pattern:
                     fix="mark it with #### (any number of #), %04d, or a quoted glob")
 
 
+MAX_FRAMES = 1_000_000          # frames one --frames may name, all its parts together
+
+
 def parse_frames(text: str) -> list[int]:
-    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers."""
-    frames = []
+    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers (at most
+    MAX_FRAMES, each of at most 18 digits)."""
+    frames, count = [], 0
     for part in str(text).split(","):
-        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?::\s*(\d+)\s*)?)?", part)
+        m = re.fullmatch(r"\s*(-?[0-9]+)\s*(?:-\s*(-?[0-9]+)\s*(?::\s*([0-9]+)\s*)?)?", part)
         if not m:
-            raise UserError(f"--frames: cannot read {part.strip()!r}",
+            raise UserError(f"--frames: cannot read {_short(part.strip())!r}",
                             fix="give A-B[:STEP], N, or a comma-separated list, e.g. 1-240:2")
+        if max(len(g.lstrip("-")) for g in m.groups() if g is not None) > 18:
+            raise UserError(f"--frames: {_short(part.strip())!r} has a number of more than 18 "
+                            "digits", fix="give frame numbers below 10^18")
         a = int(m.group(1))
         b = int(m.group(2)) if m.group(2) is not None else a
         step = int(m.group(3) or 1)
         if b < a or step < 1:
-            raise UserError(f"--frames: {part.strip()!r} is empty", fix="give A-B with A <= B and STEP >= 1")
-        if (b - a) // step > 1_000_000:
-            raise UserError(f"--frames: {part.strip()!r} has more than a million frames")
+            raise UserError(f"--frames: {_short(part.strip())!r} is empty",
+                            fix="give A-B with A <= B and STEP >= 1")
+        count += (b - a) // step + 1
+        if count > MAX_FRAMES:
+            raise UserError(f"--frames {_short(str(text).strip())!r} names more than a million "
+                            "frames", fix="render at most a million frames per run")
         frames.extend(range(a, b + 1, step))
     return sorted(set(frames))
+
+
+def _short(text: str) -> str:
+    return text if len(text) <= 80 else text[:40] + "..." + text[-30:]
 
 
 def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
