@@ -218,9 +218,9 @@ def camera_overrides(camera) -> dict:
 
 def render_chunk(jobs, overrides, save_kw, skip_existing=False):
     """Render [(frame, input, output)] in this process: one record per frame. A frame
-    that fails is recorded, not raised, so the others of the chunk still render."""
-    from .render import render
-    from .scene import load_scene
+    that fails is recorded, not raised, so the others of the chunk still render. With
+    `skip_existing`, a frame another run is rendering (`_claim`) is left to the end and
+    then waited for, so two runs over one output folder render each frame once."""
     hook = os.environ.get(KILL_HOOK)
     if hook:
         try:
@@ -230,15 +230,79 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             pass
     worker = _worker_name()
     records = []
-    for frame, src, out in jobs:
-        rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
-               "pid": os.getpid()}
-        t0 = time.perf_counter()
+    deferred = []
+    for job in jobs:
+        rec = _render_frame(job, overrides, save_kw, skip_existing, worker, wait=False)
+        if rec is None:                 # another run renders it now: come back to it last
+            deferred.append(job)
+        else:
+            records.append(rec)
+    for job in deferred:
+        records.append(_render_frame(job, overrides, save_kw, skip_existing, worker, wait=True))
+    return sorted(records, key=lambda r: r["frame"])
+
+
+def _exists(out) -> bool:
+    try:
+        return Path(out).stat().st_size > 0 and Path(out).is_file()
+    except OSError:
+        return False
+
+
+_LOCK_NAME = ".volrender-frames.lock"
+_LOCK_FDS: dict = {}
+
+
+def _claim(out, wait: bool):
+    """With --skip-existing, the right to render `out`: an exclusive record lock (fcntl) on
+    one byte of the lock file in its directory, at an offset hashed from its path, so two
+    runs over one output folder (on one host or over NFS) render each frame once. Returns a
+    release function, or None where another process holds it and `wait` is false. Where the
+    directory takes no lock file or no locks, every claim is granted."""
+    import fcntl
+    import hashlib
+    d = Path(out).resolve().parent
+    fd = _LOCK_FDS.get(d)
+    if fd is None:
         try:
-            if skip_existing and Path(out).is_file() and Path(out).stat().st_size > 0:
-                rec.update(status="skipped", seconds=0.0)
-                records.append(rec)
-                continue
+            fd = os.open(d / _LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        except OSError:
+            return lambda: None
+        _LOCK_FDS[d] = fd          # kept open: closing any descriptor drops the locks
+    key = os.fsencode(str(Path(out).resolve()))
+    offset = int.from_bytes(hashlib.blake2b(key, digest_size=7).digest(), "little")
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB), 1, offset)
+    except (BlockingIOError, PermissionError):
+        return None
+    except OSError:
+        return lambda: None
+    return lambda: fcntl.lockf(fd, fcntl.LOCK_UN, 1, offset)
+
+
+def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
+    """One frame's record; None when --skip-existing finds another run rendering it and
+    `wait` is false."""
+    from .render import render
+    from .scene import load_scene
+    frame, src, out = job
+    rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
+           "pid": os.getpid()}
+    t0 = time.perf_counter()
+    release = lambda: None  # noqa: E731
+    if skip_existing:
+        if _exists(out):
+            rec.update(status="skipped", seconds=0.0)
+            return rec
+        release = _claim(out, wait)
+        if release is None:
+            return None
+        if _exists(out):                # the run that held it has written it
+            release()
+            rec.update(status="skipped", seconds=time.perf_counter() - t0)
+            return rec
+    try:
+        try:
             scene = load_scene(src, **overrides)
             t1 = time.perf_counter()
             img = render(scene, os.environ.get("VOLRENDER_DEVICE") or None)
@@ -252,9 +316,10 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             rec.update(status="failed", error=str(exc))
         except MemoryError:
             rec.update(status="failed", error="out of host memory")
-        rec["seconds"] = time.perf_counter() - t0
-        records.append(rec)
-    return records
+    finally:
+        release()
+    rec["seconds"] = time.perf_counter() - t0
+    return rec
 
 
 def set_env(name: str, value: str | None):
