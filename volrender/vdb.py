@@ -21,6 +21,7 @@ import re
 import struct
 import warnings
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -641,6 +642,12 @@ class Bricks:
                                                   allow_pickle=False)
 
 
+# what zipfile and numpy raise on a damaged archive: a bad header or CRC, a zip version or
+# compression method it does not implement, an encrypted member, a bad deflate stream
+_ZIP_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError,
+               RuntimeError, zlib.error, struct.error, OverflowError, LookupError)
+
+
 def _check_npz_members(z, size):
     """Every member's .npy header must agree with the member's stored size (a lying
     header would make numpy allocate what it claims before reading)."""
@@ -672,7 +679,7 @@ def read_npz(f, size: int, p) -> Bricks:
     fix = "convert the .vdb again (volrender convert)"
     try:
         z = np.load(f, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+    except _ZIP_ERRORS as e:
         raise UserError(f"not a readable .npz file ({_one_line(e)})", path=p, fix=fix) from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
@@ -716,8 +723,7 @@ def read_npz(f, size: int, p) -> Bricks:
                 b.temperature = z["temperature"]
                 b.temperature_grid_name = str(z["temperature_grid_name"])
             problem = _validate(b, p)
-        except (KeyError, ValueError, TypeError, OSError, EOFError, SyntaxError,
-                zipfile.BadZipFile) as e:
+        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
             raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
     if problem:
         raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
@@ -904,13 +910,26 @@ def world_bounds(path, grid=None, emission_grid=None):
     loading any voxels: the same box Bricks.world_bounds() gives after loading."""
     p = _check_file(path)
     if p.suffix.lower() == ".npz":
+        fix = "convert the .vdb again (volrender convert)"
         try:
             with np.load(p, allow_pickle=False) as z:
+                if not isinstance(z, np.lib.npyio.NpzFile):
+                    raise ValueError("a bare .npy array")
+                problem = _check_npz_members(z, p.stat().st_size)
+                if problem:
+                    raise ValueError(problem)
                 origin, dims, m = z["origin"], z["dims"], z["index_to_world"]
                 axis = str(z["up_axis"]) or None if "up_axis" in z.files else None
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
             raise UserError(f"not a readable brick cache ({_one_line(e)})", path=p,
-                            fix="convert the .vdb again (volrender convert)") from None
+                            fix=fix) from None
+        problem = (check_transform(m) if origin.shape == (3,) == dims.shape
+                   and origin.dtype.kind in "iu" and dims.dtype.kind in "iu"
+                   and np.abs(origin.astype(np.float64)).max() <= MAX_ORIGIN
+                   and 0 < dims.min() and dims.max() <= MAX_BRICKS
+                   else "origin or dims is not 3 integers in range")
+        if problem:
+            raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
         lo, hi = _layout_world_bounds(origin, dims, m)
         return lo, hi, axis
     grids = list_grids(p)
