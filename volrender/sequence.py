@@ -40,6 +40,7 @@ from .errors import UserError
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
 _GLOB = re.compile(r"[*?\[]")
+MAX_WIDTH = 32                  # digits a frame number is padded to, at most
 CPU_CORES_PER_WORKER = 8        # default LocalCluster size on CPUs: one worker per 8 cores
 KILL_HOOK = "VOLRENDER_TEST_KILL_WORKER_ONCE"   # tests: a marker file; the first task dies
 
@@ -112,9 +113,14 @@ def parse_pattern(text: str, *, output=False) -> Pattern:
     if tokens:
         m = _HASHES.search(text)
         if m:
-            return Pattern(text, text[:m.start()], text[m.end():], len(m.group(0)))
-        m = _PRINTF.search(text)
-        width = int(m.group(2) or 0) if m.group(1) == "0" or m.group(2) else 0
+            width = len(m.group(0))
+        else:
+            m = _PRINTF.search(text)
+            digits = m.group(2) or "0"
+            width = int(digits) if len(digits) <= 4 else MAX_WIDTH + 1
+        if width > MAX_WIDTH:
+            raise UserError(f"the pattern {_short(text)!r} pads frame numbers to {width} digits, "
+                            f"more than {MAX_WIDTH}", fix="use fewer # (or a smaller %0Nd)")
         return Pattern(text, text[:m.start()], text[m.end():], width)
     if _GLOB.search(Path(text).name):
         if output:
