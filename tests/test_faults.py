@@ -267,3 +267,39 @@ def test_two_sequence_runs_over_one_folder_render_every_frame_once(tmp_path):
     wrote = [int(e.split("wrote ")[1].split()[0]) for e in errs]
     assert sum(wrote) == 8, errs
     assert _temps(tmp_path / "both") == []
+
+
+# ------------------------------------------------------------------ OpenVDB on corrupt files
+
+DEMO = ROOT / "scenes" / "demo_cloud.vdb"
+
+
+def _demo_with(edits):
+    b = bytearray(DEMO.read_bytes())
+    for i, v in edits:
+        b[i] = v
+    return bytes(b)
+
+
+def test_a_vdb_that_kills_openvdb_is_one_error_line(tmp_path):
+    """One byte changed in the demo cloud makes OpenVDB 10 abort (SIGABRT, heap damaged),
+    another makes it throw while voxels decompress: both are one line, status 2, in a
+    process that lives on (OpenVDB reads in a reader process of its own, vdb._Reader)."""
+    from conftest import openvdb_missing
+    if openvdb_missing():
+        pytest.skip(openvdb_missing())
+    (tmp_path / "abort.vdb").write_bytes(_demo_with([(33432, 60)]))
+    (tmp_path / "throw.vdb").write_bytes(_demo_with([(64937, 230)]))
+    for name, words in (("abort.vdb", "OpenVDB failed reading it"),
+                        ("throw.vdb", "cannot read the voxels of grid 'density'")):
+        r = volrender("render", name, "-o", "o.png", *SMALL, cwd=tmp_path)
+        assert r.returncode == 2 and words in r.stderr, r.stderr
+        assert r.stderr.count("\n") == 1 and r.stderr.startswith("volrender: error: "), r.stderr
+    assert not (tmp_path / "o.png").exists()
+    from volrender import vdb
+    from volrender.errors import UserError
+    good = vdb.load_bricks(DEMO)
+    with pytest.raises(UserError, match="reader process ended with signal SIGABRT"):
+        vdb.load_bricks(tmp_path / "abort.vdb")
+    again = vdb.load_bricks(DEMO)              # a fresh reader: the same bricks
+    assert np.array_equal(again.data, good.data) and np.array_equal(again.table, good.table)

@@ -786,8 +786,22 @@ def _validate(b: Bricks, label="<bricks>") -> str | None:
 
 def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
                 temperature_grid=None) -> Bricks:
-    """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time."""
+    """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time.
+
+    OpenVDB reads the file in a reader process of its own (`_Reader`), because OpenVDB
+    10 dies (SIGSEGV, SIGABRT) on some corrupt files: then this raises a UserError and the
+    caller lives on. `$VOLRENDER_VDB_READER=0` reads in this process instead."""
     p = _check_file(path)
+    if os.environ.get(READER_ENV, "") not in ("0", "1"):
+        import_openvdb()                # here too: its absence is said without a reader
+        return _READER.call(p, (p, grid, emission_grid, None),
+                            dict(chunk=chunk, temperature_grid=temperature_grid), progress)
+    return _load_bricks(p, grid, emission_grid, progress, chunk=chunk,
+                        temperature_grid=temperature_grid)
+
+
+def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
+                 temperature_grid=None) -> Bricks:
     grids = list_grids(p)
     info = _pick(p, grids, grid, default=True)
     einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
@@ -820,8 +834,14 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
                             f"{info.name!r}, which is unsupported", path=p,
                             fix="resample it onto the density grid's transform")
         sources.append(_zero_source() if tbox is None else _vdb_source(tg, tbox))
-    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
-                                                     passive=int(tinfo is not None))
+    try:
+        origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
+                                                         passive=int(tinfo is not None))
+    except (UserError, MemoryError, KeyboardInterrupt):
+        raise
+    except Exception as e:          # OpenVDB decompressing voxels as they are read
+        raise UserError(f"cannot read the voxels of grid {info.name!r} ({_one_line(e)})",
+                        path=p, fix="the file may be truncated or corrupt; re-export it") from None
     _warn_sanitised(p, info.name, stats[0])
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
@@ -860,6 +880,172 @@ def _check_load_memory(path, info, others):
     if need is not None:
         check_memory(need, path, f"grid {info.name!r} ({info.active_voxels} active voxels)",
                      "crop or resample the grid to fewer voxels, or free memory")
+
+
+# --------------------------------------------------------------------------- reader process
+
+READER_ENV = "VOLRENDER_VDB_READER"     # "1" in the reader process; "0": read in-process
+
+
+class _ReaderProcess:
+    """A Python process that runs `_load_bricks` for this one (started on first use, kept
+    for the next load, started again after it died). Requests and replies are pickles on
+    its stdin and stdout: progress fractions and warnings as they come, then the Bricks
+    (their arrays as raw out-of-band buffers, read straight into this process's memory)
+    or the exception. If it dies, the file is what killed OpenVDB."""
+
+    def __init__(self):
+        import threading
+        self.proc, self.lock, self.owner = None, threading.Lock(), os.getpid()
+
+    def _start(self):
+        import subprocess
+        import sys
+        root = str(Path(__file__).resolve().parents[1])
+        env = {**os.environ, READER_ENV: "1",
+               "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
+        import tempfile
+        self.err = tempfile.TemporaryFile()      # what it says as it dies (glibc, OpenVDB)
+        self.proc = subprocess.Popen([sys.executable, "-c", "from volrender import vdb; vdb._serve()"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                                     stderr=self.err, close_fds=True)
+
+    def last_words(self) -> str:
+        try:
+            self.err.seek(0)
+            lines = [ln.strip() for ln in self.err.read()[-4000:].decode(errors="replace").splitlines()]
+        except (OSError, AttributeError):
+            return ""
+        lines = [ln for ln in lines if ln]
+        return f": {lines[-1][:200]}" if lines else ""
+
+    def stop(self):
+        proc, self.proc = self.proc, None
+        if proc is not None and self.owner == os.getpid():
+            with __import__("contextlib").suppress(OSError):
+                proc.stdin.close()
+            try:
+                proc.wait(timeout=5)
+            except Exception:
+                proc.kill()
+                proc.wait()
+
+    def call(self, path, args, kwargs, progress):
+        import pickle
+        with self.lock:
+            if self.proc is None or self.owner != os.getpid() or self.proc.poll() is not None:
+                self._start()           # (a forked child starts its own)
+                self.owner = os.getpid()
+            proc = self.proc
+            try:
+                _send(proc.stdin, pickle.dumps((args, kwargs)))
+                while True:
+                    kind, value = pickle.loads(_receive(proc.stdout))
+                    if kind == "progress":
+                        if progress is not None:
+                            progress(value)
+                    elif kind == "warning":
+                        warnings.warn(value[0], value[1], stacklevel=3)
+                    elif kind == "error":       # it exits after one: OpenVDB may have
+                        proc.wait()             # left its heap damaged
+                        self.proc = None
+                        raise value
+                    else:
+                        sizes = value
+                        head = _receive(proc.stdout)
+                        buffers = []
+                        for n in sizes:
+                            b = bytearray(n)
+                            view, got = memoryview(b), 0
+                            while got < n:
+                                k = proc.stdout.readinto(view[got:])
+                                if not k:
+                                    raise EOFError
+                                got += k
+                            buffers.append(b)
+                        return pickle.loads(head, buffers=buffers)
+            except (EOFError, OSError, pickle.UnpicklingError):
+                code = proc.wait()
+                self.proc = None
+                import signal
+                how = (f"signal {signal.Signals(-code).name}" if code < 0 and
+                       -code in signal.Signals._value2member_map_ else f"exit status {code}")
+                how += self.last_words()
+                raise UserError(f"OpenVDB failed reading it (its reader process ended with "
+                                f"{how}): truncated or corrupt OpenVDB file", path=path,
+                                fix="re-export or re-download it") from None
+            except BaseException:
+                if self.proc is proc and proc.poll() is None:   # interrupted: a fresh one next
+                    proc.kill()
+                    proc.wait()
+                    self.proc = None
+                raise
+
+
+def _send(f, data: bytes):
+    f.write(struct.pack("<Q", len(data)))
+    f.write(data)
+    f.flush()
+
+
+def _receive(f) -> bytes:
+    head = f.read(8)
+    if len(head) != 8:
+        raise EOFError
+    n = struct.unpack("<Q", head)[0]
+    data = f.read(n)
+    if len(data) != n:
+        raise EOFError
+    return data
+
+
+def _serve():
+    """The reader process: one request at a time on stdin, until it closes."""
+    import pickle
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)       # the caller decides
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)                                      # stray prints go to stderr
+    inp = sys.stdin.buffer
+    while True:
+        try:
+            args, kwargs = pickle.loads(_receive(inp))
+        except EOFError:
+            return
+
+        def progress(x):
+            _send(out, pickle.dumps(("progress", x)))
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            _send(out, pickle.dumps(("warning", (str(message), category))))
+
+        try:
+            with warnings.catch_warnings():
+                warnings.showwarning = show
+                warnings.simplefilter("default")
+                result = _load_bricks(*args[:3], progress, **kwargs)
+        except BaseException as exc:                     # noqa: BLE001 (sent back whole)
+            try:
+                blob = pickle.dumps(("error", exc))
+            except Exception:
+                blob = pickle.dumps(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+            _send(out, blob)
+            out.close()
+            return
+        buffers = []
+        head = pickle.dumps(result, protocol=5, buffer_callback=buffers.append)
+        raws = [b.raw() for b in buffers]
+        _send(out, pickle.dumps(("result", [r.nbytes for r in raws])))
+        _send(out, head)
+        for r in raws:
+            out.write(r)
+        out.flush()
+        del result, buffers, raws
+
+
+_READER = _ReaderProcess()
+__import__("atexit").register(_READER.stop)
 
 
 def _cbrt_det(m):
