@@ -99,3 +99,20 @@ def test_a_short_fuzz_run_finds_nothing(name, tmp_path):
     found = [p.name for p in tmp_path.iterdir() if p.name.startswith(("crash-", "timeout-", "oom-"))]
     assert r.returncode == 0 and not found, (found, r.stderr[-3000:])
     assert re.search(r"cov: \d+ ft: \d+", r.stderr), r.stderr[-2000:]
+
+
+def test_toml_nested_too_deep_for_tomllib():
+    """tomllib recurses once per '[' or '{': 1000 of them raised RecursionError."""
+    for text in (b"a = " + b"[" * 2000, b"a = " + b"{b=" * 1000 + b"1" + b"}" * 1000):
+        assert _replay("scene", text) == "error"
+        assert _replay("camera", b"[camera]\norigin = " + text[4:]) == "error"
+
+
+def test_a_huge_scene_file_is_refused_before_it_is_read(tmp_path):
+    from volrender import files, scene
+    from volrender.errors import UserError
+    p = tmp_path / "big.toml"
+    with open(p, "wb") as f:
+        f.truncate(files.MAX_TOML + 1)
+    with pytest.raises(UserError, match="a scene file is at most 16 MiB"):
+        scene.read(p)

@@ -76,6 +76,35 @@ def refuse_overwrite(output, inputs, command: str = "render", shown=None):
                             fix="write to another file name")
 
 
+MAX_TOML = 16 << 20             # bytes of a scene or camera file
+
+
+def read_toml(path, what: str) -> dict:
+    """The TOML document of a (small) scene or camera file: one that is larger than
+    MAX_TOML is refused before it is read, not UTF-8 or not TOML is one line (tomllib's
+    message), and so is nesting too deep for tomllib (its RecursionError)."""
+    import tomllib
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > MAX_TOML:
+                raise UserError(f"is {size} bytes long; a {what} is at most {MAX_TOML >> 20} MiB",
+                                path=path, fix=f"check that this is a {what}")
+            text = f.read(MAX_TOML + 1).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"not valid TOML ({exc})", path=path, fix="fix the syntax") from None
+    except OSError as exc:
+        raise UserError(f"cannot read the {what} ({exc.strerror or exc})", path=path,
+                        fix="check the path") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise UserError(f"not valid TOML ({exc})", path=path, fix="fix the syntax") from None
+    except RecursionError:
+        raise UserError("not valid TOML for volrender (arrays or tables nested too deep)",
+                        path=path, fix="fix the syntax") from None
+
+
 def npy_header(f):
     """(shape, dtype, offset of the data) of the .npy stream f, read without the data."""
     import numpy as np
