@@ -195,6 +195,10 @@ def test_a_full_or_closed_stderr_never_fails_a_written_image(tmp_path):
                             *SMALL, "--progress"], cwd=tmp_path, env=ENV, timeout=300,
                            stdout=subprocess.PIPE, **extra)
         assert r.returncode == 0 and (tmp_path / f"o{i}.png").stat().st_size > 0
+    r = subprocess.run(["bash", "-c", '"$0" -m volrender render blob:50 -o p.png --size 16x12 '
+                        '--progress 2>&1 | head -c 0; echo "status ${PIPESTATUS[0]}"', PY],
+                       cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
+    assert "status 0" in r.stdout and (tmp_path / "p.png").stat().st_size > 0, r
     for fd in (1, 2):                          # closed descriptors
         r = subprocess.run(["bash", "-c", f'exec "$0" -m volrender render blob:50 -o c{fd}.png '
                             f'--size 16x12 {fd}>&-', PY], cwd=tmp_path, env=ENV, timeout=300,
