@@ -183,7 +183,7 @@ def _dense_from(data):
     import numpy as np
     if len(data) < 6:
         return None
-    nx, ny, nz = (1 + data[0] % 20, 1 + data[1] % 20, 1 + data[2] % 20)
+    nx, ny, nz = (1 + data[0] % 10, 1 + data[1] % 10, 1 + data[2] % 10)
     origin = tuple(int.from_bytes(data[3 + i:4 + i], "little", signed=True) * (1 << (data[5] % 28))
                    for i in range(3))
     body = data[6:]
@@ -199,8 +199,8 @@ def _dense_from(data):
 @target
 def bricks(data):
     """The brick builder the VDB reader feeds (vdb.Bricks.from_dense, vdb._build): any
-    float32 values (NaN, Inf, negative), shapes and origins up to 2^30; the bricks must
-    hold the sanitised values at every voxel."""
+    float32 values (NaN, Inf, negative), shapes up to 10^3 and origins up to 2^34; the
+    bricks must hold the sanitised values at every voxel."""
     import warnings
     import numpy as np
     from volrender import vdb
