@@ -938,7 +938,11 @@ class _ReaderProcess:
                 self.owner = os.getpid()
             proc = self.proc
             try:
-                _send(proc.stdin, pickle.dumps((args, kwargs)))
+                try:
+                    cwd = os.getcwd()           # relative paths mean the same there
+                except OSError:
+                    cwd, args = None, (Path(os.path.abspath(args[0])), *args[1:])
+                _send(proc.stdin, pickle.dumps((cwd, args, kwargs)))
                 while True:
                     kind, value = pickle.loads(_receive(proc.stdout))
                     if kind == "progress":
@@ -1010,9 +1014,14 @@ def _serve():
     inp = sys.stdin.buffer
     while True:
         try:
-            args, kwargs = pickle.loads(_receive(inp))
+            cwd, args, kwargs = pickle.loads(_receive(inp))
         except EOFError:
             return
+        if cwd is not None:
+            try:
+                os.chdir(cwd)
+            except OSError:
+                args = (Path(os.path.abspath(args[0])), *args[1:])
 
         def progress(x):
             _send(out, pickle.dumps(("progress", x)))
