@@ -162,6 +162,21 @@ def _npz_seeds():
     return out
 
 
+def _npy_bytes(a) -> bytes:
+    import numpy as np
+    f = io.BytesIO()
+    np.save(f, a)
+    return f.getvalue()
+
+
+def _npy_seeds():
+    import numpy as np
+    rows = np.array(ROWS)
+    return [_npy_bytes(rows), _npy_bytes(rows.astype(np.float32)),
+            _npy_bytes(np.c_[rows, np.full(len(rows), 0.1)]), _npy_bytes(rows.astype(">i2")),
+            _npy_bytes(np.asfortranarray(np.c_[rows, rows[:, :1]]))]
+
+
 def _bricks_seeds():
     import numpy as np
     out = [bytes([2, 2, 2, 0, 0, 0]) + np.arange(8, dtype="<f4").tobytes(),
@@ -198,7 +213,8 @@ def _frames_seeds():
                                  "0-9999", "1-2,2-3")]
 
 
-SEEDS = {"ply": _ply_seeds, "text": _text_seeds, "vdb_header": _vdb_seeds, "npz": _npz_seeds,
+SEEDS = {"ply": _ply_seeds, "text": _text_seeds, "npy": _npy_seeds, "vdb_header": _vdb_seeds,
+         "npz": _npz_seeds,
          "bricks": _bricks_seeds, "scene": _scene_seeds, "camera": _camera_seeds,
          "pattern": _pattern_seeds, "frames": _frames_seeds}
 

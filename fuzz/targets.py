@@ -23,6 +23,7 @@ from pathlib import Path
 # modules each target's coverage comes from (fuzz/run.py instruments them)
 INSTRUMENT = {
     "ply": ["volrender"], "text": ["volrender"], "vdb_header": ["volrender"],
+    "npy": ["volrender", "numpy.lib.format"],
     "npz": ["volrender", "zipfile", "numpy.lib.format"], "bricks": ["volrender"],
     "scene": ["volrender", "tomllib"], "camera": ["volrender", "tomllib"],
     "pattern": ["volrender"], "frames": ["volrender"],
@@ -149,6 +150,14 @@ def text(data):
     """XYZ/CSV/TXT point rows (points.read_points)."""
     from volrender.points import read_points
     _check_cloud(read_points(io.BytesIO(data), ".xyz", "<fuzz>.xyz"))
+
+
+@target
+def npy(data):
+    """.npy point arrays (points.load_points: the header checked against the file's size
+    before numpy reads it)."""
+    from volrender.points import load_points
+    _check_cloud(_in_file(data, "cloud.npy", load_points))
 
 
 @target

@@ -13,6 +13,7 @@ import io
 import math
 import os
 import struct
+import tokenize
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -691,7 +692,7 @@ def load_npy_checked(path, fix: str):
         check_memory(need + 3 * 8 * math.prod(shape), path, f"an array of shape {shape}",
                      "load a smaller array, or free memory")
         return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, TypeError, SyntaxError) as exc:
+    except (ValueError, OSError, EOFError, TypeError, SyntaxError, tokenize.TokenError) as exc:
         raise UserError(f"not a readable .npy array ({exc})", path=path, fix=fix) from None
 
 

@@ -19,6 +19,7 @@ import math
 import os
 import re
 import struct
+import tokenize
 import warnings
 import zipfile
 import zlib
@@ -644,8 +645,10 @@ class Bricks:
 
 # what zipfile and numpy raise on a damaged archive: a bad header or CRC, a zip version or
 # compression method it does not implement, an encrypted member, a bad deflate stream
+# (and numpy's .npy header parser: tokenize.TokenError from a header cut short)
 _ZIP_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError,
-               RuntimeError, zlib.error, struct.error, OverflowError, LookupError)
+               RuntimeError, zlib.error, struct.error, OverflowError, LookupError,
+               tokenize.TokenError)
 
 
 def _check_npz_members(z, size):
@@ -677,6 +680,12 @@ def read_npz(f, size: int, p) -> Bricks:
     """`load_npz` of the open binary stream `f` of `size` bytes (a file or io.BytesIO);
     `p` names it in messages."""
     fix = "convert the .vdb again (volrender convert)"
+    magic = f.read(4)
+    f.seek(0)
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        # np.load would read a bare .npy whole, whatever size its header claims
+        what = "a bare .npy array" if magic == b"\x93NUM" else "no zip archive"
+        raise UserError(f"not a volrender brick cache ({what})", path=p, fix=fix)
     try:
         z = np.load(f, allow_pickle=False)
     except _ZIP_ERRORS as e:
