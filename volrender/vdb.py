@@ -846,8 +846,12 @@ def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
     try:
         origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
                                                          passive=int(tinfo is not None))
-    except (UserError, MemoryError, KeyboardInterrupt):
+    except (UserError, KeyboardInterrupt):
         raise
+    except MemoryError:             # OpenVDB's std::bad_alloc on a size read from the file
+        raise UserError(f"ran out of memory reading the voxels of grid {info.name!r}", path=p,
+                        fix="the file may be truncated or corrupt, or too large for this "
+                            "machine (the memory check before reading passed)") from None
     except Exception as e:          # OpenVDB decompressing voxels as they are read
         raise UserError(f"cannot read the voxels of grid {info.name!r} ({_one_line(e)})",
                         path=p, fix="the file may be truncated or corrupt; re-export it") from None
