@@ -36,6 +36,23 @@ def summarise(log, crashes=None) -> dict:
     return out
 
 
+def table(work="fuzz/work", names=None) -> str:
+    """A markdown table of every campaign log under `work`/logs."""
+    rows = ["| target | executions | starts | cov | ft | corpus | findings saved |",
+            "|---|---:|---:|---:|---:|---|---:|"]
+    for log in sorted(Path(work, "logs").glob("*.log")):
+        if names and log.stem not in names:
+            continue
+        s = summarise(log, Path(work, "crashes", log.stem))
+        rows.append(f"| `{log.stem}` | {s['executions']:,} | {s['starts']} | {s.get('cov', '')} | "
+                    f"{s.get('ft', '')} | {s.get('corpus', '')} ({s.get('corpus_size', '')}) | "
+                    f"{len(s.get('findings', []))} |")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--table"]:
+        print(table(*sys.argv[2:3]))
+        sys.exit()
     s = summarise(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else None)
     print(" ".join(f"{k}={v}" for k, v in s.items()))

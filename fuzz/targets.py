@@ -261,7 +261,7 @@ def _text(data) -> str:
 @target
 def pattern(data):
     """Sequence patterns: ####, %04d, globs (sequence.parse_pattern, Pattern.path, the glob
-    regex)."""
+    regex): a frame's path holds its number, padded; a glob's regex compiles."""
     import re
     from volrender import sequence
     if not data:
@@ -276,8 +276,8 @@ def pattern(data):
     else:
         for frame in (0, 1, -7, 10 ** 6):
             path = p.path(frame)
-            if not str(path).startswith(str(Path(p.prefix))) and p.prefix:
-                raise Finding(f"path {path} does not start with prefix {p.prefix!r}")
+            if f"{frame:0{p.width}d}" not in str(path):
+                raise Finding(f"path {path} of frame {frame} does not hold its number")
 
 
 @target
