@@ -286,7 +286,7 @@ def _demo_with(edits):
 
 
 def test_a_vdb_that_kills_openvdb_is_one_error_line(tmp_path):
-    """One byte changed in the demo cloud makes OpenVDB 10 abort (SIGABRT, heap damaged),
+    """One byte changed in the demo cloud makes OpenVDB 10 die (SIGABRT or SIGSEGV: heap damaged),
     another makes it throw while voxels decompress: both are one line, status 2, in a
     process that lives on (OpenVDB reads in a reader process of its own, vdb._Reader)."""
     from conftest import openvdb_missing
@@ -303,7 +303,7 @@ def test_a_vdb_that_kills_openvdb_is_one_error_line(tmp_path):
     from volrender import vdb
     from volrender.errors import UserError
     good = vdb.load_bricks(DEMO)
-    with pytest.raises(UserError, match="reader process ended with signal SIGABRT"):
+    with pytest.raises(UserError, match="reader process ended with signal SIG"):  # ABRT or SEGV
         vdb.load_bricks(tmp_path / "abort.vdb")
     again = vdb.load_bricks(DEMO)              # a fresh reader: the same bricks
     assert np.array_equal(again.data, good.data) and np.array_equal(again.table, good.table)

@@ -684,8 +684,9 @@ def read_npz(f, size: int, p) -> Bricks:
     f.seek(0)
     if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
         # np.load would read a bare .npy whole, whatever size its header claims
-        what = "a bare .npy array" if magic == b"\x93NUM" else "no zip archive"
-        raise UserError(f"not a volrender brick cache ({what})", path=p, fix=fix)
+        if magic == b"\x93NUM":
+            raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
+        raise UserError("not a readable .npz file (no zip archive)", path=p, fix=fix)
     try:
         z = np.load(f, allow_pickle=False)
     except _ZIP_ERRORS as e:
