@@ -287,17 +287,19 @@ def _demo_with(edits):
 
 def test_a_vdb_that_kills_openvdb_is_one_error_line(tmp_path):
     """One byte changed in the demo cloud makes OpenVDB 10 die (SIGABRT or SIGSEGV: heap damaged),
-    another makes it throw while voxels decompress: both are one line, status 2, in a
+    another makes it throw (or abort) while voxels decompress: both are one line, status 2, in a
     process that lives on (OpenVDB reads in a reader process of its own, vdb._Reader)."""
     from conftest import openvdb_missing
     if openvdb_missing():
         pytest.skip(openvdb_missing())
     (tmp_path / "abort.vdb").write_bytes(_demo_with([(33432, 60)]))
     (tmp_path / "throw.vdb").write_bytes(_demo_with([(64937, 230)]))
-    for name, words in (("abort.vdb", "OpenVDB failed reading it"),
-                        ("throw.vdb", "cannot read the voxels of grid 'density'")):
+    # (what OpenVDB does with one file is not always the same: throw.vdb mostly throws,
+    # at times it trips an assertion and aborts)
+    died, threw = "OpenVDB failed reading it", "cannot read the voxels of grid 'density'"
+    for name in ("abort.vdb", "throw.vdb"):
         r = volrender("render", name, "-o", "o.png", *SMALL, cwd=tmp_path)
-        assert r.returncode == 2 and words in r.stderr, r.stderr
+        assert r.returncode == 2 and (died in r.stderr or threw in r.stderr), r.stderr
         assert r.stderr.count("\n") == 1 and r.stderr.startswith("volrender: error: "), r.stderr
     assert not (tmp_path / "o.png").exists()
     from volrender import vdb
