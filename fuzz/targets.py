@@ -50,8 +50,16 @@ def work_dir() -> Path:
     """A private directory for the targets that read real files (in RAM where possible)."""
     global _WORK
     if _WORK is None:
+        import atexit
+        import shutil
         base = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
-        _WORK = Path(tempfile.mkdtemp(prefix="volrender-fuzz-", dir=base))
+        root = Path(base or tempfile.gettempdir())
+        for old in root.glob("volrender-fuzz-*-*"):     # of runs that died (a finding)
+            pid = old.name.split("-")[2]
+            if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+                shutil.rmtree(old, ignore_errors=True)
+        _WORK = Path(tempfile.mkdtemp(prefix=f"volrender-fuzz-{os.getpid()}-", dir=base))
+        atexit.register(shutil.rmtree, _WORK, True)
         (_WORK / "cloud.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\n"
                                           b"property float x\nproperty float y\n"
                                           b"property float z\nend_header\n0 0 0\n")
