@@ -1,3 +1,4 @@
+import functools
 import os
 from pathlib import Path
 
@@ -39,3 +40,42 @@ def cl_device():
     """The OpenCL device under test: PoCL, or $VOLRENDER_TEST_DEVICE (a device spec)."""
     from volrender import device
     return device.get(os.environ.get("VOLRENDER_TEST_DEVICE"))
+
+
+_NO_OPENVDB = "OpenVDB's Python binding is not available"
+
+
+@functools.lru_cache(maxsize=None)
+def openvdb_missing() -> str | None:
+    """Why OpenVDB's Python binding cannot be imported here, or None when it can."""
+    from volrender.errors import UserError
+    from volrender.vdb import import_openvdb
+    try:
+        import_openvdb()
+    except UserError as exc:
+        return "OpenVDB's Python binding (pyopenvdb or openvdb) cannot be imported here"
+    return None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A test that fails because OpenVDB's binding is missing (it reads or writes a .vdb:
+    volrender says so in its error, which the failure or the captured output shows) is
+    reported as skipped, with the reason, where the binding cannot be imported; where it
+    can, nothing changes."""
+    outcome = yield
+    rep = outcome.get_result()
+    if not rep.failed or call.excinfo is None:
+        return
+    text = rep.longreprtext + "".join(content for _, content in rep.sections)
+    for entry in call.excinfo.traceback:       # an error read back: capsys, a subprocess
+        for value in entry.frame.f_locals.values():
+            value = getattr(value, "stderr", value)
+            if isinstance(value, (str, bytes, tuple)):
+                text += str(value)[:100_000]
+    if _NO_OPENVDB in text or "No module named 'pyopenvdb'" in text:
+        reason = openvdb_missing()
+        if reason:
+            rep.outcome = "skipped"
+            rep.longrepr = (str(item.path), (item.location[1] or 0) + 1,
+                            f"Skipped: needs a .vdb file read or written, and {reason}")

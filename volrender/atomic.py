@@ -7,13 +7,16 @@ benchmark JSON).
 The data goes to a new temporary file beside the destination, named
 `.volrender-<pid>-<hex>.tmp<suffix>` (ASCII and short, whatever the destination is called); it is
 flushed, fsync'ed and renamed over the destination only once complete, then the directory
-is fsync'ed. On any failure or interruption (an exception, Ctrl-C, SIGTERM, SIGHUP: the CLI
+is fsync'ed. The writer holds an exclusive lock (flock) on its temporary file until the
+rename, which tells a live writer's file from a dead one's also across hosts sharing the
+directory and when a pid has been reused. On any failure or interruption (an exception, Ctrl-C, SIGTERM, SIGHUP: the CLI
 turns the last two into `Interrupted`) the temporary file is removed and an existing
 destination is untouched. SIGINT/SIGTERM/SIGHUP are held back (pthread_sigmask) while the
 temporary file is created and while it is renamed, so no signal can fall between creating
 the file and guarding it, or between the rename and recording it in `WRITTEN`. Only SIGKILL
-(or a crash) can leave a temporary file behind: the first write of a later process into
-the same directory removes ours whose process is gone (`sweep`).
+(or a crash, a power cut) can leave a temporary file behind: the first write of a later
+process into the same directory removes those that no process holds locked and whose pid
+is gone or that are older than STALE_AGE (`sweep`); nothing else is touched.
 
 Decisions (README, "Outputs"): a destination that is a symlink is written through (its
 target is replaced, the link stays); an existing destination that is read-only, or that
@@ -23,7 +26,10 @@ umask (0644 usually), a replaced file keeps its permission bits.
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import os
+import time
 import re
 import secrets
 import signal
@@ -34,6 +40,7 @@ from .errors import UserError
 
 PREFIX = ".volrender-"
 TEMP_RE = re.compile(r"^\.volrender-(\d+)-[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]{1,8})?$")
+STALE_AGE = 24 * 3600              # seconds after which an unlocked temporary file is stale
 WRITTEN: list = []                 # destinations completed by this process, in order
 _SWEPT: set = set()                # directories swept by this process (once each)
 _SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP"))
@@ -85,21 +92,52 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def sweep(directory) -> list:
+def _lock(fd) -> bool | None:
+    """Take an exclusive lock on fd without waiting: True, False when another process
+    holds it, None where the file system has no locks."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+    except OSError as e:
+        if e.errno in (errno.EAGAIN, errno.EACCES):
+            return False
+        return None
+
+
+def sweep(directory, now=None) -> list:
     """Remove our temporary files in `directory` left by processes that no longer run
-    (SIGKILL, a crash). Returns the names removed."""
+    (SIGKILL, a crash): regular files named `.volrender-<pid>-<hex>.tmp[.suffix]` that no
+    process holds locked and whose pid is gone (on this host) or that were last modified
+    more than STALE_AGE seconds ago (a reused pid). Returns the names removed."""
     removed = []
     try:
         names = os.listdir(directory)
     except OSError:
         return removed
+    now = time.time() if now is None else now
     for name in names:
         m = TEMP_RE.match(name)
-        if not m or int(m.group(1)) == os.getpid() or _alive(int(m.group(1))):
+        if not m or int(m.group(1)) == os.getpid():
             continue
-        with contextlib.suppress(OSError):
-            os.unlink(os.path.join(directory, name))
-            removed.append(name)
+        path = os.path.join(directory, name)
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:                 # gone already, a symlink, unreadable
+            continue
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or _lock(fd) is False:
+                continue
+            if _alive(int(m.group(1))) and now - st.st_mtime <= STALE_AGE:
+                continue
+            with contextlib.suppress(OSError):
+                if os.path.samestat(os.lstat(path), st):
+                    os.unlink(path)
+                    removed.append(name)
+        finally:
+            os.close(fd)
     return removed
 
 
@@ -190,16 +228,19 @@ def _temporary(path, what, by_name):
     with contextlib.suppress(OSError):
         keep_mode = stat.S_IMODE(os.stat(dest).st_mode)
     suffix = dest.suffix if re.fullmatch(r"\.[A-Za-z0-9]{1,8}", dest.suffix) else ""
-    tmp, created = None, False
+    tmp, created, lock_fd = None, False, None
     try:
         with signals_held():
             while True:
                 tmp = directory / f"{PREFIX}{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
                 try:
-                    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+                    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC,
+                                 0o666)
                     break
                 except FileExistsError:
                     continue
+            lock_fd = os.dup(fd)        # held until the rename: the file is in use
+            _lock(lock_fd)
             f = os.fdopen(fd, "wb")
         created = True
         if by_name:
@@ -226,6 +267,8 @@ def _temporary(path, what, by_name):
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+        if lock_fd is not None:
+            os.close(lock_fd)
 
 
 def replace(path, what: str = "output"):

@@ -180,14 +180,11 @@ def _num(v):
 def read_camera_file(path) -> dict:
     """{View field: (value, where)} from a camera file written by write_camera_file (or
     any TOML with [camera] origin/target/up/fov and [render] size)."""
-    import tomllib
+    from .files import read_toml
     p = Path(path)
     if not p.is_file():
         raise UserError("no such camera file", path=p, fix="give a file written by --camera-out")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid TOML ({exc})", path=p, fix="fix the syntax") from None
+    doc = read_toml(p, "camera file")
     out = {}
     allowed = {"camera": ("origin", "target", "up", "fov"), "render": ("size",)}
     for section, table in doc.items():

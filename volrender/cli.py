@@ -548,13 +548,105 @@ def _interrupted(exc) -> int:
 _written_from = 0          # atomic.WRITTEN's length when this command started
 
 
+class _Stream:
+    """stdout or stderr whose write errors (a closed pipe, a full disk or a closed file:
+    EPIPE, ENOSPC, EIO, EBADF) are recorded and drop every later write, instead of turning
+    a finished render into a failure (docs/robustness.md, "Streams"). After the first
+    error the descriptor is pointed at /dev/null, so that what the stream still buffers
+    cannot fail again at exit."""
+
+    def __init__(self, stream):
+        self._stream, self.error = stream, None
+
+    def write(self, text):
+        if self.error is None:
+            try:
+                return self._stream.write(text)
+            except (OSError, ValueError) as exc:
+                self._failed(exc)
+        return len(text)
+
+    def flush(self):
+        if self.error is None:
+            try:
+                self._stream.flush()
+            except (OSError, ValueError) as exc:
+                self._failed(exc)
+
+    def _failed(self, exc):
+        self.error = exc
+        try:
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _guard_streams():
+    """Descriptors 0-2 that are closed are opened on /dev/null (else the first file opened
+    would become 'stderr', and a library's message would land in an image), and stdout and
+    stderr are wrapped in _Stream. Returns the streams to restore."""
+    closed = []
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.open(os.devnull, os.O_RDWR)          # the lowest free descriptor: fd
+            closed.append(fd)
+    old = sys.stdout, sys.stderr
+    sys.stdout = _Stream(sys.stdout if sys.stdout is not None else open(os.devnull, "w"))
+    sys.stderr = _Stream(sys.stderr if sys.stderr is not None else open(os.devnull, "w"))
+    if 1 in closed:
+        sys.stdout.error = OSError(9, "it is closed")
+    return old
+
+
+def _stdout_failed(command) -> int | None:
+    """The exit status when stdout, the product of `volrender info`, could not be written:
+    2 for a full disk or an I/O error; none when the reader went away (EPIPE, `| head -1`:
+    it read what it wanted), nor for the other commands, whose product is a file."""
+    import errno
+    sys.stdout.flush()
+    exc = sys.stdout.error
+    if command != "info" or exc is None or getattr(exc, "errno", None) == errno.EPIPE:
+        return None
+    print(f"volrender: error: cannot write to standard output ({getattr(exc, 'strerror', None) or exc})",
+          file=sys.stderr)
+    return 2
+
+
 def main(argv=None) -> int:
     global _written_from
     _written_from = len(atomic.WRITTEN)
+    streams = _guard_streams()
+    try:
+        code = _main(argv)
+        if code == 0:
+            code = _stdout_failed(_command) or 0
+        return code
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        if argv is not None:                 # called from Python: give its streams back
+            sys.stdout, sys.stderr = streams
+
+
+_command = None
+
+
+def _main(argv) -> int:
+    global _command
+    _command = None
     old = handle_signals()
     try:
         parser = build_parser()
         args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+        _command = args.command
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="volrender: %(message)s")
         with warnings.catch_warnings():

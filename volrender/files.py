@@ -76,6 +76,35 @@ def refuse_overwrite(output, inputs, command: str = "render", shown=None):
                             fix="write to another file name")
 
 
+MAX_TOML = 16 << 20             # bytes of a scene or camera file
+
+
+def read_toml(path, what: str) -> dict:
+    """The TOML document of a (small) scene or camera file: one that is larger than
+    MAX_TOML is refused before it is read, not UTF-8 or not TOML is one line (tomllib's
+    message), and so is nesting too deep for tomllib (its RecursionError)."""
+    import tomllib
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > MAX_TOML:
+                raise UserError(f"is {size} bytes long; a {what} is at most {MAX_TOML >> 20} MiB",
+                                path=path, fix=f"check that this is a {what}")
+            text = f.read(MAX_TOML + 1).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"not valid TOML ({exc})", path=path, fix="fix the syntax") from None
+    except OSError as exc:
+        raise UserError(f"cannot read the {what} ({exc.strerror or exc})", path=path,
+                        fix="check the path") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise UserError(f"not valid TOML ({exc})", path=path, fix="fix the syntax") from None
+    except RecursionError:
+        raise UserError("not valid TOML for volrender (arrays or tables nested too deep)",
+                        path=path, fix="fix the syntax") from None
+
+
 def npy_header(f):
     """(shape, dtype, offset of the data) of the .npy stream f, read without the data."""
     import numpy as np
@@ -88,3 +117,82 @@ def npy_header(f):
     else:
         shape, _, dtype = fmt._read_array_header(f, version)
     return shape, dtype, f.tell()
+
+
+# ---------------------------------------------------------------- memory before allocating
+
+def _meminfo() -> dict:
+    out = {}
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                key, _, rest = line.partition(":")
+                words = rest.split()
+                if words and words[0].isdigit():
+                    out[key] = int(words[0]) * (1024 if words[1:] == ["kB"] else 1)
+    except OSError:
+        pass
+    return out
+
+
+def _vm_size() -> int:
+    """This process's address space in use (VmSize), 0 where /proc does not say."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def _cgroup_room() -> int | None:
+    """Bytes left under this process's cgroup (v2) memory limit, None without one."""
+    try:
+        with open("/proc/self/cgroup") as f:
+            rel = next((line.split(":", 2)[2].strip() for line in f if line.startswith("0::")), None)
+        if rel is None:
+            return None
+        d = Path("/sys/fs/cgroup") / rel.lstrip("/")
+        limit = (d / "memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        return max(0, int(limit) - int((d / "memory.current").read_text()))
+    except (OSError, ValueError, StopIteration):
+        return None
+
+
+def available_memory() -> tuple[int, str] | None:
+    """(bytes, what limits them): the most this process can still allocate, the least of
+    the host's available memory (MemAvailable + free swap), its cgroup's limit and its
+    address-space limit (ulimit -v); None where none of them can be read."""
+    import resource
+    room = []
+    info = _meminfo()
+    if "MemAvailable" in info:
+        room.append((info["MemAvailable"] + info.get("SwapFree", 0), "available on this host"))
+    cg = _cgroup_room()
+    if cg is not None:
+        room.append((cg, "left under this process's memory limit (cgroup)"))
+    try:
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (OSError, ValueError, AttributeError):
+        soft = resource.RLIM_INFINITY
+    if soft != resource.RLIM_INFINITY:
+        room.append((max(0, soft - _vm_size()), "left under the address-space limit (ulimit -v)"))
+    return min(room) if room else None
+
+
+def _gib(n) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 / 10 else f"{n / 2**20:.1f} MiB"
+
+
+def check_memory(need: int, path, what: str, fix: str):
+    """Refuse (UserError) to allocate `need` bytes for `what` when more than that is not
+    available (`available_memory`): one line before the allocation, instead of a
+    MemoryError or the OOM killer part way through."""
+    room = available_memory()
+    if room is not None and need > room[0]:
+        raise UserError(f"{what} needs about {_gib(need)} of memory, more than the "
+                        f"{_gib(room[0])} {room[1]}", path=path, fix=fix)

@@ -9,21 +9,27 @@ silently: a scan with NaN rows usually means the wrong columns were read.
 """
 from __future__ import annotations
 
+import io
 import math
+import os
 import struct
+import tokenize
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import UserError
-from .files import check_input, npy_header
+from .files import check_input, check_memory, npy_header
 
-__all__ = ["PointCloud", "load_points", "blob", "uniform_box", "glass_gather",
+__all__ = ["PointCloud", "load_points", "read_points", "blob", "uniform_box", "glass_gather",
            "generate", "GENERATORS"]
 
 
 MAX_COORDINATE = 1e18       # |coordinate| accepted from files (glass.MAX_EXTENT: float32 squares)
+MAX_PLY_HEADER = 1 << 20    # bytes of PLY header read before 'end_header' must have come
+_CHUNK_LINES = 1 << 16      # text lines parsed at a time
+_MEMORY_FIX = "load a smaller or decimated cloud, or free memory"
 
 
 @dataclass(frozen=True)
@@ -81,14 +87,35 @@ def load_points(path) -> PointCloud:
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    readers = {".ply": _read_ply, ".xyz": _read_text, ".csv": _read_text,
-               ".txt": _read_text, ".npy": _read_npy}
-    if suffix not in readers:
+    if suffix not in _READERS and suffix != ".npy":
         raise UserError(f"unsupported suffix '{suffix or '(none)'}' for a point cloud",
                         path=path, fix="use .ply, .xyz, .csv, .txt or .npy")
     check_input(path, "point-cloud file")
-    centers, radii, colors = readers[suffix](path)
-    return _finish(path, centers, radii, colors)
+    if suffix == ".npy":
+        return _finish(path, *_read_npy(path))
+    with open(path, "rb") as f:
+        return read_points(f, suffix, path)
+
+
+def read_points(f, suffix: str, label="<stream>") -> PointCloud:
+    """`load_points` of the open binary stream `f` (a file, or io.BytesIO), read as a file
+    of `suffix` (.ply, .xyz, .csv, .txt); `label` names it in messages. Reads headers
+    first and no more of the body than the header says it needs."""
+    if suffix not in _READERS:
+        raise UserError(f"unsupported suffix '{suffix or '(none)'}' for a point-cloud stream",
+                        path=label, fix="use .ply, .xyz, .csv or .txt")
+    size = _stream_size(f)
+    return _finish(label, *_READERS[suffix](f, size, label))
+
+
+def _stream_size(f) -> int:
+    try:
+        return os.fstat(f.fileno()).st_size
+    except (AttributeError, OSError, io.UnsupportedOperation):
+        pos = f.tell()
+        end = f.seek(0, io.SEEK_END)
+        f.seek(pos)
+        return end
 
 
 def _finish(path, centers, radii, colors) -> PointCloud:
@@ -147,13 +174,44 @@ class _Element:
         return np.dtype([(p[0], endian + p[1]) for p in self.props])
 
 
-def _parse_ply_header(path, data: bytes):
-    """Return (format, elements, body_offset, header_line_count)."""
-    if not data:
+class _NeedMore(Exception):
+    """The header read so far ends before its 'end_header' line."""
+
+
+def _check_ply_magic(path, start: bytes):
+    if not start:
         raise UserError("file is empty", path=path, fix="give a non-empty PLY file")
-    if not (data.startswith(b"ply\n") or data.startswith(b"ply\r\n")):
+    if not (start.startswith(b"ply\n") or start.startswith(b"ply\r\n")):
         raise UserError("not a PLY file (first line is not 'ply')", path=path,
                         fix="check the file, or give it its proper suffix")
+
+
+def _read_ply_header(path, f):
+    """(format, elements, body offset, header line count), reading the stream `f` from its
+    start only as far as the header goes: the first 5 bytes decide 'not a PLY file', and a
+    header longer than MAX_PLY_HEADER is refused."""
+    buf = f.read(5)
+    _check_ply_magic(path, buf)
+    while True:
+        try:
+            return _parse_ply_header(path, buf)
+        except _NeedMore:
+            pass
+        if len(buf) >= MAX_PLY_HEADER:
+            raise UserError(f"bad PLY header: no 'end_header' line in its first "
+                            f"{MAX_PLY_HEADER >> 20} MiB", path=path,
+                            fix="the file is truncated or not a PLY file")
+        more = f.read(min(max(len(buf), 4096), MAX_PLY_HEADER - len(buf)))
+        if not more:
+            raise UserError("bad PLY header: no 'end_header' line", path=path,
+                            fix="the file is truncated or not a PLY file")
+        buf += more
+
+
+def _parse_ply_header(path, data: bytes):
+    """Return (format, elements, body_offset, header_line_count); _NeedMore where `data`
+    ends inside the header."""
+    _check_ply_magic(path, data)
     pos = 0
     fmt = None
     elements: list[_Element] = []
@@ -161,8 +219,7 @@ def _parse_ply_header(path, data: bytes):
     while True:
         nl = data.find(b"\n", pos)
         if nl < 0:
-            raise UserError("bad PLY header: no 'end_header' line", path=path,
-                            fix="the file is truncated or not a PLY file")
+            raise _NeedMore()
         raw = data[pos:nl]
         pos = nl + 1
         lineno += 1
@@ -188,6 +245,9 @@ def _parse_ply_header(path, data: bytes):
             if len(words) != 3 or not words[2].isdigit():
                 raise UserError(f"{where}: expected 'element <name> <count>'", path=path,
                                 fix="repair the header")
+            if len(words[2]) > 18:
+                raise UserError(f"{where}: an element count of {len(words[2])} digits",
+                                path=path, fix="repair the header")
             elements.append(_Element(words[1], int(words[2]), []))
         elif key == "property":
             if not elements:
@@ -217,9 +277,8 @@ def _parse_ply_header(path, data: bytes):
     return fmt, elements, pos, lineno
 
 
-def _read_ply(path):
-    data = path.read_bytes()
-    fmt, elements, body, nheader = _parse_ply_header(path, data)
+def _read_ply(f, size, path):
+    fmt, elements, body, nheader = _read_ply_header(path, f)
     names = [e.name for e in elements]
     if "vertex" not in names:
         raise UserError("PLY file has no 'vertex' element", path=path,
@@ -234,10 +293,11 @@ def _read_ply(path):
         if any(p[0] == axis and len(p) == 4 for p in vertex.props):
             raise UserError(f"PLY vertex property '{axis}' is a list", path=path,
                             fix="x, y and z must be scalar properties (property float x)")
+    f.seek(body)
     if fmt == "ascii":
-        cols = _ply_ascii_vertices(path, data[body:], elements[:vi], vertex, nheader)
+        cols = _ply_ascii_vertices(path, f, size - body, elements[:vi], vertex, nheader)
     else:
-        cols = _ply_binary_vertices(path, data, body, elements[:vi], vertex,
+        cols = _ply_binary_vertices(path, f, size, body, elements[:vi], vertex,
                                     _PLY_FORMATS[fmt])
     types = {p[0]: p[1] for p in vertex.props}
     centers = np.stack([np.asarray(cols[a], dtype=np.float64) for a in "xyz"], axis=1)
@@ -259,33 +319,96 @@ def _read_ply(path):
     return centers, radii, colors
 
 
-def _ply_ascii_vertices(path, body: bytes, before, vertex, nheader):
-    lines = body.split(b"\n")
-    keep = [i for i, line in enumerate(lines) if line.strip()]
+def _cloud_bytes(n, vertex) -> int:
+    """Bytes of the arrays a cloud of n points becomes (centres, radii, colours, and the
+    float64 columns they are made from)."""
+    return 8 * n * (2 * 3 + 2 + 3) + 4 * n * 3
+
+
+class _Projection:
+    """Memory check of a reader that parses a stream in chunks: after each chunk the
+    memory still to come is projected from what the chunks so far took per byte or row."""
+
+    def __init__(self, path, total):
+        self.path, self.total, self.done, self.used = path, total, 0, 0
+
+    def add(self, done, used):
+        self.done += done
+        self.used += used
+        if self.done and self.total > self.done:
+            more = self.used * (self.total - self.done) / self.done
+            # the chunks still to come, then one copy of everything (np.concatenate)
+            check_memory(int(more + self.used + more), self.path, "reading this point cloud",
+                         _MEMORY_FIX)
+
+
+def _ply_ascii_vertices(path, f, nbytes, before, vertex, nheader):
+    """The vertex rows of an ASCII body read from `f` (`nbytes` left in it), a chunk of
+    lines at a time; blank lines are skipped, rows after the vertex element are not read."""
     skip = sum(e.count for e in before)
-    rows = keep[skip:skip + vertex.count]
-    if len(rows) < vertex.count:
+    lineno = nheader
+    nprop = len(vertex.props)
+    if skip:
+        for line in f:
+            lineno += 1
+            nbytes -= len(line)
+            if line.strip():
+                skip -= 1
+                if skip == 0:
+                    break
+    # each value takes at least 2 bytes (a digit and a space or a newline): more rows
+    # than that cannot be there, whatever the header says
+    rows_possible = min(vertex.count, max(nbytes, 0) // (2 * nprop))
+    projection = _Projection(path, rows_possible)
+    parts, got = [], 0
+    lines, numbers = [], []
+    want = vertex.count if not skip else 0
+    it = iter(f) if want else iter(())
+    for line in it:
+        lineno += 1
+        if not line.strip():
+            continue
+        lines.append(line)
+        numbers.append(lineno)
+        if len(lines) == _CHUNK_LINES or got + len(lines) == want:
+            part = _ply_ascii_chunk(path, lines, numbers, vertex)
+            parts.append(part)
+            got += len(lines)
+            projection.add(len(lines), sum(v.nbytes for v in part.values()))
+            lines, numbers = [], []
+            if got == want:
+                break
+    if got + len(lines) < vertex.count:
         raise UserError(f"truncated ASCII PLY: header says {vertex.count} vertices, "
-                        f"file holds {len(rows)}", path=path,
+                        f"file holds {got + len(lines)}", path=path,
                         fix="re-export the file or fix the vertex count")
-    vlines = [lines[i] for i in rows]
+    names = [p[0] for p in vertex.props if len(p) == 2]
+    if len(parts) == 1:
+        return parts[0]
+    if not parts:
+        return {name: np.zeros(0) for name in names}
+    return {name: np.concatenate([part[name] for part in parts]) for name in names}
+
+
+def _ply_ascii_chunk(path, vlines, linenos, vertex):
+    """{scalar property: float64 column} of ASCII vertex rows."""
     names = [p[0] for p in vertex.props]
 
     def lineno(k):
-        return nheader + rows[k] + 1
+        return linenos[k]
 
     if vertex.has_lists():
         return _ply_ascii_rows_with_lists(path, vlines, vertex, lineno)
     nprop = len(vertex.props)
     tokens = b" ".join(vlines).split()
-    if len(tokens) != nprop * vertex.count:
+    if len(tokens) != nprop * len(vlines):
         for k, line in enumerate(vlines):
             got = len(line.split())
             if got != nprop:
                 raise UserError(f"line {lineno(k)}: expected {nprop} numbers, got {got}",
                                 path=path, fix="each vertex line needs one value per property")
     try:
-        values = np.array(tokens, dtype=np.float64).reshape(vertex.count, nprop)
+        values = np.array(tokens, dtype=np.float64).reshape(len(vlines), nprop)
     except ValueError:
         for k, line in enumerate(vlines):
             for tok in line.split():
@@ -323,20 +446,52 @@ def _ply_ascii_rows_with_lists(path, vlines, vertex, lineno):
     return {k: np.array(v) for k, v in out.items()}
 
 
-def _ply_binary_vertices(path, data, offset, before, vertex, endian):
+def _ply_binary_vertices(path, f, size, offset, before, vertex, endian):
+    """The vertex columns of a binary body. Elements of fixed-size rows before the vertex
+    element are skipped by offset and only the vertex rows are read; rows with lists
+    (faces before the vertices, lists in the vertex element) need the bytes read."""
+    if not vertex.has_lists() and not any(e.has_lists() for e in before):
+        for elem in before:
+            offset += elem.count * elem.dtype(endian).itemsize
+            if offset > size:
+                raise UserError(f"truncated binary PLY: the file ends inside the "
+                                f"'{elem.name}' element, before the vertex data", path=path,
+                                fix="re-export or re-download the file")
+        dt = vertex.dtype(endian)
+        need = vertex.count * dt.itemsize
+        if offset + need > size:
+            holds = max(0, size - offset) // dt.itemsize
+            raise UserError(f"truncated binary PLY: header says {vertex.count} vertices, "
+                            f"file holds {holds}", path=path,
+                            fix="re-export or re-download the file")
+        check_memory(need + _cloud_bytes(vertex.count, vertex), path,
+                     f"a cloud of {vertex.count} points", _MEMORY_FIX)
+        arr = np.empty(vertex.count, dt)
+        f.seek(offset)
+        got = f.readinto(arr.view(np.uint8)) if need else 0
+        if got != need:                         # the file shrank since it was measured
+            raise UserError(f"truncated binary PLY: header says {vertex.count} vertices, "
+                            f"file holds {got // dt.itemsize}", path=path,
+                            fix="re-export or re-download the file")
+        return {name: arr[name] for name in dt.names}
+    rest = max(0, size - offset)
+    check_memory(rest * 8, path, "reading this point cloud (rows with lists)", _MEMORY_FIX)
+    f.seek(offset)
+    data = f.read(rest)
+    pos = 0
     for elem in before:
-        offset = _skip_binary_element(path, data, offset, elem, endian)
+        pos = _skip_binary_element(path, data, pos, elem, endian)
     if vertex.has_lists():
-        cols, _ = _walk_binary_rows(path, data, offset, vertex, endian, keep=True)
+        cols, _ = _walk_binary_rows(path, data, pos, vertex, endian, keep=True)
         return cols
     dt = vertex.dtype(endian)
     need = vertex.count * dt.itemsize
-    if offset + need > len(data):
-        holds = max(0, len(data) - offset) // dt.itemsize
+    if pos + need > len(data):
+        holds = max(0, len(data) - pos) // dt.itemsize
         raise UserError(f"truncated binary PLY: header says {vertex.count} vertices, "
                         f"file holds {holds}", path=path,
                         fix="re-export or re-download the file")
-    arr = np.frombuffer(data, dtype=dt, count=vertex.count, offset=offset)
+    arr = np.frombuffer(data, dtype=dt, count=vertex.count, offset=pos)
     return {name: arr[name] for name in dt.names}
 
 
@@ -424,33 +579,71 @@ def _walk_binary_rows(path, data, offset, elem, endian, keep):
 _TEXT_LAYOUT = {3: "x y z", 4: "x y z radius", 6: "x y z r g b", 7: "x y z radius r g b"}
 
 
-def _read_text(path):
-    raw = path.read_bytes()
-    if not raw.strip():
-        raise UserError("file is empty", path=path,
-                        fix="give one point per line: x y z [radius] [r g b]")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise UserError("not a text file (invalid UTF-8)", path=path,
-                        fix="give one point per line: x y z [radius] [r g b]") from None
-    lines = text.replace(",", " ").replace(";", " ").split("\n")
-    rows, numbers = [], []
-    for i, line in enumerate(lines):
-        toks = line.split()
-        if toks and not toks[0].startswith("#"):
-            rows.append(i + 1)
-            numbers.append(toks)
-    if rows and not _all_numbers(numbers[0]):
-        rows, numbers = rows[1:], numbers[1:]      # header line
-    if not rows:
-        raise UserError("the file holds zero points", path=path,
-                        fix="give one point per line: x y z [radius] [r g b]")
-    ncols = len(numbers[0])
-    if ncols not in _TEXT_LAYOUT:
-        raise UserError(f"line {rows[0]}: expected 3, 4, 6 or 7 numbers "
-                        f"(x y z [radius] [r g b]), got {ncols}", path=path,
-                        fix="use one of those column layouts")
+def _read_text(f, size, path):
+    """x y z [radius] [r g b] rows, a chunk of lines at a time (memory: the numbers, plus
+    one chunk of text)."""
+    fix = "give one point per line: x y z [radius] [r g b]"
+    projection = _Projection(path, size)
+    parts, ncols, header_checked, nonblank = [], None, False, False
+    first_row = None
+    lineno = 0
+    while True:
+        chunk = f.readlines(_CHUNK_LINES * 32)
+        if not chunk:
+            break
+        raw = b"".join(chunk)
+        if lineno == 0:
+            raw = raw.removeprefix(b"\xef\xbb\xbf")
+        nonblank = nonblank or bool(raw.strip())
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise UserError("not a text file (invalid UTF-8)", path=path, fix=fix) from None
+        lines = text.replace(",", " ").replace(";", " ").split("\n")
+        if text.endswith("\n"):
+            lines.pop()
+        rows, numbers = [], []
+        for i, line in enumerate(lines):
+            toks = line.split()
+            if toks and not toks[0].startswith("#"):
+                rows.append(lineno + i + 1)
+                numbers.append(toks)
+        lineno += len(lines)
+        if not header_checked and rows:
+            header_checked = True
+            if not _all_numbers(numbers[0]):
+                rows, numbers = rows[1:], numbers[1:]      # header line
+        if not rows:
+            continue
+        if ncols is None:
+            ncols, first_row = len(numbers[0]), rows[0]
+            if ncols not in _TEXT_LAYOUT:
+                raise UserError(f"line {rows[0]}: expected 3, 4, 6 or 7 numbers "
+                                f"(x y z [radius] [r g b]), got {ncols}", path=path,
+                                fix="use one of those column layouts")
+        values = _text_values(path, rows, numbers, ncols)
+        parts.append(values)
+        projection.add(len(raw), values.nbytes)
+    if not nonblank:
+        raise UserError("file is empty", path=path, fix=fix)
+    if not parts:
+        raise UserError("the file holds zero points", path=path, fix=fix)
+    values = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    centers = values[:, :3].copy()
+    radii = values[:, 3].copy() if ncols in (4, 7) else None
+    colors = None
+    if ncols >= 6:
+        rgb = values[:, -3:]
+        if np.isfinite(rgb).all() and rgb.max() > 1.0:
+            if rgb.max() > 255.0 or rgb.min() < 0.0:
+                raise UserError(f"colours outside 0..255 (range {rgb.min()}..{rgb.max()})",
+                                path=path, fix="give colours as 0..1 or 0..255")
+            rgb = rgb / 255.0
+        colors = rgb.astype(np.float32)
+    return centers, radii, colors
+
+
+def _text_values(path, rows, numbers, ncols):
     lens = np.fromiter(map(len, numbers), dtype=np.int64, count=len(numbers))
     bad = np.flatnonzero(lens != ncols)
     if bad.size:
@@ -466,19 +659,7 @@ def _read_text(path):
                 raise UserError(f"line {rows[k]}: not all numbers: '{' '.join(toks)}'",
                                 path=path, fix="only the first line may be a header") from None
         raise
-    values = values.reshape(-1, ncols)
-    centers = values[:, :3].copy()
-    radii = values[:, 3].copy() if ncols in (4, 7) else None
-    colors = None
-    if ncols >= 6:
-        rgb = values[:, -3:]
-        if np.isfinite(rgb).all() and rgb.max() > 1.0:
-            if rgb.max() > 255.0 or rgb.min() < 0.0:
-                raise UserError(f"colours outside 0..255 (range {rgb.min()}..{rgb.max()})",
-                                path=path, fix="give colours as 0..1 or 0..255")
-            rgb = rgb / 255.0
-        colors = rgb.astype(np.float32)
-    return centers, radii, colors
+    return values.reshape(-1, ncols)
 
 
 def _all_numbers(tokens) -> bool:
@@ -507,9 +688,15 @@ def load_npy_checked(path, fix: str):
             raise UserError(f"the .npy header says shape {shape} of {dtype} ({need} bytes), "
                             f"but the file holds {size - start} bytes of data", path=path,
                             fix=fix)
+        # the array, its float64 copy and the columns taken from it
+        check_memory(need + 3 * 8 * math.prod(shape), path, f"an array of shape {shape}",
+                     "load a smaller array, or free memory")
         return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, TypeError, SyntaxError) as exc:
+    except (ValueError, OSError, EOFError, TypeError, SyntaxError, tokenize.TokenError) as exc:
         raise UserError(f"not a readable .npy array ({exc})", path=path, fix=fix) from None
+
+
+_READERS = {".ply": _read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _read_text}
 
 
 def _read_npy(path):

@@ -280,11 +280,9 @@ def read(path) -> dict:
     """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
     resolved relative to the file."""
     from .files import check_input
+    from .files import read_toml
     path = check_input(path, "scene file")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid TOML ({exc})", path=path, fix="fix the syntax") from None
+    raw = read_toml(path, "scene file")
     try:
         return parse(raw, path.parent)
     except UserError as exc:

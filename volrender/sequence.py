@@ -25,6 +25,7 @@ written beside the outputs.
 """
 from __future__ import annotations
 
+import fnmatch
 import glob as globmod
 import logging
 import json
@@ -41,6 +42,7 @@ from .errors import UserError
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
 _GLOB = re.compile(r"[*?\[]")
+MAX_WIDTH = 32                  # digits a frame number is padded to, at most
 CPU_CORES_PER_WORKER = 8        # default LocalCluster size on CPUs: one worker per 8 cores
 KILL_HOOK = "VOLRENDER_TEST_KILL_WORKER_ONCE"   # tests: a marker file; the first task dies
 
@@ -89,9 +91,9 @@ def _glob_regex(pattern: str) -> str:
             if j < 0:
                 out.append(re.escape(c))
             else:
-                body = pattern[i + 1:j]
-                body = "^" + body[1:] if body.startswith("!") else body
-                out.append(f"([{body}])")
+                # fnmatch's own translation of the set: it escapes what a regex set would
+                # read otherwise and drops reversed ranges ('[v-9]'), as glob does
+                out.append("(" + fnmatch.translate(pattern[i:j + 1])[4:-3] + ")")
                 i = j
         else:
             out.append(re.escape(c))
@@ -113,9 +115,14 @@ def parse_pattern(text: str, *, output=False) -> Pattern:
     if tokens:
         m = _HASHES.search(text)
         if m:
-            return Pattern(text, text[:m.start()], text[m.end():], len(m.group(0)))
-        m = _PRINTF.search(text)
-        width = int(m.group(2) or 0) if m.group(1) == "0" or m.group(2) else 0
+            width = len(m.group(0))
+        else:
+            m = _PRINTF.search(text)
+            digits = m.group(2) or "0"
+            width = int(digits) if len(digits) <= 4 else MAX_WIDTH + 1
+        if width > MAX_WIDTH:
+            raise UserError(f"the pattern {_short(text)!r} pads frame numbers to {width} digits, "
+                            f"more than {MAX_WIDTH}", fix="use fewer # (or a smaller %0Nd)")
         return Pattern(text, text[:m.start()], text[m.end():], width)
     if _GLOB.search(Path(text).name):
         if output:
@@ -125,23 +132,37 @@ def parse_pattern(text: str, *, output=False) -> Pattern:
                     fix="mark it with #### (any number of #), %04d, or a quoted glob")
 
 
+MAX_FRAMES = 1_000_000          # frames one --frames may name, all its parts together
+
+
 def parse_frames(text: str) -> list[int]:
-    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers."""
-    frames = []
+    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers (at most
+    MAX_FRAMES, each of at most 18 digits)."""
+    frames, count = [], 0
     for part in str(text).split(","):
-        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?::\s*(\d+)\s*)?)?", part)
+        m = re.fullmatch(r"\s*(-?[0-9]+)\s*(?:-\s*(-?[0-9]+)\s*(?::\s*([0-9]+)\s*)?)?", part)
         if not m:
-            raise UserError(f"--frames: cannot read {part.strip()!r}",
+            raise UserError(f"--frames: cannot read {_short(part.strip())!r}",
                             fix="give A-B[:STEP], N, or a comma-separated list, e.g. 1-240:2")
+        if max(len(g.lstrip("-")) for g in m.groups() if g is not None) > 18:
+            raise UserError(f"--frames: {_short(part.strip())!r} has a number of more than 18 "
+                            "digits", fix="give frame numbers below 10^18")
         a = int(m.group(1))
         b = int(m.group(2)) if m.group(2) is not None else a
         step = int(m.group(3) or 1)
         if b < a or step < 1:
-            raise UserError(f"--frames: {part.strip()!r} is empty", fix="give A-B with A <= B and STEP >= 1")
-        if (b - a) // step > 1_000_000:
-            raise UserError(f"--frames: {part.strip()!r} has more than a million frames")
+            raise UserError(f"--frames: {_short(part.strip())!r} is empty",
+                            fix="give A-B with A <= B and STEP >= 1")
+        count += (b - a) // step + 1
+        if count > MAX_FRAMES:
+            raise UserError(f"--frames {_short(str(text).strip())!r} names more than a million "
+                            "frames", fix="render at most a million frames per run")
         frames.extend(range(a, b + 1, step))
     return sorted(set(frames))
+
+
+def _short(text: str) -> str:
+    return text if len(text) <= 80 else text[:40] + "..." + text[-30:]
 
 
 def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
@@ -229,9 +250,9 @@ def camera_overrides(camera) -> dict:
 
 def render_chunk(jobs, overrides, save_kw, skip_existing=False):
     """Render [(frame, input, output)] in this process: one record per frame. A frame
-    that fails is recorded, not raised, so the others of the chunk still render."""
-    from .render import render
-    from .scene import load_scene
+    that fails is recorded, not raised, so the others of the chunk still render. With
+    `skip_existing`, a frame another run is rendering (`_claim`) is left to the end and
+    then waited for, so two runs over one output folder render each frame once."""
     hook = os.environ.get(KILL_HOOK)
     if hook:
         try:
@@ -241,15 +262,79 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             pass
     worker = _worker_name()
     records = []
-    for frame, src, out in jobs:
-        rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
-               "pid": os.getpid()}
-        t0 = time.perf_counter()
+    deferred = []
+    for job in jobs:
+        rec = _render_frame(job, overrides, save_kw, skip_existing, worker, wait=False)
+        if rec is None:                 # another run renders it now: come back to it last
+            deferred.append(job)
+        else:
+            records.append(rec)
+    for job in deferred:
+        records.append(_render_frame(job, overrides, save_kw, skip_existing, worker, wait=True))
+    return sorted(records, key=lambda r: r["frame"])
+
+
+def _exists(out) -> bool:
+    try:
+        return Path(out).stat().st_size > 0 and Path(out).is_file()
+    except OSError:
+        return False
+
+
+_LOCK_NAME = ".volrender-frames.lock"
+_LOCK_FDS: dict = {}
+
+
+def _claim(out, wait: bool):
+    """With --skip-existing, the right to render `out`: an exclusive record lock (fcntl) on
+    one byte of the lock file in its directory, at an offset hashed from its path, so two
+    runs over one output folder (on one host or over NFS) render each frame once. Returns a
+    release function, or None where another process holds it and `wait` is false. Where the
+    directory takes no lock file or no locks, every claim is granted."""
+    import fcntl
+    import hashlib
+    d = Path(out).resolve().parent
+    fd = _LOCK_FDS.get(d)
+    if fd is None:
         try:
-            if skip_existing and Path(out).is_file() and Path(out).stat().st_size > 0:
-                rec.update(status="skipped", seconds=0.0)
-                records.append(rec)
-                continue
+            fd = os.open(d / _LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        except OSError:
+            return lambda: None
+        _LOCK_FDS[d] = fd          # kept open: closing any descriptor drops the locks
+    key = os.fsencode(str(Path(out).resolve()))
+    offset = int.from_bytes(hashlib.blake2b(key, digest_size=7).digest(), "little")
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB), 1, offset)
+    except (BlockingIOError, PermissionError):
+        return None
+    except OSError:
+        return lambda: None
+    return lambda: fcntl.lockf(fd, fcntl.LOCK_UN, 1, offset)
+
+
+def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
+    """One frame's record; None when --skip-existing finds another run rendering it and
+    `wait` is false."""
+    from .render import render
+    from .scene import load_scene
+    frame, src, out = job
+    rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
+           "pid": os.getpid()}
+    t0 = time.perf_counter()
+    release = lambda: None  # noqa: E731
+    if skip_existing:
+        if _exists(out):
+            rec.update(status="skipped", seconds=0.0)
+            return rec
+        release = _claim(out, wait)
+        if release is None:
+            return None
+        if _exists(out):                # the run that held it has written it
+            release()
+            rec.update(status="skipped", seconds=time.perf_counter() - t0)
+            return rec
+    try:
+        try:
             scene = load_scene(src, **overrides)
             t1 = time.perf_counter()
             img = render(scene, os.environ.get("VOLRENDER_DEVICE") or None)
@@ -264,9 +349,10 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             rec.update(status="failed", error=str(exc))
         except MemoryError:
             rec.update(status="failed", error="out of host memory")
-        rec["seconds"] = time.perf_counter() - t0
-        records.append(rec)
-    return records
+    finally:
+        release()
+    rec["seconds"] = time.perf_counter() - t0
+    return rec
 
 
 def set_env(name: str, value: str | None):

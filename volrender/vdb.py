@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
 import re
 import struct
+import tokenize
 import warnings
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +30,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError, printable
-from .files import check_input, npy_header
+from .files import check_input, check_memory, npy_header
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
@@ -68,6 +71,7 @@ class GridInfo:
     active_voxels: int | None = None
     creator: str = ""          # the file's 'creator' metadata (the writing application)
     metadata_keys: tuple = ()  # names of the grid's metadata entries
+    memory_bytes: int | None = None   # 'file_mem_bytes': the grid's size in memory
 
     def describe(self) -> str:
         return f"{self.name} ({self.value_type}, {self.grid_class})"
@@ -112,8 +116,10 @@ def _read_metamap(r: _Reader) -> dict:
         raw = r.read(n)
         if type_name == "string":
             meta[name] = raw.decode("utf-8", "replace")
-        elif type_name in ("int32", "int64") and n in (4, 8):
+        elif (type_name, n) in (("int32", 4), ("int64", 8)):
             meta[name] = struct.unpack("<i" if n == 4 else "<q", raw)[0]
+        elif (type_name, n) == ("vec3i", 12):
+            meta[name] = struct.unpack("<3i", raw)
         else:
             meta[name] = None          # present, value not decoded
     return meta
@@ -127,50 +133,63 @@ def _value_type(tree_type: str) -> str:
 
 def _parse_vdb(path: Path) -> list[GridInfo] | None:
     """Grid descriptors straight from the file; None when only OpenVDB can tell."""
-    size = path.stat().st_size
     with open(path, "rb") as f:
-        r = _Reader(f, size)
-        if size < 8 or r.unpack("q") != VDB_MAGIC:
-            raise UserError("not an OpenVDB file (bad magic number)", path=path,
-                            fix="give a .vdb written by OpenVDB, Houdini, Blender or EmberGen")
-        try:
-            version = r.unpack("I")
-            if version < 222:              # older headers vary; let OpenVDB read them
-                return None
-            r.unpack("II")                 # library major, minor
-            has_offsets = r.read(1) != b"\0"
-            r.read(36)                     # UUID as text
-            creator = _read_metamap(r).get("creator") or ""    # file metadata
-            if not has_offsets:
-                return None
-            count = r.unpack("i")
-            if count < 0:
-                raise _Corrupt("negative grid count")
-            if count * _MIN_DESCRIPTOR > size - f.tell():
-                raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
-            grids = []
-            for _ in range(count):
-                name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
-                tree = r.string().removesuffix("_HalfFloat")
-                r.string()                 # instance parent
-                grid_pos, block_pos, end_pos = r.unpack("qqq")
-                # each grid lies after its descriptor, in order: never trust an offset
-                # that points backwards (it would make this loop read the same bytes forever)
-                if not f.tell() <= grid_pos <= block_pos <= end_pos:
-                    raise _Corrupt(f"grid {name!r} has offsets out of order "
-                                   f"({grid_pos}, {block_pos}, {end_pos})")
-                if end_pos > size:
-                    raise _Corrupt(f"grid {name!r} ends past the end of the file")
-                f.seek(grid_pos)
-                r.unpack("I")              # per-grid compression flags
-                meta = _read_metamap(r)
-                grids.append(GridInfo(name, _value_type(tree), meta.get("class", "unknown"),
-                                      meta.get("file_voxel_count"), str(creator), tuple(meta)))
-                f.seek(end_pos)
-            return grids
-        except (_Corrupt, struct.error, UnicodeError) as e:
-            raise UserError(f"truncated or corrupt OpenVDB file ({e})", path=path,
-                            fix="re-export or re-download it") from None
+        return parse_vdb_header(f, os.fstat(f.fileno()).st_size, path)
+
+
+def _int_or_none(v):
+    return v if isinstance(v, int) and v >= 0 else None
+
+
+def parse_vdb_header(f, size: int, path) -> list[GridInfo] | None:
+    """The grid descriptors and per-grid metadata of the .vdb stream `f` (`size` bytes: a
+    file or io.BytesIO; `path` names it in messages), reading no voxel data; None for
+    files only OpenVDB can tell about (headers before version 222, no grid offsets)."""
+    r = _Reader(f, size)
+    if size < 8 or r.unpack("q") != VDB_MAGIC:
+        raise UserError("not an OpenVDB file (bad magic number)", path=path,
+                        fix="give a .vdb written by OpenVDB, Houdini, Blender or EmberGen")
+    try:
+        version = r.unpack("I")
+        if version < 222:              # older headers vary; let OpenVDB read them
+            return None
+        r.unpack("II")                 # library major, minor
+        has_offsets = r.read(1) != b"\0"
+        r.read(36)                     # UUID as text
+        creator = _read_metamap(r).get("creator") or ""    # file metadata
+        if not has_offsets:
+            return None
+        count = r.unpack("i")
+        if count < 0:
+            raise _Corrupt("negative grid count")
+        if count * _MIN_DESCRIPTOR > size - f.tell():
+            raise _Corrupt(f"{count} grid descriptors cannot fit in the rest of the file")
+        grids = []
+        for _ in range(count):
+            name = r.string().split("\x1e")[0]   # '\x1e<n>' marks duplicate names
+            tree = r.string().removesuffix("_HalfFloat")
+            r.string()                 # instance parent
+            grid_pos, block_pos, end_pos = r.unpack("qqq")
+            # each grid lies after its descriptor, in order: never trust an offset
+            # that points backwards (it would make this loop read the same bytes forever)
+            if not f.tell() <= grid_pos <= block_pos <= end_pos:
+                raise _Corrupt(f"grid {name!r} has offsets out of order "
+                               f"({grid_pos}, {block_pos}, {end_pos})")
+            if end_pos > size:
+                raise _Corrupt(f"grid {name!r} ends past the end of the file")
+            f.seek(grid_pos)
+            r.unpack("I")              # per-grid compression flags
+            meta = _read_metamap(r)
+            grid_class = meta.get("class")
+            grids.append(GridInfo(name, _value_type(tree),
+                                  grid_class if isinstance(grid_class, str) else "unknown",
+                                  _int_or_none(meta.get("file_voxel_count")), str(creator),
+                                  tuple(meta), _int_or_none(meta.get("file_mem_bytes"))))
+            f.seek(end_pos)
+        return grids
+    except (_Corrupt, struct.error, UnicodeError) as e:
+        raise UserError(f"truncated or corrupt OpenVDB file ({e})", path=path,
+                        fix="re-export or re-download it") from None
 
 
 def _check_file(path) -> Path:
@@ -656,6 +675,14 @@ class Bricks:
                                                   allow_pickle=False)
 
 
+# what zipfile and numpy raise on a damaged archive: a bad header or CRC, a zip version or
+# compression method it does not implement, an encrypted member, a bad deflate stream
+# (and numpy's .npy header parser: tokenize.TokenError from a header cut short)
+_ZIP_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError,
+               RuntimeError, zlib.error, struct.error, OverflowError, LookupError,
+               tokenize.TokenError)
+
+
 def _check_npz_members(z, size):
     """Every member's .npy header must agree with the member's stored size (a lying
     header would make numpy allocate what it claims before reading)."""
@@ -677,18 +704,35 @@ def load_npz(path) -> Bricks:
     data, a well-conditioned transform; NaN/Inf and negative voxels become 0 with a
     warning, as in a .vdb."""
     p = _check_file(path)
+    with open(p, "rb") as f:
+        return read_npz(f, os.fstat(f.fileno()).st_size, p)
+
+
+def read_npz(f, size: int, p) -> Bricks:
+    """`load_npz` of the open binary stream `f` of `size` bytes (a file or io.BytesIO);
+    `p` names it in messages."""
     fix = "convert the .vdb again (volrender convert)"
+    magic = f.read(4)
+    f.seek(0)
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        # np.load would read a bare .npy whole, whatever size its header claims
+        if magic == b"\x93NUM":
+            raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
+        raise UserError("not a readable .npz file (no zip archive)", path=p, fix=fix)
     try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        z = np.load(f, allow_pickle=False)
+    except _ZIP_ERRORS as e:
         raise UserError(f"not a readable .npz file ({_one_line(e)})", path=p, fix=fix) from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
     with z:
         try:
-            problem = _check_npz_members(z, p.stat().st_size)
+            problem = _check_npz_members(z, size)
             if problem:
                 raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
+            # every member once as read, once as validated (cast, sanitised)
+            check_memory(2 * sum(i.file_size for i in z.zip.infolist()), p,
+                         "this brick cache", "convert a smaller or cropped grid, or free memory")
             if "format" not in z.files or str(z["format"]) != NPZ_FORMAT:
                 raise UserError("not a volrender brick cache (no 'format' key)", path=p, fix=fix)
             if int(z["version"]) not in NPZ_VERSIONS:
@@ -721,8 +765,7 @@ def load_npz(path) -> Bricks:
                 b.temperature = z["temperature"]
                 b.temperature_grid_name = str(z["temperature_grid_name"])
             problem = _validate(b, p)
-        except (KeyError, ValueError, TypeError, OSError, EOFError, SyntaxError,
-                zipfile.BadZipFile) as e:
+        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
             raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
     if problem:
         raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
@@ -785,12 +828,27 @@ def _validate(b: Bricks, label="<bricks>") -> str | None:
 
 def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
                 temperature_grid=None) -> Bricks:
-    """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time."""
+    """Read the wanted grid(s) of a .vdb file into bricks, chunk^3 bricks at a time.
+
+    OpenVDB reads the file in a reader process of its own (`_Reader`), because OpenVDB
+    10 dies (SIGSEGV, SIGABRT) on some corrupt files: then this raises a UserError and the
+    caller lives on. `$VOLRENDER_VDB_READER=0` reads in this process instead."""
     p = _check_file(path)
+    if os.environ.get(READER_ENV, "") not in ("0", "1"):
+        import_openvdb()                # here too: its absence is said without a reader
+        return _READER.call(p, (p, grid, emission_grid, None),
+                            dict(chunk=chunk, temperature_grid=temperature_grid), progress)
+    return _load_bricks(p, grid, emission_grid, progress, chunk=chunk,
+                        temperature_grid=temperature_grid)
+
+
+def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
+                 temperature_grid=None) -> Bricks:
     grids = list_grids(p)
     info = _pick(p, grids, grid, default=True)
     einfo = _pick(p, grids, emission_grid) if emission_grid is not None else None
     tinfo = _pick(p, grids, temperature_grid) if temperature_grid is not None else None
+    _check_load_memory(p, info, [x for x in (einfo, tinfo) if x is not None])
     vdb = import_openvdb()
     g, m, box = _read_grid(vdb, p, info)
     if box is None:
@@ -818,8 +876,18 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
                             f"{info.name!r}, which is unsupported", path=p,
                             fix="resample it onto the density grid's transform")
         sources.append(_zero_source() if tbox is None else _vdb_source(tg, tbox))
-    origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
-                                                     passive=int(tinfo is not None))
+    try:
+        origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
+                                                         passive=int(tinfo is not None))
+    except (UserError, KeyboardInterrupt):
+        raise
+    except MemoryError:             # OpenVDB's std::bad_alloc on a size read from the file
+        raise UserError(f"ran out of memory reading the voxels of grid {info.name!r}", path=p,
+                        fix="the file may be truncated or corrupt, or too large for this "
+                            "machine (the memory check before reading passed)") from None
+    except Exception as e:          # OpenVDB decompressing voxels as they are read
+        raise UserError(f"cannot read the voxels of grid {info.name!r} ({_one_line(e)})",
+                        path=p, fix="the file may be truncated or corrupt; re-export it") from None
     _warn_sanitised(p, info.name, stats[0])
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
@@ -837,6 +905,202 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
         _warn_sanitised(p, tinfo.name, stats[-1])
         b.temperature, b.temperature_grid_name = out[-1], tinfo.name
     return b
+
+
+def load_memory_estimate(infos) -> int | None:
+    """Bytes that loading these grids takes at the least, from their metadata (None where
+    it does not say): each grid as OpenVDB holds it ('file_mem_bytes', else 4 bytes an
+    active voxel), plus the bricks, at least one per 512 active voxels of the density
+    grid, 9^3 float32 each per grid, twice (the bricks are sorted into a copy)."""
+    density = infos[0]
+    if density.active_voxels is None:
+        return None
+    grids = sum(g.memory_bytes if g.memory_bytes is not None else 4 * (g.active_voxels or 0)
+                for g in infos)
+    bricks = -(-density.active_voxels // BRICK ** 3)
+    return grids + 2 * bricks * APRON ** 3 * 4 * len(infos)
+
+
+def _check_load_memory(path, info, others):
+    need = load_memory_estimate([info, *others])
+    if need is not None:
+        check_memory(need, path, f"grid {info.name!r} ({info.active_voxels} active voxels)",
+                     "crop or resample the grid to fewer voxels, or free memory")
+
+
+# --------------------------------------------------------------------------- reader process
+
+READER_ENV = "VOLRENDER_VDB_READER"     # "1" in the reader process; "0": read in-process
+
+
+class _ReaderProcess:
+    """A Python process that runs `_load_bricks` for this one (started on first use, kept
+    for the next load, started again after it died). Requests and replies are pickles on
+    its stdin and stdout: progress fractions and warnings as they come, then the Bricks
+    (their arrays as raw out-of-band buffers, read straight into this process's memory)
+    or the exception. If it dies, the file is what killed OpenVDB."""
+
+    def __init__(self):
+        import threading
+        self.proc, self.lock, self.owner = None, threading.Lock(), os.getpid()
+
+    def _start(self):
+        import subprocess
+        import sys
+        root = str(Path(__file__).resolve().parents[1])
+        env = {**os.environ, READER_ENV: "1",
+               "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
+        import tempfile
+        self.err = tempfile.TemporaryFile()      # what it says as it dies (glibc, OpenVDB)
+        self.proc = subprocess.Popen([sys.executable, "-c", "from volrender import vdb; vdb._serve()"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                                     stderr=self.err, close_fds=True)
+
+    def last_words(self) -> str:
+        try:
+            self.err.seek(0)
+            lines = [ln.strip() for ln in self.err.read()[-4000:].decode(errors="replace").splitlines()]
+        except (OSError, AttributeError):
+            return ""
+        lines = [ln for ln in lines if ln]
+        return f": {lines[-1][:200]}" if lines else ""
+
+    def stop(self):
+        proc, self.proc = self.proc, None
+        if proc is not None and self.owner == os.getpid():
+            with __import__("contextlib").suppress(OSError):
+                proc.stdin.close()
+            try:
+                proc.wait(timeout=5)
+            except Exception:
+                proc.kill()
+                proc.wait()
+
+    def call(self, path, args, kwargs, progress):
+        import pickle
+        with self.lock:
+            if self.proc is None or self.owner != os.getpid() or self.proc.poll() is not None:
+                self._start()           # (a forked child starts its own)
+                self.owner = os.getpid()
+            proc = self.proc
+            try:
+                try:
+                    cwd = os.getcwd()           # relative paths mean the same there
+                except OSError:
+                    cwd, args = None, (Path(os.path.abspath(args[0])), *args[1:])
+                _send(proc.stdin, pickle.dumps((cwd, args, kwargs)))
+                while True:
+                    kind, value = pickle.loads(_receive(proc.stdout))
+                    if kind == "progress":
+                        if progress is not None:
+                            progress(value)
+                    elif kind == "warning":
+                        warnings.warn(value[0], value[1], stacklevel=3)
+                    elif kind == "error":       # it exits after one: OpenVDB may have
+                        proc.wait()             # left its heap damaged
+                        self.proc = None
+                        raise value
+                    else:
+                        sizes = value
+                        head = _receive(proc.stdout)
+                        buffers = []
+                        for n in sizes:
+                            b = bytearray(n)
+                            view, got = memoryview(b), 0
+                            while got < n:
+                                k = proc.stdout.readinto(view[got:])
+                                if not k:
+                                    raise EOFError
+                                got += k
+                            buffers.append(b)
+                        return pickle.loads(head, buffers=buffers)
+            except (EOFError, OSError, pickle.UnpicklingError):
+                code = proc.wait()
+                self.proc = None
+                import signal
+                how = (f"signal {signal.Signals(-code).name}" if code < 0 and
+                       -code in signal.Signals._value2member_map_ else f"exit status {code}")
+                how += self.last_words()
+                raise UserError(f"OpenVDB failed reading it (its reader process ended with "
+                                f"{how}): truncated or corrupt OpenVDB file", path=path,
+                                fix="re-export or re-download it") from None
+            except BaseException:
+                if self.proc is proc and proc.poll() is None:   # interrupted: a fresh one next
+                    proc.kill()
+                    proc.wait()
+                    self.proc = None
+                raise
+
+
+def _send(f, data: bytes):
+    f.write(struct.pack("<Q", len(data)))
+    f.write(data)
+    f.flush()
+
+
+def _receive(f) -> bytes:
+    head = f.read(8)
+    if len(head) != 8:
+        raise EOFError
+    n = struct.unpack("<Q", head)[0]
+    data = f.read(n)
+    if len(data) != n:
+        raise EOFError
+    return data
+
+
+def _serve():
+    """The reader process: one request at a time on stdin, until it closes."""
+    import pickle
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)       # the caller decides
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)                                      # stray prints go to stderr
+    inp = sys.stdin.buffer
+    while True:
+        try:
+            cwd, args, kwargs = pickle.loads(_receive(inp))
+        except EOFError:
+            return
+        if cwd is not None:
+            try:
+                os.chdir(cwd)
+            except OSError:
+                args = (Path(os.path.abspath(args[0])), *args[1:])
+
+        def progress(x):
+            _send(out, pickle.dumps(("progress", x)))
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            _send(out, pickle.dumps(("warning", (str(message), category))))
+
+        try:
+            with warnings.catch_warnings():
+                warnings.showwarning = show
+                warnings.simplefilter("default")
+                result = _load_bricks(*args[:3], progress, **kwargs)
+        except BaseException as exc:                     # noqa: BLE001 (sent back whole)
+            try:
+                blob = pickle.dumps(("error", exc))
+            except Exception:
+                blob = pickle.dumps(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+            _send(out, blob)
+            out.close()
+            return
+        buffers = []
+        head = pickle.dumps(result, protocol=5, buffer_callback=buffers.append)
+        raws = [b.raw() for b in buffers]
+        _send(out, pickle.dumps(("result", [r.nbytes for r in raws])))
+        _send(out, head)
+        for r in raws:
+            out.write(r)
+        out.flush()
+        del result, buffers, raws
+
+
+_READER = _ReaderProcess()
+__import__("atexit").register(_READER.stop)
 
 
 def _cbrt_det(m):
@@ -887,13 +1151,26 @@ def world_bounds(path, grid=None, emission_grid=None):
     loading any voxels: the same box Bricks.world_bounds() gives after loading."""
     p = _check_file(path)
     if p.suffix.lower() == ".npz":
+        fix = "convert the .vdb again (volrender convert)"
         try:
             with np.load(p, allow_pickle=False) as z:
+                if not isinstance(z, np.lib.npyio.NpzFile):
+                    raise ValueError("a bare .npy array")
+                problem = _check_npz_members(z, p.stat().st_size)
+                if problem:
+                    raise ValueError(problem)
                 origin, dims, m = z["origin"], z["dims"], z["index_to_world"]
                 axis = str(z["up_axis"]) or None if "up_axis" in z.files else None
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
             raise UserError(f"not a readable brick cache ({_one_line(e)})", path=p,
-                            fix="convert the .vdb again (volrender convert)") from None
+                            fix=fix) from None
+        problem = (check_transform(m) if origin.shape == (3,) == dims.shape
+                   and origin.dtype.kind in "iu" and dims.dtype.kind in "iu"
+                   and np.abs(origin.astype(np.float64)).max() <= MAX_ORIGIN
+                   and 0 < dims.min() and dims.max() <= MAX_BRICKS
+                   else "origin or dims is not 3 integers in range")
+        if problem:
+            raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
         lo, hi = _layout_world_bounds(origin, dims, m)
         return lo, hi, axis
     grids = list_grids(p)
