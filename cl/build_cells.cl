@@ -22,7 +22,10 @@
    Lists are stored as runs (first, count) of consecutive sphere indices, ascending (the
    walk visits the leaves left to right; spheres are in tree order, so neighbours are runs).
    Kernels: build_classify (class, run counts, bound, U per box: bricks, then the octants of
-   the boxes left unclassified, down to single cells), build_fill (the runs). */
+   the boxes left unclassified, down to single cells), build_fill (the runs), build_expand
+   (a level's octants), build_paint_* and build_mark_* (the tables the renderer reads). The
+   counts' prefix sums and the compaction of unclassified boxes are pyopencl scans
+   (volrender/cells.py): a level reads back only its kept count and its run total. */
 #include "common.h"
 #include "structs.h"
 
@@ -350,12 +353,11 @@ __kernel void build_classify(__constant CellBuild* cb, __global const float4* re
     out[gid] = cb_classify(cb, M, U, a.n, a.nc, cb_finish(cb, &a, M, U, 0));
 }
 
-/* The same for sub-boxes origins[gid] of parent boxes parent[gid], from the parent's list
-   and core: cand[lists[parent[gid]]] */
+/* The same for sub-boxes origins[gid], the octants of box gid >> 3 of the level above
+   (build_expand), from that parent's list and core: cand[lists[gid >> 3]] */
 __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4* restrict sp,
                                  __global const int2* restrict cand,
                                  __global const int4* restrict lists,
-                                 __global const int* restrict parent,
                                  __global const int4* restrict origins, __global int4* out,
                                  int n_boxes)
 {
@@ -364,7 +366,7 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
         return;
     float3 lo, hi;
     cb_box(cb, origins, gid, &lo, &hi);
-    int4 pl = lists[parent[gid]];
+    int4 pl = lists[gid >> 3];
     float M, U;
     cb_nearest_of(sp, cand + pl.z, pl.w, lo, hi, &M, &U);
     if (U < -cb->tau) {
@@ -375,34 +377,113 @@ __kernel void build_classify_sub(__constant CellBuild* cb, __global const float4
     out[gid] = cb_classify(cb, M, U, a.n, a.nc, cb_finish(cb, &a, M, U, 0));
 }
 
-/* The list and core of each box origins[j] (thresholds upper[j] + k + pad and upper[j] +
-   pad), written as runs at runs[l.x, l.x + l.y) and runs[l.z, l.z + l.w), l = lists[j];
-   from the tree (from_tree), or from the list of parent box parent[j],
-   cand[cand_lists[parent[j]]] */
+/* The list and core of each kept box k, box sel[k] of its level (thresholds U + k + pad
+   and U + pad, U from its classification out[sel[k]].w), written as runs at runs[l.x,
+   l.x + l.y) and runs[l.z, l.z + l.w), l = lists[k]; from the tree (from_tree), or from
+   the list of its parent, box sel[k] >> 3 of the level above: cand[cand_lists[sel[k] >> 3]] */
 __kernel void build_fill(__constant CellBuild* cb, __global const float4* restrict sp,
                          __global const TreeNode* restrict nodes,
                          __global const int2* restrict cand,
                          __global const int4* restrict cand_lists,
-                         __global const int* restrict parent,
+                         __global const int* restrict sel,
                          __global const int4* restrict origins,
-                         __global const float* restrict upper,
-                         __global const int4* restrict lists, __global int2* runs, int n_boxes,
+                         __global const int4* restrict out,
+                         __global const int4* restrict lists, __global int2* runs, int n_kept,
                          int from_tree)
 {
-    int j = get_global_id(0);
-    if (j >= n_boxes)
+    int k = get_global_id(0);
+    if (k >= n_kept)
         return;
+    int j = sel[k];
     float3 lo, hi;
     cb_box(cb, origins, j, &lo, &hi);
-    float U = upper[j];                 /* membership needs U only (M sets the bounds) */
-    int4 l = lists[j];
+    float U = as_float(out[j].w);       /* membership needs U only (M sets the bounds) */
+    int4 l = lists[k];
     CbOut w = { runs + l.x, l.y, runs + l.z, l.w };
     CbAcc a;
     if (from_tree) {
         a = cb_list_tree(cb, sp, nodes, lo, hi, U, U, &w);
     } else {
-        int4 pl = cand_lists[parent[j]];
+        int4 pl = cand_lists[j >> 3];
         a = cb_list_of(cb, sp, cand + pl.x, pl.y, lo, hi, U, U, &w);
     }
     cb_finish(cb, &a, U, U, &w);
+}
+
+/* The octants of the kept boxes: box 8 k + o of the next level is octant o (x, y, z bits)
+   of box sel[k] (edge: the octants' edge in cells), in the same brick's block blk */
+__kernel void build_expand(__global const int4* restrict origins, __global const int* restrict blk,
+                           __global const int* restrict sel, int n_kept, int edge,
+                           __global int4* next, __global int* next_blk)
+{
+    int i = get_global_id(0);
+    if (i >= 8 * n_kept)
+        return;
+    int k = i >> 3, o = i & 7, j = sel[k];
+    next[i] = origins[j] + edge * (int4)(o & 1, (o >> 1) & 1, o >> 2, 0);
+    next_blk[i] = blk[j];
+}
+
+/* Classified boxes of edge size cells (bricks' multiples) into the brick table: every
+   brick of the box inside the grid takes (class, bound bits) */
+__kernel void build_paint_bricks(__global const int4* restrict origins,
+                                 __global const int4* restrict out, int n_boxes, int size,
+                                 int4 bdims, __global int2* table)
+{
+    int j = get_global_id(0);
+    if (j >= n_boxes || out[j].x == 0)
+        return;
+    int4 b0 = origins[j] / VR_CELL_BRICK;
+    int nb = size / VR_CELL_BRICK;
+    for (int z = b0.z; z < min(b0.z + nb, bdims.z); ++z)
+        for (int y = b0.y; y < min(b0.y + nb, bdims.y); ++y)
+            for (int x = b0.x; x < min(b0.x + nb, bdims.x); ++x)
+                table[(z * bdims.y + y) * bdims.x + x] = (int2)(out[j].x, out[j].z);
+}
+
+/* The mixed bricks (kept at brick size): brick table entry (block k, 0), the block of
+   CELL_BRICK^3 cells the cell levels fill */
+__kernel void build_mark_mixed(__global const int4* restrict origins,
+                               __global const int* restrict sel, int n_kept, int4 bdims,
+                               __global int2* table, __global int* blk)
+{
+    int k = get_global_id(0);
+    if (k >= n_kept)
+        return;
+    int4 b = origins[sel[k]] / VR_CELL_BRICK;
+    table[(b.z * bdims.y + b.y) * bdims.x + b.x] = (int2)(k, 0);
+    blk[sel[k]] = k;
+}
+
+/* Classified boxes of edge size cells inside one brick into its block of the cell table;
+   with lists (the last level: size 1, every kept box), kept box k writes (k, 0) */
+__kernel void build_paint_cells(__global const int4* restrict origins,
+                                __global const int* restrict blk,
+                                __global const int4* restrict out, int n_boxes, int size,
+                                __global int2* cells)
+{
+    int j = get_global_id(0);
+    if (j >= n_boxes || out[j].x == 0)
+        return;
+    int4 l = origins[j] % VR_CELL_BRICK;
+    __global int2* block = cells + blk[j] * VR_CELL_BRICK * VR_CELL_BRICK * VR_CELL_BRICK;
+    for (int z = l.z; z < l.z + size; ++z)
+        for (int y = l.y; y < l.y + size; ++y)
+            for (int x = l.x; x < l.x + size; ++x)
+                block[(z * VR_CELL_BRICK + y) * VR_CELL_BRICK + x] = (int2)(out[j].x, out[j].z);
+}
+
+/* the listed cells (the last level's kept boxes k): cell entry (k, 0) */
+__kernel void build_mark_listed(__global const int4* restrict origins,
+                                __global const int* restrict blk,
+                                __global const int* restrict sel, int n_kept,
+                                __global int2* cells)
+{
+    int k = get_global_id(0);
+    if (k >= n_kept)
+        return;
+    int j = sel[k];
+    int4 l = origins[j] % VR_CELL_BRICK;
+    cells[blk[j] * VR_CELL_BRICK * VR_CELL_BRICK * VR_CELL_BRICK +
+          (l.z * VR_CELL_BRICK + l.y) * VR_CELL_BRICK + l.x] = (int2)(k, 0);
 }

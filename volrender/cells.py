@@ -17,6 +17,7 @@ prefix-summed here and written by a second pass. `host_lists` is the numpy alter
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -69,6 +70,7 @@ class Cells:
     build_ms: float
     build_kernel_ms: float = 0.0    # of build_ms, in the build's kernels (profiling events)
     build_launches: int = 0
+    buffers: tuple = ()       # device copies of bricks, cells, lists (the builder's context)
 
     @property
     def runs(self) -> np.ndarray:
@@ -232,193 +234,259 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     and what the device's largest buffer holds); beyond, TooLarge.
     max_cells: when the bricks the surface passes through hold more cells than this, the
     cell edge grows (first from an estimate by occupied bricks, then by (cells /
-    max_cells)^0.5 with the brick pass redone) until they fit."""
-    import pyopencl as cl
-
+    max_cells)^0.5 with the brick pass redone) until they fit.
+    Everything between the levels stays on the device (_Builder): a level reads back its
+    count of unclassified boxes and its total of list runs, nothing else."""
     t0 = time.perf_counter()
-    n = len(spheres)
     lo = np.asarray(box_lo, np.float32)
     extent = float(np.abs(np.concatenate([np.asarray(box_lo, np.float64),
                                           np.asarray(box_hi, np.float64)])).max())
     pad = PAD * (extent + blend)
-    tau_run = float(tau) if classify else 3e38
-    flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
-    k_tree = device.kernel("build_cells", flags, "build_classify")
-    k_sub = device.kernel("build_cells", flags, "build_classify_sub")
-    k_fill = device.kernel("build_cells", flags, "build_fill")
-    ctx, queue = device.context, device.queue
-    mf = cl.mem_flags
     max_runs = min(MAX_ITEMS if max_runs is None else int(max_runs),
                    int(device.device.max_mem_alloc_size) // 8)
-    events = []
-
-    def buf(a):
-        a = np.ascontiguousarray(a)
-        if a.nbytes == 0:
-            a = np.zeros((1,) + a.shape[1:], a.dtype)
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
-
-    d_sp, d_nodes = buf(spheres), buf(nodes)
-    none_i = buf(np.zeros(1, np.int32))
-    none_i4 = buf(np.zeros((1, 4), np.int32))
-
-    def prm(size):
-        p = params.copy()
-        p["box_cells"] = size
-        return buf(p)
-
-    def classify(origins, size, cand=None, cand_lists=None, parents=None):
-        """(class, count, core count or bound bits, U bits) per box, from the tree or (cand)
-        the lists of parent boxes parents (default: box j // 8)."""
-        out = np.empty((len(origins), 4), np.int32)
-        if len(origins):
-            d_out = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-            g = (_round_up(len(origins)),)
-            if cand is None:
-                events.append(k_tree(queue, g, None, prm(size), d_sp, d_nodes,
-                                     buf(origins), d_out, np.int32(len(origins))))
-            else:
-                if parents is None:
-                    parents = np.arange(len(origins)) // 8
-                events.append(k_sub(queue, g, None, prm(size), d_sp, cand, cand_lists,
-                                    buf(parents.astype(np.int32)), buf(origins), d_out,
-                                    np.int32(len(origins))))
-            cl.enqueue_copy(queue, out, d_out)
-        return out
-
-    def fill(origins, size, out, parent=None, cand=None, cand_lists=None):
-        """The lists of boxes: device runs, host (start, count, core start, core count)
-        int32 in runs, total runs. Each box's core follows its list."""
-        counts = out[:, 1].astype(np.int64)
-        core = out[:, 2].astype(np.int64)
-        total = int(counts.sum() + core.sum())
-        if total > max_runs:
-            raise TooLarge(f"over {max_runs} list runs")
-        if size == B and len(counts) and counts.max() > MAX_LIST:
-            raise TooLarge(f"a brick's list holds {counts.max()} runs")
-        lists = np.zeros((len(origins), 4), np.int32)
-        ends = np.cumsum(counts + core)
-        lists[:, 0] = ends - counts - core
-        lists[:, 1] = counts
-        lists[:, 2] = ends - core
-        lists[:, 3] = core
-        d_runs = cl.Buffer(ctx, mf.READ_WRITE, 8 * max(total, 1))
-        if len(origins):
-            from_tree = cand is None
-            events.append(k_fill(
-                   queue, (_round_up(len(origins)),), None, prm(size), d_sp, d_nodes,
-                   none_i if from_tree else cand, none_i4 if from_tree else cand_lists,
-                   none_i if from_tree else buf(parent.astype(np.int32)), buf(origins),
-                   buf(out[:, 3].view(np.float32)), buf(lists), d_runs, np.int32(len(origins)),
-                   np.int32(from_tree)))
-        return d_runs, lists, total
-
     if max_cells is not None:
         cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
     cell = grid_shape(box_lo, box_hi, cell)[0]
     crowd = int(_occupancy(np.asarray(spheres[:, :3], np.float64) - lo, B * cell).max())
     if crowd > MAX_BRICK_SPHERES:
         raise TooLarge(f"{crowd} sphere centres in one brick")
+    b = _Builder(device, spheres, nodes, first_leaf, max_runs)
     while True:
         cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
         params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
-                               tau=tau_run, n_spheres=n, first_leaf=first_leaf, box_cells=B)
-        bricks, (origins, out, cand, lists) = _bricks(classify, fill, buf, bdims)
-        mixed = np.nonzero(bricks[:, 0] == 0)[0]
-        if max_cells is None or len(mixed) * B3 <= max_cells or len(mixed) <= 1:
+                               tau=float(tau) if classify else 3e38, n_spheres=len(spheres),
+                               first_leaf=first_leaf, box_cells=B)
+        b.start(params, bdims)
+        level = b.bricks()
+        if max_cells is None or level.kept * B3 <= max_cells or level.kept <= 1:
             break
-        cell *= max(1.1, (len(mixed) * B3 / max_cells) ** 0.5)
-    # the octants of unclassified boxes, each from its parent's list, down to cells
-    block_of = np.full(len(bricks), -1, np.int64)
-    block_of[mixed] = np.arange(len(mixed))
-    ccls = np.zeros(len(mixed) * B3, np.int32)       # the mixed bricks' cells
-    cbound = np.zeros(len(mixed) * B3, np.int32)
-    size = B
-    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
-    while size > 1:
-        size //= 2
-        origins = (origins[:, None, :] + size * octants[None]).reshape(-1, 4)
-        d_lists = buf(lists)
-        out = classify(origins, size, cand, d_lists)
-        cls = out[:, 0].copy()
-        # paint the classified boxes into their bricks' blocks
-        done = np.nonzero(cls != 0)[0]
-        o = origins[done, :3].astype(np.int64)
-        span = np.arange(size)
-        sub = (span[:, None, None] * B * B + span[None, :, None] * B + span[None, None, :]).ravel()
-        at = (_block_cell(o, block_of, bdims)[:, None] + sub[None]).ravel()
-        ccls[at] = np.repeat(cls[done], len(sub))
-        cbound[at] = np.repeat(out[done, 2], len(sub))
-        keep = np.nonzero(cls == 0)[0]
-        origins = origins[keep]
-        cand, lists, total = fill(origins, size, out[keep], keep // 8, cand, d_lists)
-    # the tables the renderer reads
-    sel = _block_cell(origins[:, :3].astype(np.int64), block_of, bdims)
-    bricks[mixed, 0] = np.arange(len(mixed))
-    bricks[mixed, 1] = 0
-    cells = np.empty((len(ccls), 2), np.int32)
-    cells[:, 0] = ccls
-    cells[:, 1] = cbound
-    cells[sel, 0] = np.arange(len(sel))
-    cells[sel, 1] = 0
-    queue.finish()
-    kernel_ms = 1e-6 * sum(e.profile.end - e.profile.start for e in events)
-    return Cells(lo, cell, dims, bdims, bricks, cells, lists, cand, total, queue, float(tau), pad,
-                 1e3 * (time.perf_counter() - t0), kernel_ms, len(events))
+        cell *= max(1.1, (level.kept * B3 / max_cells) ** 0.5)
+    level = b.cells(level)
+    bricks, cells_, lists = b.tables(level)
+    kernel_ms = b.kernel_ms()
+    return Cells(lo, cell, dims, bdims, bricks, cells_, lists, level.runs, level.total,
+                 device.queue, float(tau), pad, 1e3 * (time.perf_counter() - t0), kernel_ms,
+                 b.launches, buffers=b.buffers)
 
 
 TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
 
 
-def _bricks(classify, fill, buf, bdims):
-    """Classify every brick: boxes of 2^t bricks from the tree first (t: the smallest with
-    at most TOP_BOXES of them), then the octants of the unclassified ones from their
-    parents' lists, down to bricks. Returns the brick table (class or 0, bound bits) and the
-    mixed bricks' (origins, classify output, device list runs, lists), in the order of
-    np.nonzero(table[:, 0] == 0)."""
-    t = 0
-    while t < 4 and int(np.prod(-(-bdims // (1 << t)))) > TOP_BOXES:
-        t += 1
-    size = B << t
-    tdims = -(-bdims // (1 << t))
-    tz, ty, tx = np.meshgrid(*(np.arange(v) for v in tdims[::-1]), indexing="ij")
-    origins = np.zeros((tx.size, 4), np.int32)
-    origins[:, 0], origins[:, 1], origins[:, 2] = tx.ravel() * size, ty.ravel() * size, \
-        tz.ravel() * size
-    out = classify(origins, size)
-    table = np.full((int(np.prod(bdims)), 2), -99, np.int32)
-    cand = d_lists = None
-    octants = np.array([[i & 1, (i >> 1) & 1, i >> 2, 0] for i in range(8)], np.int32)
-    while True:
-        cls = out[:, 0]
-        # paint the classified boxes' bricks (clipped to the grid)
-        nb = size // B
-        done = np.nonzero(cls != 0)[0]
-        span = np.arange(nb)
-        sub = np.stack(np.meshgrid(span, span, span, indexing="ij"), -1).reshape(-1, 3)
-        q = (origins[done, None, :3] // B + sub[None]).reshape(-1, 3)
-        ok = np.all(q < bdims, axis=1)
-        at = _brick_index(q[ok], bdims)
-        table[at, 0] = np.repeat(cls[done], len(sub))[ok]
-        table[at, 1] = np.repeat(out[done, 2], len(sub))[ok]
-        keep = np.nonzero(cls == 0)[0]
-        inside = np.all(origins[keep, :3] // B < bdims, axis=1)   # boxes past the grid: dropped
-        keep = keep[inside]
-        if size == B:
-            # the mixed bricks in table order, with their lists
-            order = np.argsort(_brick_index(origins[keep, :3] // B, bdims), kind="stable")
-            keep = keep[order]
-            table[_brick_index(origins[keep, :3] // B, bdims)] = 0
-            assert (table[:, 0] != -99).all(), "a brick was left unclassified"
-            parents = None if cand is None else keep // 8
-            c2, lists2, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
-            return table, (origins[keep], out[keep], c2, lists2)
-        parents = None if cand is None else keep // 8
-        cand, lists, _ = fill(origins[keep], size, out[keep], parents, cand, d_lists)
-        size //= 2
-        origins = (origins[keep][:, None, :] + size * octants[None]).reshape(-1, 4)
-        d_lists = buf(lists)
-        out = classify(origins, size, cand, d_lists)
+@dataclass
+class _Level:
+    """One level of boxes on the device: their origins (cells), blocks, classification,
+    and the kept (unclassified) ones with their lists and runs."""
+    size: int                 # box edge, cells
+    origins: object           # int4 (n,) device array
+    blk: object               # int (n,): the brick's block (cell levels)
+    n: int
+    out: object = None        # int4 (n,): class, runs, core runs or bound bits, U bits
+    sel: object = None        # int (kept,): the kept boxes' indices
+    kept: int = 0
+    lists: object = None      # int4 (kept,): list start, count, core start, count
+    runs: object = None       # cl.Buffer of int2 runs
+    total: int = 0
+
+
+class _Builder:
+    """The device side of build: the kernels of cl/build_cells.cl and pyopencl scans for
+    the prefix sums (list offsets) and compaction (the unclassified boxes)."""
+
+    def __init__(self, device, spheres, nodes, first_leaf, max_runs):
+        import pyopencl as cl
+        import pyopencl.array as cla
+        from .tree_device import padded
+        self.cl, self.cla, self.padded = cl, cla, padded
+        self.device, self.q = device, device.queue
+        self.max_runs = max_runs
+        flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
+        self.k = {n: device.kernel("build_cells", flags, n) for n in (
+            "build_classify", "build_classify_sub", "build_fill", "build_expand",
+            "build_paint_bricks", "build_mark_mixed", "build_paint_cells",
+            "build_mark_listed")}
+        self.scans = _scans(device.context)
+        mf = cl.mem_flags
+        self.sp = cl.Buffer(device.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                            hostbuf=np.ascontiguousarray(spheres if len(spheres) else
+                                                         np.zeros((1, 4), np.float32)))
+        self.nodes = cl.Buffer(device.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(nodes))
+        self.none = cla.zeros(self.q, 1, cl.cltypes.int4)
+        self.events, self.launches = [], 0
+
+    def _run(self, name, n, *args):
+        if n > 0:
+            self.events.append(self.k[name](self.q, (_round_up(n),), None, *args))
+            self.launches += 1
+
+    def start(self, params, bdims):
+        cla, cl = self.cla, self.cl
+        self.bdims = np.asarray(bdims, np.int64)
+        self.bd4 = cl.cltypes.make_int4(*[int(v) for v in bdims], 0)
+        self.prm = {}
+        for size in (B << t for t in range(5)):
+            p = params.copy()
+            p["box_cells"] = size
+            self.prm[size] = cl.Buffer(self.device.context,
+                                       cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                                       hostbuf=p)
+        for size in (1, 2, 4):
+            p = params.copy()
+            p["box_cells"] = size
+            self.prm[size] = cl.Buffer(self.device.context,
+                                       cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                                       hostbuf=p)
+        self.table = cla.empty(self.q, int(np.prod(bdims)), cl.cltypes.int2)
+        self.table.fill(cl.cltypes.make_int2(-99, 0))
+
+    def _classify(self, lv, parent=None):
+        cla, cl = self.cla, self.cl
+        lv.out = cla.empty(self.q, max(lv.n, 1), cl.cltypes.int4)
+        if parent is None:
+            self._run("build_classify", lv.n, self.prm[lv.size], self.sp, self.nodes,
+                      lv.origins.data, lv.out.data, np.int32(lv.n))
+        else:
+            self._run("build_classify_sub", lv.n, self.prm[lv.size], self.sp, parent.runs,
+                      parent.lists.data, lv.origins.data, lv.out.data, np.int32(lv.n))
+
+    def _keep(self, lv, inside):
+        """Compact the unclassified boxes (inside the grid, at brick levels)."""
+        cla = self.cla
+        lv.sel = cla.empty(self.q, max(lv.n, 1), np.int32)
+        count = cla.zeros(self.q, 1, np.int32)
+        if lv.n:
+            bd = [int(v) for v in self.bdims]
+            self.scans["keep"](lv.out, lv.origins, np.int32(lv.n), *map(np.int32, bd),
+                               np.int32(inside), lv.sel, count, size=self.padded(lv.n, self.device),
+                               queue=self.q)
+        lv.kept = int(count.get()[0])
+
+    def _fill(self, lv, parent=None):
+        cla, cl = self.cla, self.cl
+        lv.lists = cla.empty(self.q, max(lv.kept, 1), cl.cltypes.int4)
+        total = cla.zeros(self.q, 1, np.int64)
+        if lv.kept:
+            self.scans["lists"](lv.out, lv.sel, np.int32(lv.kept), lv.lists, total,
+                                size=self.padded(lv.kept, self.device), queue=self.q)
+        lv.total = int(total.get()[0])
+        if lv.total > self.max_runs:
+            raise TooLarge(f"over {self.max_runs} list runs")
+        if lv.size == B and lv.kept:
+            longest = int(self.scans["longest"](lv.out, lv.sel, range=slice(lv.kept),
+                                                queue=self.q).get())
+            if longest > MAX_LIST:
+                raise TooLarge(f"a brick's list holds {longest} runs")
+        lv.runs = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, 8 * max(lv.total, 1))
+        if parent is None:
+            self._run("build_fill", lv.kept, self.prm[lv.size], self.sp, self.nodes,
+                      self.none.data, self.none.data, lv.sel.data, lv.origins.data, lv.out.data,
+                      lv.lists.data, lv.runs, np.int32(lv.kept), np.int32(1))
+        else:
+            self._run("build_fill", lv.kept, self.prm[lv.size], self.sp, self.nodes,
+                      parent.runs, parent.lists.data, lv.sel.data, lv.origins.data,
+                      lv.out.data, lv.lists.data, lv.runs, np.int32(lv.kept), np.int32(0))
+
+    def _expand(self, lv):
+        cla, cl = self.cla, self.cl
+        n = 8 * lv.kept
+        nxt = _Level(lv.size // 2, cla.empty(self.q, max(n, 1), cl.cltypes.int4),
+                     cla.empty(self.q, max(n, 1), np.int32), n)
+        self._run("build_expand", n, lv.origins.data, lv.blk.data, lv.sel.data,
+                  np.int32(lv.kept), np.int32(lv.size // 2), nxt.origins.data, nxt.blk.data)
+        return nxt
+
+    def bricks(self):
+        """Classify every brick: boxes of 2^t bricks from the tree first (t: the smallest
+        with at most TOP_BOXES of them), then the octants of the unclassified ones from
+        their parents' lists, down to bricks. Returns the brick level (kept: the mixed
+        bricks, each given its block)."""
+        cla, cl = self.cla, self.cl
+        bdims = self.bdims
+        t = 0
+        while t < 4 and int(np.prod(-(-bdims // (1 << t)))) > TOP_BOXES:
+            t += 1
+        size = B << t
+        tdims = -(-bdims // (1 << t))
+        tz, ty, tx = np.meshgrid(*(np.arange(v) for v in tdims[::-1]), indexing="ij")
+        org = np.zeros((tx.size, 4), np.int32)
+        org[:, 0], org[:, 1], org[:, 2] = tx.ravel() * size, ty.ravel() * size, tz.ravel() * size
+        lv = _Level(size, cla.to_device(self.q, org.view(cl.cltypes.int4).ravel()),
+                    cla.zeros(self.q, len(org), np.int32), len(org))
+        parent = None
+        while True:
+            self._classify(lv, parent)
+            self._run("build_paint_bricks", lv.n, lv.origins.data, lv.out.data, np.int32(lv.n),
+                      np.int32(lv.size), self.bd4, self.table.data)
+            self._keep(lv, inside=True)
+            self._fill(lv, parent)
+            if lv.size == B:
+                self._run("build_mark_mixed", lv.kept, lv.origins.data, lv.sel.data,
+                          np.int32(lv.kept), self.bd4, self.table.data, lv.blk.data)
+                return lv
+            parent, lv = lv, self._expand(lv)
+
+    def cells(self, bricks):
+        """The octants of the mixed bricks, each from its parent's list, down to cells;
+        returns the last level (kept: the listed cells, in the order of their lists)."""
+        cla, cl = self.cla, self.cl
+        self.cells_table = cla.empty(self.q, max(bricks.kept * B3, 1), cl.cltypes.int2)
+        parent, lv = bricks, self._expand(bricks)
+        while True:
+            self._classify(lv, parent)
+            self._run("build_paint_cells", lv.n, lv.origins.data, lv.blk.data, lv.out.data,
+                      np.int32(lv.n), np.int32(lv.size), self.cells_table.data)
+            self._keep(lv, inside=False)
+            self._fill(lv, parent)
+            if lv.size == 1:
+                self._run("build_mark_listed", lv.kept, lv.origins.data, lv.blk.data,
+                          lv.sel.data, np.int32(lv.kept), self.cells_table.data)
+                return lv
+            parent, lv = lv, self._expand(lv)
+
+    def tables(self, last):
+        """Host copies of the brick table, the cell table and the lists; self.buffers keeps
+        the device ones for renders on this device."""
+        bricks = self.table.get().view(np.int32).reshape(-1, 2)
+        assert (bricks[:, 0] != -99).all(), "a brick was left unclassified"
+        n_cells = int(np.count_nonzero(bricks[:, 0] >= 0)) * B3
+        cells_ = self.cells_table.get().view(np.int32).reshape(-1, 2)[:n_cells]
+        lists = last.lists.get().view(np.int32).reshape(-1, 4)[:last.kept]
+        self.buffers = (self.table.data, self.cells_table.data, last.lists.data)
+        return bricks, cells_, lists
+
+    def kernel_ms(self):
+        self.q.finish()
+        return 1e-6 * sum(e.profile.end - e.profile.start for e in self.events)
+
+
+@functools.lru_cache(maxsize=None)
+def _scans(context):
+    """The build's pyopencl scans and reduction, built once per context: the compaction of
+    unclassified boxes (sel), the list offsets (lists, and the total of runs in int64),
+    and the longest brick list."""
+    from pyopencl.reduction import ReductionKernel
+    from pyopencl.scan import GenericScanKernel
+    keep = GenericScanKernel(
+        context, np.int32,
+        arguments="__global const int4 *out, __global const int4 *org, int n, int bx, int by, "
+                  "int bz, int inside, __global int *sel, __global int *count",
+        input_expr=f"(i < n && out[i].x == 0 && (!inside || (org[i].x / {B} < bx && "
+                   f"org[i].y / {B} < by && org[i].z / {B} < bz))) ? 1 : 0",
+        scan_expr="a + b", neutral="0",
+        output_statement="if (prev_item != item) sel[prev_item] = i; "
+                         "if (i == n - 1) count[0] = item;")
+    lists = GenericScanKernel(
+        context, np.int64,
+        arguments="__global const int4 *out, __global const int *sel, int n, "
+                  "__global int4 *lists, __global long *total",
+        input_expr="i < n ? (long)out[sel[i]].y + (long)out[sel[i]].z : 0",
+        scan_expr="a + b", neutral="0",
+        output_statement="if (i < n) { int4 o = out[sel[i]]; lists[i] = (int4)((int)prev_item, "
+                         "o.y, (int)(prev_item + o.y), o.z); } if (i == n - 1) total[0] = item;")
+    longest = ReductionKernel(context, np.int32, neutral="0", reduce_expr="max(a, b)",
+                              map_expr="out[sel[i]].y",
+                              arguments="__global const int4 *out, __global const int *sel")
+    return {"keep": keep, "lists": lists, "longest": longest}
 
 
 def _occupancy(c, edge):

@@ -223,9 +223,15 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
             or tree_on == "device" else None
         on_device = tree_on == "device" or (tree_on == "auto" and dev is not None and is_gpu(dev))
         t0 = time.perf_counter()
+        built = None
         if on_device:
-            order, start, count, blo, bhi, spheres, _ = tree_device.build(
-                dev, spheres[:, :3], spheres, depth)
+            try:
+                built = tree_device.build(dev, spheres[:, :3], spheres, depth)
+            except tree_device.Unsupported:          # pyopencl's scan at this size: numpy
+                if tree_on == "device":
+                    raise
+        if built is not None:
+            order, start, count, blo, bhi, spheres, _ = built
         else:
             tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0,
                                   keys=spheres[:, :3])
@@ -426,5 +432,7 @@ def kernel_arrays(packed: PackedSpheres, params, context=None):
     params["grid_nudge"] = 1e-3 * grid.cell
     params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
     same = context is not None and grid.runs_device.context.int_ptr == context.int_ptr
+    if same and grid.buffers:
+        return packed.spheres, [*grid.buffers, grid.runs_device]
     return packed.spheres, [grid.bricks, grid.cells, grid.lists,
                             grid.runs_device if same else grid.runs]

@@ -19,7 +19,7 @@ def _primitives(ctx_ptr, context):
     from pyopencl.algorithm import RadixSort
     from pyopencl.scan import GenericScanKernel
     sort = RadixSort(context, "uint *keys, int *ids", key_expr="keys[i]",
-                     sort_arg_names=["keys", "ids"], bits_at_a_time=4)
+                     sort_arg_names=["keys", "ids"], bits_at_a_time=2)
     # one axis' sorted list split stably into the children's: lefts keep their order at
     # the node's start, rights after its ceil(c/2) lefts (item: lefts so far in the node)
     split = GenericScanKernel(
@@ -35,6 +35,27 @@ def _primitives(ctx_ptr, context):
             int f = is_left[src[i]], lb = item - f;
             dst[s + (f ? lb : left + (i - s) - lb)] = src[i];""")
     return sort, split
+
+
+def scan_fits(scan, n: int, device) -> bool:
+    """Whether a pyopencl scan of n items passes its own check that the second level can
+    scan the first level's intervals (it asserts interval size >= interval count, which
+    fails for some n on devices with many compute units, e.g. the H200 at n = 10^5)."""
+    from pytools import uniform_interval_splitting
+    info = scan.first_level_scan_info
+    size, count = uniform_interval_splitting(n, info.wg_size * info.k_group_size,
+                                             3 * device.device.max_compute_units)
+    return size >= count
+
+
+def padded(n: int, device) -> int:
+    """A sort length >= n at which the scan's interval check holds: intervals are about
+    n / (3 compute units) long, at most 3 compute units of them."""
+    return max(n, (3 * device.device.max_compute_units) ** 2 + 1)
+
+
+class Unsupported(Exception):
+    """pyopencl's scan cannot run at this size on this device: build on the host."""
 
 
 def build(device, keys, spheres, depth: int):
@@ -55,14 +76,19 @@ def build(device, keys, spheres, depth: int):
     d_start = cla.to_device(queue, start.astype(np.int32))
     d_count = cla.to_device(queue, count.astype(np.int32))
     d_keys = cla.to_device(queue, np.ascontiguousarray(np.asarray(keys, np.float32).T))
+    if depth and not scan_fits(split, n, device):
+        raise Unsupported(f"pyopencl's scan of {n} items on {device.name}")
     g = (max(64, -(-n // 64) * 64),)
+    npad = padded(n, device)
     by = []
     for a in range(3):
-        key = cla.empty(queue, n, np.uint32)
-        idx = cla.empty(queue, n, np.int32)
+        # padded keys sort last (0xffffffff: no finite float32 maps there), after the
+        # points, so the first n indices are the points' order
+        key = cla.empty(queue, npad, np.uint32).fill(np.uint32(0xFFFFFFFF))
+        idx = cla.arange(queue, npad, dtype=np.int32)
         k["tree_keys"](queue, g, None, d_keys.data, np.int32(a), key.data, idx.data, np.int32(n))
         (_, sidx), _ = sort(key, idx, key_bits=32, queue=queue)
-        by.append(sidx)
+        by.append(sidx[:n].copy() if npad > n else sidx)
     node_of = cla.empty(queue, n, np.int32).fill(1)
     is_left = cla.empty(queue, n, np.uint8)
     order = cla.empty(queue, n, np.int32) if depth else cla.arange(queue, n, dtype=np.int32)
