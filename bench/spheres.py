@@ -109,7 +109,7 @@ def work_stats(counts, block=(8, 4)):
 
 def variant_name(v):
     return (f"{v['dispatch']}, {v['accel']}, {'lit' if v['lit'] else 'unlit'}"
-            + (", uber" if v.get("uber") else ""))
+            + (f", {v['model']}" if v.get("model") else "") + (", uber" if v.get("uber") else ""))
 
 
 def _compare(row, img, ref):
@@ -170,6 +170,9 @@ def main(argv=None):
     ap.add_argument("--no-sweep", action="store_true", help="only the scans")
     ap.add_argument("--cell-factor", type=float, default=None,
                     help="grid: cell edge = this times the median radius (default: automatic)")
+    ap.add_argument("--models", type=words, default=["full"],
+                    help="glass models, comma-separated: full (both Fresnel branches), fast "
+                         "(one refracted path) (default: full)")
     ap.add_argument("--tag", default=None, help="added to the results' name: spheres_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -195,7 +198,7 @@ def main(argv=None):
         cam = glass.default_camera(cloud, width, height)
         for lit in args.lit:
             ref = None
-            for disp in args.dispatch:
+            for disp, model in ((d, m) for d in args.dispatch for m in args.models):
                 for accel in args.accel:
                     if disp == "tiled" and accel not in tiled_accel:
                         continue
@@ -206,7 +209,7 @@ def main(argv=None):
                         cell = args.cell_factor * float(np.median(cloud.radii))
                     s = glass.GlassSettings(bounces=args.bounces, accel=accel, dispatch=disp,
                                             tile=args.tile, refraction=not args.opaque,
-                                            cell_size=cell)
+                                            cell_size=cell, glass_model=model)
                     t0 = time.perf_counter()
                     img, t = measure(cloud, cam, s, dev, args.repeat,
                                      [SUN] if lit == "lit" else [])
@@ -214,7 +217,7 @@ def main(argv=None):
                     if accel == "none" and per_render > args.brute_limit:
                         brute_ok[(disp, lit)] = False
                     row = {"n": n, "dispatch": disp, "accel": accel, "lit": lit == "lit",
-                           "opaque": args.opaque, **t}
+                           "opaque": args.opaque, "model": model, **t}
                     if ref is None:
                         ref = img
                         row["reference"] = True
@@ -250,14 +253,15 @@ def main(argv=None):
             opts = {**opts, "radius": settings0.radius, "blend": settings0.blend}
         cam = glass.default_camera(cloud, sw, sh, radius=opts["radius"])
         ref = None
-        for disp in args.dispatch:
+        for disp, model in ((d, m) for d in args.dispatch for m in args.models):
             for accel in args.accel:
                 if (disp == "tiled" and accel not in tiled_accel) or accel == "none":
                     continue
-                s = glass.GlassSettings(accel=accel, dispatch=disp, tile=args.tile, **opts)
+                s = glass.GlassSettings(accel=accel, dispatch=disp, tile=args.tile,
+                                        glass_model=model, **opts)
                 img, t = measure(cloud, cam, s, dev, args.repeat, [SCAN_SUN])
                 row = {"scan": name, "file": file, "points": len(cloud.centers), **opts,
-                       "dispatch": disp, "accel": accel, "lit": True, **t}
+                       "dispatch": disp, "accel": accel, "lit": True, "model": model, **t}
                 if ref is None:
                     ref = img
                     row["reference"] = True

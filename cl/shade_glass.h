@@ -175,15 +175,24 @@ inline float3 glass_highlights(const SdfScene* sc, __constant GlassParams* gp,
 #endif
 
 #if VR_FULL
+#ifndef VR_GLASS_STACK
 #define VR_GLASS_STACK 4      /* branches waiting to be traced */
-#define VR_GLASS_SPLITS 8     /* branches split off per camera path; then one is sampled */
+#endif
+#ifndef VR_GLASS_SPLITS
+#define VR_GLASS_SPLITS 8     /* branches split off per camera path; then merged */
+#endif
 
-/* A branch of a path waiting to be traced: where it starts, its weight, the glow tint of
-   the glass it is in, the length travelled before o, its surface events and side. */
+/* A branch of a path waiting to be traced: where it starts, its weight, the length
+   travelled before o, its surface events and side (events << 1 | inside), and with
+   per-point colours the glow tint of the glass it is in. Kept small: on GPUs the stack
+   lives in private memory. */
 typedef struct {
-    float3 o, d, thr, tint;
+    float3 o, d, thr;
     float path;
-    int events, inside;
+    int state;
+#if VR_COLORS
+    float3 tint;
+#endif
 } GlassBranch;
 
 inline float glass_max3(float3 v)
@@ -315,10 +324,23 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
                     } else {
 #if VR_FULL
                         /* the refracted and the reflected branch; go on with the larger */
-                        GlassBranch tb = { p - off * nf, td, thr * (1.0f - fr), inside ? tint : col,
-                                           path, events, !inside };
-                        GlassBranch rb = { p_out, refl, thr * (fr * gp->reflectivity), tint,
-                                           path, events, inside };
+                        GlassBranch tb, rb;
+                        tb.o = p - off * nf;
+                        tb.d = td;
+                        tb.thr = thr * (1.0f - fr);
+                        tb.path = path;
+                        tb.state = events << 1 | !inside;
+                        rb.o = p_out;
+                        rb.d = refl;
+                        rb.thr = thr * (fr * gp->reflectivity);
+                        rb.path = path;
+                        rb.state = events << 1 | inside;
+#if VR_COLORS
+                        tb.tint = inside ? tint : col;
+                        rb.tint = tint;
+#else
+                        (void)col;
+#endif
                         int keep_t = glass_max3(tb.thr) >= glass_max3(rb.thr);
                         GlassBranch go = keep_t ? tb : rb, other = keep_t ? rb : tb;
                         float w = glass_max3(other.thr);
@@ -340,8 +362,10 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
                         o = go.o;
                         d = go.d;
                         thr = go.thr;
+                        inside = go.state & 1;
+#if VR_COLORS
                         tint = go.tint;
-                        inside = go.inside;
+#endif
 #else
                         thr *= 1.0f - fr;
                         d = td;
@@ -388,10 +412,12 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
             o = b.o;
             d = b.d;
             thr = b.thr;
-            tint = b.tint;
             path = b.path;
-            events = b.events;
-            inside = b.inside;
+            events = b.state >> 1;
+            inside = b.state & 1;
+#if VR_COLORS
+            tint = b.tint;
+#endif
             continue;
 #else
             break;

@@ -101,10 +101,13 @@ def test_reflections_see_other_glass(cl_device):
     only = (alone[..., 3] == 1) & (both[..., 3] == 1)     # the left sphere's pixels
     darker = alone[..., 0] - both[..., 0]
     assert only.sum() > 50 and darker[only].max() > 0.05 and darker[only].min() > -1e-3
+    # the fast model's reflections see only the sky: the same pixels with or without the
+    # other sphere, up to the hit points' movement within the hit band (the clip box and
+    # so the hit threshold's cap differ between the two scenes; 1.5e-6 on the H200)
     fast = dataclasses.replace(s, glass_model="fast")
     np.testing.assert_allclose(ours(cl_device, TWO, fast, cam)[only],
                                ours(cl_device, ([TWO[0][0]], [TWO[1][0]]), fast, cam)[only],
-                               atol=1e-6)
+                               atol=1e-4)
 
 
 def test_shadow_rays_transmit_through_glass(cl_device):

@@ -244,10 +244,13 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     pad = PAD * (extent + blend)
     max_runs = min(MAX_ITEMS if max_runs is None else int(max_runs),
                    int(device.device.max_mem_alloc_size) // 8)
-    if max_cells is not None:
-        cell = _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells)
+    centres = np.asarray(spheres[:, :3], np.float64) - lo
+    from .dispatch import is_gpu
+    if max_cells is not None and not is_gpu(device):
+        # an estimate first where a brick pass is dear (CPUs); GPUs measure the brick pass
+        cell = _fit_budget(centres, spheres, blend, cell, max_cells)
     cell = grid_shape(box_lo, box_hi, cell)[0]
-    crowd = int(_occupancy(np.asarray(spheres[:, :3], np.float64) - lo, B * cell).max())
+    crowd = int(_occupancy(centres, B * cell).max())
     if crowd > MAX_BRICK_SPHERES:
         raise TooLarge(f"{crowd} sphere centres in one brick")
     b = _Builder(device, spheres, nodes, first_leaf, max_runs)
@@ -510,21 +513,23 @@ def _occupancy(c, edge):
     return np.unique(key, return_counts=True)[1]
 
 
-def estimate_cells(spheres, blend, box_lo, cell) -> int:
+def estimate_cells(spheres, blend, box_lo, cell, centres=None) -> int:
     """Cells in the bricks the surface passes through at edge `cell`, estimated before
     anything is classified: the bricks holding a sphere centre, with their neighbours
-    within the blend and the largest radius (bench/edge.py measures its error)."""
-    c = np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
+    within the blend and the largest radius (bench/edge.py measures its error). centres:
+    float64 sphere centres relative to box_lo, when the caller has them."""
+    c = centres if centres is not None else \
+        np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
     r = float(np.max(spheres[:, 3])) if len(spheres) else 0.0
     edge = B * max(cell, 1e-30)
     grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
     return int(len(_occupancy(c, edge)) * min(grow, 3.0) ** 2 * B3)
 
 
-def _fit_budget(spheres, blend, box_lo, box_hi, cell, max_cells):
+def _fit_budget(centres, spheres, blend, cell, max_cells):
     """The cell edge, grown until estimate_cells is at most max_cells."""
     for _ in range(60):
-        if estimate_cells(spheres, blend, box_lo, cell) <= max_cells:
+        if estimate_cells(spheres, blend, None, cell, centres) <= max_cells:
             return cell
         cell *= 1.25
     return cell
