@@ -1,14 +1,13 @@
-"""Acceleration build time against sphere count: the partition tree (numpy, on the host)
-and the support cells (cl/build_cells.cl on the device, driven level by level from the
-host), with the cells' time split into the build's kernels (profiling events) and the
-rest (host numpy, transfers, launch overhead).
+"""Acceleration build time against sphere count: the partition tree (on the device on
+GPUs, tree_device.py; numpy on CPUs) and the support cells (cl/build_cells.cl, everything
+between levels on the device), with the cells' time split into the build's kernels
+(profiling events) and the rest (host work, transfers, launch overhead).
 
     .venv/bin/python bench/build.py [--device SPEC] [--counts 1000,...] [--size 1920x1080]
         [--repeat 3] [--tag TAG]
 
---size sets the pixel samples that choose the automatic cell edge (cells.cell_budget), and
-the eye (which sets the skip threshold) is the default camera's, as a render of that
-size would have them. Writes bench/results/build_<device>[-TAG].json and .png.
+--size sets the pixel samples that choose the automatic cell edge (cells.choose_edge on
+CPUs; GPUs grow it to cells.GPU_CELLS), as a render of that size would have them. Writes bench/results/build_<device>[-TAG].json and .png.
 """
 from __future__ import annotations
 

@@ -530,7 +530,8 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     monkeypatch.setattr(tree_mod, "build", spy)
     cloud = PointCloud(c, np.full(n, 0.3))
     cam = Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.5), (0.0, 1.0, 0.0), 20.0, 3, 3)
-    r = render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32),
+    r = render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32,
+                                                         accel="grid"),
                             cl_device)
     img = r["rgba"]
     assert r["accel"] == "tree" and "centres in one brick" in r["note"]   # cells give way

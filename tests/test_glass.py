@@ -39,7 +39,7 @@ def _samples(rng, cloud, n=400):
 
 # ------------------------------------------------------------------ field vs oracle
 
-@pytest.mark.parametrize("accel", glass.ACCELS)
+@pytest.mark.parametrize("accel", ("grid", "tree", "none"))
 @pytest.mark.parametrize("k", [0.0, 0.05, 0.15, 2.0])
 def test_field_matches_oracle(cl_device, rng, accel, k):
     """Every acceleration gives the brute-force field; cells listed everywhere (no
@@ -151,7 +151,7 @@ def test_trace_finds_the_first_crossing(cl_device, rng, relax, side, accel):
     np.testing.assert_allclose(t[hit], ref[hit], atol=2e-3)
 
 
-@pytest.mark.parametrize("accel", glass.ACCELS)
+@pytest.mark.parametrize("accel", ("grid", "tree", "none"))
 @pytest.mark.parametrize("margin", [1e-3, 0.1, 0.5])
 def test_relaxed_step_past_the_march_end_is_retried(cl_device, accel, margin):
     """From a sphere's centre outwards the first relaxed step (1.6 r) ends past a march end
@@ -178,7 +178,7 @@ def test_relaxed_step_past_the_march_end_is_retried(cl_device, accel, margin):
     np.testing.assert_allclose(t, t_ref, atol=1e-4)
 
 
-@pytest.mark.parametrize("accel", glass.ACCELS)
+@pytest.mark.parametrize("accel", ("grid", "tree", "none"))
 @pytest.mark.parametrize("blend", [0.0, 0.05])
 def test_relaxed_tracing_gives_the_plain_image(cl_device, accel, blend):
     """One glass sphere at blend 0 (and 0.05 r): over-relaxed tracing renders what plain
@@ -249,7 +249,7 @@ def test_single_sphere_hit_and_normal(cl_device, rng):
     b = np.einsum("ij,ij->i", d, oc)
     t_ref = -b - np.sqrt(b * b - (np.einsum("ij,ij->i", oc, oc) - r * r))
     n_ref = (o + t_ref[:, None] * d - c) / r
-    for accel in glass.ACCELS:
+    for accel in ("grid", "tree", "none"):
         t, n = Probe(cl_device, cloud, glass.GlassSettings(blend=0.0, epsilon=1e-5,
                                                             accel=accel)).trace(o, d)
         np.testing.assert_allclose(t, t_ref, atol=1e-4)

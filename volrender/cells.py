@@ -38,13 +38,16 @@ MAX_BRICK_SPHERES = 1 << 16   # sphere centres in one brick; beyond (coincident 
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
 J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
-# automatic cell edge: at most this many cells in the bricks the surface passes through
-# (build's max_cells, cell_budget): on CPUs 32 per pixel sample within [2^18, 2^24] (a
-# cell's build costs about what a few pixels do on PoCL), CPU_CELLS without a sample count
-CPU_CELLS = 1 << 20
-CPU_CELLS_PER_SAMPLE = 32
-CPU_CELLS_MIN = 1 << 18
+# The automatic cell edge. GPUs: the base edge, grown until the bricks the surface passes
+# through hold at most GPU_CELLS cells (the build is a small part of a frame there). CPUs:
+# the finest of EDGE_FACTORS x the base edge whose estimated cells (estimate_cells) are at
+# most CPU_CELLS_PER_SAMPLE per pixel sample of the job, else the tree walk: the rule
+# bench/edge.py fits on PoCL (whole time x1.10 of the best choice, worst x1.56, over 8
+# clouds and 80x60 to 1920x1080; docs/benchmarks.md).
 GPU_CELLS = 1 << 24
+CPU_CELLS_PER_SAMPLE = 2
+EDGE_FACTORS = (1.0, 1.5, 2.0, 3.0, 4.0)
+DEFAULT_SAMPLES = 640 * 480       # a job without a sample count (volrender tree --cells)
 
 
 class TooLarge(Exception):
@@ -173,17 +176,16 @@ def auto_cell_size(radii, blend) -> float:
     return CELL_FACTOR * (r + 0.5 * float(blend))
 
 
-def cell_budget(device, samples=None) -> int:
-    """Most cells the automatic cell edge lets the surface's bricks hold. GPUs: GPU_CELLS
-    (the build is a small part of a frame). CPUs, where building a cell costs about what a
-    few pixels do: CPU_CELLS_PER_SAMPLE per pixel sample (pixels x spp), within
-    [CPU_CELLS_MIN, GPU_CELLS]; CPU_CELLS without a sample count."""
-    from .dispatch import is_gpu
-    if is_gpu(device):
-        return GPU_CELLS
-    if samples is None:
-        return CPU_CELLS
-    return int(min(max(CPU_CELLS_PER_SAMPLE * samples, CPU_CELLS_MIN), GPU_CELLS))
+def choose_edge(spheres, blend, box_lo, base, samples) -> float | None:
+    """The CPU rule (see EDGE_FACTORS): the finest factor x base whose estimated cells are
+    at most CPU_CELLS_PER_SAMPLE x samples, or None (the tree walk: support cells would
+    not repay their build on a job this small)."""
+    samples = DEFAULT_SAMPLES if samples is None else samples
+    centres = np.asarray(spheres[:, :3], np.float64) - np.asarray(box_lo, np.float64)
+    for m in EDGE_FACTORS:
+        if estimate_cells(spheres, blend, None, m * base, centres) <= CPU_CELLS_PER_SAMPLE * samples:
+            return m * base
+    return None
 
 
 def grid_shape(box_lo, box_hi, cell):
@@ -233,8 +235,7 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     classify=False lists every cell (tests). max_runs: most list runs (default MAX_ITEMS,
     and what the device's largest buffer holds); beyond, TooLarge.
     max_cells: when the bricks the surface passes through hold more cells than this, the
-    cell edge grows (first from an estimate by occupied bricks, then by (cells /
-    max_cells)^0.5 with the brick pass redone) until they fit.
+    cell edge grows by (cells / max_cells)^0.5, the brick pass redone, until they fit.
     Everything between the levels stays on the device (_Builder): a level reads back its
     count of unclassified boxes and its total of list runs, nothing else."""
     t0 = time.perf_counter()
@@ -244,13 +245,8 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     pad = PAD * (extent + blend)
     max_runs = min(MAX_ITEMS if max_runs is None else int(max_runs),
                    int(device.device.max_mem_alloc_size) // 8)
-    centres = np.asarray(spheres[:, :3], np.float64) - lo
-    from .dispatch import is_gpu
-    if max_cells is not None and not is_gpu(device):
-        # an estimate first where a brick pass is dear (CPUs); GPUs measure the brick pass
-        cell = _fit_budget(centres, spheres, blend, cell, max_cells)
     cell = grid_shape(box_lo, box_hi, cell)[0]
-    crowd = int(_occupancy(centres, B * cell).max())
+    crowd = int(_occupancy(np.asarray(spheres[:, :3]) - lo, B * cell).max())
     if crowd > MAX_BRICK_SPHERES:
         raise TooLarge(f"{crowd} sphere centres in one brick")
     b = _Builder(device, spheres, nodes, first_leaf, max_runs)
@@ -524,15 +520,6 @@ def estimate_cells(spheres, blend, box_lo, cell, centres=None) -> int:
     edge = B * max(cell, 1e-30)
     grow = 1.0 + 2.0 * (blend + r) / edge                      # neighbours, per axis
     return int(len(_occupancy(c, edge)) * min(grow, 3.0) ** 2 * B3)
-
-
-def _fit_budget(centres, spheres, blend, cell, max_cells):
-    """The cell edge, grown until estimate_cells is at most max_cells."""
-    for _ in range(60):
-        if estimate_cells(spheres, blend, None, cell, centres) <= max_cells:
-            return cell
-        cell *= 1.25
-    return cell
 
 
 def _block_cell(q, block_of, bdims):

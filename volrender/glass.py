@@ -31,7 +31,7 @@ NV_MAX_REGISTERS = 40         # per work-item, the glass kernel on NVIDIA (build
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
 SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
 SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
-ACCELS = ("grid", "tree", "none")
+ACCELS = ("auto", "grid", "tree", "none")
 GLASS_MODELS = ("full", "fast")
 
 
@@ -52,11 +52,12 @@ class GlassSettings(CommonSettings):
                                toml=("render", "blend"), kind=NUM, show_default=False)
     leaf_size: int = knob(16, "points per tree leaf", check=in_range(1, 1 << 20, integer=True),
                           toml=("render", "leaf_size"))
-    accel: str = knob("grid", "how the field finds the spheres near a point: grid = support "
+    accel: str = knob("auto", "how the field finds the spheres near a point: grid = support "
                       "cells (each lists the spheres that can matter in it; rays skip cells away "
                       "from the surface), tree = walk the partition tree, none = brute force "
-                      "over all spheres (the reference)", check=one_of(ACCELS), choices=ACCELS,
-                      toml=("render", "accel"))
+                      "over all spheres (the reference), auto = grid, or on CPUs the tree walk "
+                      "for jobs too small to repay the cells' build (cells.choose_edge)",
+                      check=one_of(ACCELS), choices=ACCELS, toml=("render", "accel"))
     use_tree: bool = knob(True, "brute force over all spheres, the reference (= --accel none)",
                           check=boolean, flag="--no-tree", toml=("render", "tree"))
     cell_size: float | None = knob(None, "support-cell edge, world units (default: (median "
@@ -167,8 +168,10 @@ def sphere_radii(cloud, settings: GlassSettings) -> np.ndarray:
 
 
 def sphere_bounds(cloud, radii):
-    """(lo, hi) float64 of centre +- radius over all points."""
+    """(lo, hi) float64 of centre +- radius over all points; radii (N,) or one radius."""
     c = np.asarray(cloud.centers, np.float64)
+    if np.ndim(radii) == 0:
+        return c.min(axis=0) - float(radii), c.max(axis=0) + float(radii)
     return (c - radii[:, None]).min(axis=0), (c + radii[:, None]).max(axis=0)
 
 
@@ -176,6 +179,8 @@ def blend_width(radii, settings: GlassSettings) -> float:
     """The smooth-union width k: settings.blend, else twice the median radius."""
     if settings.blend is not None:
         return float(settings.blend)
+    if settings.radius is not None:
+        return 2.0 * float(settings.radius)
     return 2.0 * float(np.median(radii)) if len(radii) else 0.0
 
 
@@ -191,7 +196,8 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
     """Spheres, tree and support cells in the render frame, for every camera. The tree is
     built for accel tree and grid (it builds the cells); device: where the cells are built
     (default: the default device); samples (pixels x spp) sets the automatic cell edge's
-    budget (cells.cell_budget); max_runs caps the cells' list runs (cells.build). tree_on:
+    and the choice of the tree walk on CPUs (cells.choose_edge); max_runs caps the cells'
+    list runs (cells.build). tree_on:
     "device" (tree_device.py), "host" (tree.py's numpy build: the same tree) or "auto",
     the device on GPUs and the host on CPUs, where numpy measured faster (bench build)."""
     centers = np.asarray(cloud.centers, np.float64)
@@ -206,7 +212,7 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
         centre, lo, hi = np.zeros(3), np.full(3, np.inf), np.full(3, -np.inf)
         return PackedSpheres(centre, np.zeros((0, 4), np.float32), nodes, 1,
                              lo.astype(np.float32), hi.astype(np.float32), k, 1.0, 0.0)
-    lo, hi = sphere_bounds(cloud, radii)
+    lo, hi = sphere_bounds(cloud, radii if settings.radius is None else settings.radius)
     centre = 0.5 * (lo + hi)
     order = np.arange(n)
     # float32 render-frame centres: what the kernels read, and the keys the tree splits on
@@ -214,12 +220,12 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
     spheres[:, :3] = centers - centre
     spheres[:, 3] = radii
     accel = settings.accel
-    if accel in ("tree", "grid"):
+    if accel in ("tree", "grid", "auto"):
         depth = tree_mod.tree_depth(n, int(settings.leaf_size))
         if depth > MAX_TREE_DEPTH:
             raise UserError(f"tree depth {depth} exceeds {MAX_TREE_DEPTH}",
                             fix="raise the leaf size (--leaf-size, or [render].leaf_size)")
-        dev = device_mod.resolve(device) if device is not None or accel == "grid" \
+        dev = device_mod.resolve(device) if device is not None or accel != "tree" \
             or tree_on == "device" else None
         on_device = tree_on == "device" or (tree_on == "auto" and dev is not None and is_gpu(dev))
         t0 = time.perf_counter()
@@ -268,11 +274,10 @@ def pack_scene(cloud, settings: GlassSettings, device=None, samples=None,
     box_hi = _outward(hi - centre + bulge, False)
     hit_len = cells_mod.hit_length(scale, box_lo, box_hi, settings.bounces)
     grid, note = None, ""
-    if accel == "grid":
+    if accel in ("grid", "auto"):
         grid, note = _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale,
                                   settings, device, samples, max_runs)
-        if grid is None:
-            accel = "tree"
+        accel = "grid" if grid is not None else "tree"
     return PackedSpheres(centre, spheres, nodes, first_leaf, box_lo, box_hi, k, scale, tree_ms,
                          colors, margin, accel, grid, note, hit_len)
 
@@ -281,8 +286,19 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
                  device, samples=None, max_runs=None):
     """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
     device = device_mod.resolve(device)
-    cell = settings.cell_size or cells_mod.auto_cell_size(radii, k)
-    budget = None if settings.cell_size else cells_mod.cell_budget(device, samples)
+    cell = settings.cell_size or cells_mod.auto_cell_size(
+        radii if settings.radius is None else np.full(1, settings.radius), k)
+    budget = None
+    if not settings.cell_size:
+        if is_gpu(device):
+            budget = cells_mod.GPU_CELLS
+        else:
+            chosen = cells_mod.choose_edge(spheres, k, box_lo, cell, samples)
+            if chosen is None and settings.accel == "auto":
+                return None, (f"a job of {samples or cells_mod.DEFAULT_SAMPLES} pixel samples is "
+                              "too small for support cells to repay their build on this CPU: "
+                              "using the tree walk (--accel grid forces cells)")
+            cell = chosen or cell * cells_mod.EDGE_FACTORS[-1]
     tau = cells_mod.threshold(settings.epsilon, settings.bounces, scale, box_lo, box_hi, k,
                               len(spheres))
     # the total of the lists falls about as 1/edge (cells near the surface as 1/edge^2,
