@@ -1,7 +1,7 @@
 """Frame sequences on Dask: frames per second against the number of workers.
 
     volrender bench sequence [--file smoke] [--frames 48] [--size 640x480]
-        [--workers 1,2] [--chunk K] [--device SPEC] [--format exr] [--tag TAG]
+        [--workers 1,2] [--chunk K] [--device SPEC] [--format exr] [--points N] [--tag TAG]
 
 Makes a sequence of --frames .npz frames from one real volume (the file's bricks with a
 transform that drifts a little per frame, so every frame is a separate file to load),
@@ -11,7 +11,9 @@ the timed run renders every frame. On a host with several GPUs each worker gets 
 GPU (sequence.device_per_worker); with one device all workers share it. Records frames
 per second, the speed-up over 1 worker (target: >= 0.9 N with a device per worker), the
 spread of per-frame times, and where a frame's time goes (load, setup and upload,
-kernel, write), in bench/results/sequence_<device>.json.
+kernel, write), in bench/results/sequence_<device>.json. --points N: a sequence of
+N-sphere point clouds instead (each frame builds its own acceleration: the record splits
+the build out); --workers 0: in this process, without Dask.
 """
 from __future__ import annotations
 
@@ -44,6 +46,34 @@ def make_frames(src: Path, n: int, folder: Path) -> Path:
     return folder / "frame_####.npz"
 
 
+def make_point_frames(n_points: int, n: int, folder: Path) -> Path:
+    """n .npy frames of a blob of n_points spheres (centre, radius) moving across: every
+    frame its own cloud, so every frame builds its acceleration."""
+    from volrender import points
+    base = points.blob(n_points, seed=1)
+    arr = np.column_stack([base.centers, base.radii]).astype(np.float32)
+    for f in range(1, n + 1):
+        arr[:, 0] += 0.02
+        np.save(folder / f"frame_{f:04d}.npy", arr)
+    return folder / "frame_####.npy"
+
+
+def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt):
+    """The sequence in this process (workers=0): no Dask, one device."""
+    import os
+    if dev_spec:
+        os.environ["VOLRENDER_DEVICE"] = dev_spec
+    frame1 = sequence.parse_pattern(str(pattern)).path(1)
+    cam = sequence.sequence_camera({1: frame1}, {**opts, "size": size})[0]
+    kw = {**opts, "size": size, **sequence.camera_overrides(cam)}
+    sequence.render_chunk([(1, frame1, out / f"warm.{fmt}")], kw, {})       # programs
+    r = sequence.render_sequence(str(pattern), str(out / f"f_####.{fmt}"), f"1-{n_frames}",
+                                 workers=0, size=size, **opts)
+    res = summarise(r.records, r.wall_s)
+    res.update(workers=0, cluster_start_s=0.0, gpus=[], chunk=None)
+    return res
+
+
 def summarise(records, wall_s) -> dict:
     ok = [r for r in records if r["status"] == "ok"]
     secs = sorted(r["seconds"] for r in ok)
@@ -53,12 +83,13 @@ def summarise(records, wall_s) -> dict:
     return {"frames": len(ok), "failed": len(records) - len(ok), "wall_s": wall_s,
             "fps": len(ok) / wall_s if wall_s > 0 else 0.0,
             "frame_s": {"min": secs[0], "median": statistics.median(secs), "max": secs[-1]} if secs else {},
-            "mean_s": {k: mean(f"{k}_s") for k in ("load", "setup", "kernel", "render", "write")},
+            "mean_s": {k: mean(f"{k}_s") for k in ("load", "build", "setup", "kernel", "render",
+                                                   "write")},
             "workers_used": sorted({r.get("worker") for r in ok}),
             "devices": sorted({r.get("device") for r in ok})}
 
 
-def run(pattern, n_frames, out, n_workers, size, density, chunk, dev_spec, fmt):
+def run(pattern, n_frames, out, n_workers, size, opts, chunk, dev_spec, fmt):
     from distributed import Client, LocalCluster
     import logging
     import os
@@ -76,7 +107,7 @@ def run(pattern, n_frames, out, n_workers, size, density, chunk, dev_spec, fmt):
         if gpus:
             client.register_plugin(sequence.device_per_worker(gpus))
         start_s = time.perf_counter() - t_start
-        opts = dict(size=size, density_scale=density)
+        opts = dict(size=size, **opts)
         warm = out / "warm"
         warm.mkdir(exist_ok=True)
         # one untimed frame per worker: each builds its programs
@@ -109,37 +140,50 @@ def main(argv=None):
                     help="one OpenCL device for every worker (default: a GPU per worker, else PoCL)")
     ap.add_argument("--format", default="exr", choices=["exr", "npy", "png"],
                     help="output format; writing is part of a frame's time (default: exr)")
+    ap.add_argument("--points", type=int, default=0, metavar="N",
+                    help="a point-cloud sequence of N-sphere blobs instead of a volume")
     ap.add_argument("--tag", default=None, help="added to the results' name: sequence_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
-    src = Path(args.file) if Path(args.file).suffix else find_volume(args.file)
-    if src is None or not src.is_file():
-        sys.exit(f"bench/sequence.py: {missing_data(args.file)}")
+    src = None
+    if not args.points:
+        src = Path(args.file) if Path(args.file).suffix else find_volume(args.file)
+        if src is None or not src.is_file():
+            sys.exit(f"bench/sequence.py: {missing_data(args.file)}")
     dev = device.get(args.device or (sequence.gpu_specs() or [None])[0])
     counts = [int(v) for v in args.workers.split(",") if v]
     density = DENSITY.get(Path(args.file).stem, 1.0)
+    opts = {} if args.points else {"density_scale": density}
     folder = Path(tempfile.mkdtemp(prefix="volrender-seq-", dir=CONVERTED if CONVERTED.is_dir() else None))
     rows = []
     try:
         t0 = time.perf_counter()
-        pattern = make_frames(src, args.frames, folder)
-        print(f"made {args.frames} frames of {src.name} in {time.perf_counter() - t0:.1f} s", flush=True)
+        pattern = make_point_frames(args.points, args.frames, folder) if args.points else \
+            make_frames(src, args.frames, folder)
+        what = f"{args.points}-sphere clouds" if args.points else src.name
+        print(f"made {args.frames} frames of {what} in {time.perf_counter() - t0:.1f} s", flush=True)
         for n in counts:
             out = folder / f"out{n}"
             out.mkdir()
-            row = run(pattern, args.frames, out, n, (width, height), density, args.chunk,
-                      args.device, args.format)
+            if n == 0:
+                row = run_serial(pattern, args.frames, out, (width, height), opts, args.device,
+                                 args.format)
+            else:
+                row = run(pattern, args.frames, out, n, (width, height), opts, args.chunk,
+                          args.device, args.format)
             rows.append(row)
             row["speedup"] = row["fps"] / rows[0]["fps"] if rows[0]["fps"] else 0.0
             m = row["mean_s"]
             print(f"{n} workers: {row['fps']:.2f} frames/s (x{row['speedup']:.2f} of {counts[0]}), "
                   f"frame {row['frame_s'].get('median', 0):.3f} s median "
-                  f"[load {m['load']:.3f}, setup+upload {m['setup']:.3f}, kernel {m['kernel']:.3f}, "
-                  f"write {m['write']:.3f}], cluster start {row['cluster_start_s']:.1f} s", flush=True)
+                  f"[load {m['load']:.3f}, build {m['build']:.3f}, setup+upload {m['setup']:.3f}, "
+                  f"kernel {m['kernel']:.3f}, write {m['write']:.3f}], cluster start "
+                  f"{row['cluster_start_s']:.1f} s", flush=True)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     path = result_path("sequence", dev, args.tag)
-    write_json(path, {"benchmark": "sequence", **device_info(dev), "file": str(src),
+    write_json(path, {"benchmark": "sequence", **device_info(dev),
+                      "file": str(src) if src else f"blob:{args.points} frames",
                       "frames": args.frames, "size": [width, height], "format": args.format,
                       "density_scale": density, "rows": rows})
     print(f"wrote {path}")
