@@ -257,11 +257,13 @@ def render_overrides(args) -> dict:
     return {k: getattr(args, k) for k in RENDER_DEST if getattr(args, k, None) is not None}
 
 
-def describe(scene) -> str:
+def describe(scene, img=None) -> str:
+    """The status line's summary; with the image, the acceleration the render used."""
     s = scene.settings
     if scene.kind == "volume":
         return f"{s.spp} spp"
-    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {s.accel}"
+    accel = img.info.get("accel", s.accel) if img is not None else s.accel
+    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {accel}"
 
 
 def look_problems(img, scene) -> list[str]:
@@ -365,12 +367,14 @@ def cmd_render(args):
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
+        if img.info.get("note"):
+            print(f"volrender: {img.info['note']}", file=sys.stderr)
         print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
               file=sys.stderr)
     if args.camera_out:
         from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)
-    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene)}) in {img.wall_ms / 1e3:.2f} s "
+    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.wall_ms / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
 

@@ -1,0 +1,78 @@
+"""The whole command a user waits for: `volrender render ...` run as a process (start-up,
+load, build, render, write), default against alternatives, interleaved runs.
+
+    .venv/bin/python bench/whole.py [--repeat 2] [--tag TAG] [--case NAME ...]
+
+Wall time and the process's CPU time (user + sys of the child: on a shared machine it
+moves far less with the load than wall time). Writes bench/results/whole_<device>.json.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bench.common import device_info, result_path, shared_data, write_json  # noqa: E402
+
+BUNNY = str(shared_data() / "points" / "bun_zipper.ply")
+CASES = {
+    # the glass issue's targets on PoCL (issue 20)
+    "bunny-look-good-320x240": [BUNNY, "--radius", "0.002", "--blend", "0.004", "--size", "320x240"],
+    "blob100k-preview-160x120": ["blob:100000", "--size", "160x120"],
+}
+VARIANTS = {"default": [], "tree": ["--accel", "tree"], "grid": ["--accel", "grid"],
+            "fast": ["--glass-model", "fast"], "fast-tree": ["--glass-model", "fast", "--accel", "tree"]}
+
+
+def timed(argv, device):
+    exe = Path(sys.executable).parent / "volrender"
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    env = {**os.environ, **({"VOLRENDER_DEVICE": device} if device else {})}
+    proc = subprocess.run([str(exe), "render", *argv], capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if proc.returncode:
+        raise SystemExit(f"{' '.join(argv)}: {proc.stderr.strip()}")
+    return wall, cpu, proc.stderr.strip().splitlines()[-1]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--case", action="append", default=None, choices=list(CASES))
+    ap.add_argument("--variants", default="default,tree,fast,fast-tree")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--tag", default=None)
+    args = ap.parse_args(argv)
+    from volrender import device
+    dev = device.get(args.device)
+    rows = []
+    out = Path(tempfile.mkdtemp()) / "o.png"
+    for case in args.case or list(CASES):
+        runs = {v: [] for v in args.variants.split(",")}
+        for _ in range(args.repeat):
+            for v in runs:
+                runs[v].append(timed([*CASES[case], *VARIANTS[v], "-o", str(out)], args.device))
+        for v, rs in runs.items():
+            row = {"case": case, "variant": v, "argv": [*CASES[case], *VARIANTS[v]],
+                   "wall_s": min(r[0] for r in rs), "cpu_s": min(r[1] for r in rs),
+                   "status": rs[-1][2]}
+            rows.append(row)
+            print(f"{case:26s} {v:10s} wall {row['wall_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  "
+                  f"{row['status'][:90]}", flush=True)
+    path = write_json(result_path("whole", dev, args.tag), {"benchmark": "whole", **device_info(dev),
+                                                             "repeat": args.repeat, "rows": rows})
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
