@@ -140,6 +140,9 @@ def main(argv=None):
                     help="one OpenCL device for every worker (default: a GPU per worker, else PoCL)")
     ap.add_argument("--format", default="exr", choices=["exr", "npy", "png"],
                     help="output format; writing is part of a frame's time (default: exr)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a render option for every frame (load_scene's keyword), e.g. "
+                         "glass_model=fast; repeatable")
     ap.add_argument("--points", type=int, default=0, metavar="N",
                     help="a point-cloud sequence of N-sphere blobs instead of a volume")
     ap.add_argument("--tag", default=None, help="added to the results' name: sequence_<device>-<tag>.json")
@@ -154,6 +157,14 @@ def main(argv=None):
     counts = [int(v) for v in args.workers.split(",") if v]
     density = DENSITY.get(Path(args.file).stem, 1.0)
     opts = {} if args.points else {"density_scale": density}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        try:
+            value = float(value) if "." in value or value.isdigit() else value
+        except ValueError:
+            pass
+        opts[key] = int(value) if isinstance(value, float) and value.is_integer() and \
+            "." not in item.partition("=")[2] else value
     folder = Path(tempfile.mkdtemp(prefix="volrender-seq-", dir=CONVERTED if CONVERTED.is_dir() else None))
     rows = []
     try:
@@ -185,6 +196,7 @@ def main(argv=None):
     write_json(path, {"benchmark": "sequence", **device_info(dev),
                       "file": str(src) if src else f"blob:{args.points} frames",
                       "frames": args.frames, "size": [width, height], "format": args.format,
+                      "options": opts,
                       "density_scale": density, "rows": rows})
     print(f"wrote {path}")
     return 0
