@@ -117,11 +117,13 @@ def fit(rows, cpu=True, kappas=(0.5, 1, 2, 3, 4, 6, 8, 12, 16, 24, 32),
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench edge", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--size", default="160x120")
-    ap.add_argument("--factors", default="1,1.5,2,3,4,6")
-    ap.add_argument("--clouds", default="blob:3000,blob:30000,blob:100000,gather:3000,bunny")
-    ap.add_argument("--tag", default=None)
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--size", default="160x120", help="image size WxH (default: 160x120)")
+    ap.add_argument("--factors", default="1,1.5,2,3,4,6",
+                    help="cell edges as multiples of the base edge, comma-separated")
+    ap.add_argument("--clouds", default="blob:3000,blob:30000,blob:100000,gather:3000,bunny",
+                    help="GENERATOR:COUNT (gather = glass_gather) or a scan (bunny, frag)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: edge_<device>-<tag>.json")
     ap.add_argument("--fit", default=None, metavar="EDGE.json",
                     help="fit the rule to an earlier run's rows and write it into that file")
     args = ap.parse_args(argv)

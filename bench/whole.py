@@ -46,12 +46,15 @@ def timed(argv, device):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--case", action="append", default=None, choices=list(CASES))
-    ap.add_argument("--variants", default="default,tree,fast,fast-tree")
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--tag", default=None)
+    ap = argparse.ArgumentParser(prog="volrender bench whole", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=2, help="runs of each command (default: 2; the fastest counts)")
+    ap.add_argument("--case", action="append", default=None, choices=list(CASES),
+                    help="a case to run (repeatable; default: all)")
+    ap.add_argument("--variants", default="default,tree,fast,fast-tree",
+                    help=f"comma-separated, from {', '.join(VARIANTS)}")
+    ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
+    ap.add_argument("--tag", default=None, help="added to the results' name: whole_<device>-<tag>.json")
     args = ap.parse_args(argv)
     from volrender import device
     dev = device.get(args.device)
@@ -75,4 +78,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -454,7 +454,9 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "peers": "comparison with vdb_render and Mitsuba 3 (bash run.sh peers installs them)",
               "sequence": "frame sequences on Dask: frames per second against worker count",
               "launch": "launch granularity: adaptive launch overhead, time to stop on signals",
-              "build": "acceleration build time (tree, support cells) against sphere count"}
+              "build": "acceleration build time (tree, support cells) against sphere count",
+              "edge": "support-cell edge against build and render time: the automatic edge's fit",
+              "whole": "the whole command a user waits for, default against the alternatives"}
 
 
 def bench_dir() -> Path:
