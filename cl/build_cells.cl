@@ -32,8 +32,7 @@
 #ifndef VR_TREE_STACK
 #error "build_cells.cl: VR_TREE_STACK is missing (see volrender/cells.py)"
 #endif
-#define CB_J 4                 /* sub-intervals of [M, U] for the field bounds */
-#define VR_BLEND_MIN 1e-20f
+#define CB_J VR_CELL_BOUNDS_J   /* sub-intervals of [M, U] for the field bounds (layout.py) */
 
 /* distance between boxes a and b (0 when they meet) */
 inline float cb_gap(float3 alo, float3 ahi, float3 blo, float3 bhi)

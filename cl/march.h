@@ -26,7 +26,6 @@
 #ifndef VR_MARCH_H
 #define VR_MARCH_H
 
-#define VR_SHADOW_TAU_STOP 25.0f   /* exp(-25) ~ 1e-11: light fully blocked */
 #define VR_ENV_DIMS 0x80000000u    /* random dims of the environment samples, per step */
 
 /* Optical depth (grey: density_scale x the grid integral; the channels scale it by

@@ -20,9 +20,8 @@
 #endif
 
 #ifndef VR_TREE_STACK
-#define VR_TREE_STACK 48      /* tree depth + 1 (one push per level); the host sets it */
+#define VR_TREE_STACK VR_MAX_TREE_STACK   /* tree depth + 1; the host sets it (layout.tree_stack) */
 #endif
-#define VR_BLEND_MIN 1e-20f   /* k at or below: plain union */
 #ifndef VR_STATS
 #define VR_STATS 0            /* count the field's work (diagnostics; glass.GlassSettings.stats) */
 #endif

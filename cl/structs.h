@@ -11,6 +11,10 @@
 #define VR_CELL_BRICK 8
 #define VR_CELL_OUTSIDE -1
 #define VR_CELL_INSIDE -2
+#define VR_CELL_BOUNDS_J 4
+#define VR_BLEND_MIN 1e-20f
+#define VR_MAX_TREE_STACK 48
+#define VR_SHADOW_TAU_STOP 25.0f
 #define VR_BIT_SHADOWS 1
 #define VR_BIT_REFRACTION 2
 #define VR_BIT_ABSORPTION 4

@@ -4,7 +4,7 @@ cells and extreme-case tests."""
 import numpy as np
 import pyopencl as cl
 
-from volrender import glass
+from volrender import glass, layout
 
 SOURCE = """
 #include "common.h"
@@ -97,7 +97,7 @@ class Probe:
         p = self.scene
         flags = {"VR_TREE": int(p.accel == "tree"), "VR_GRID": int(p.accel == "grid"),
                  "VR_TILED": 0, "VR_COLORS": 0,
-                 "VR_TREE_STACK": max(2, int(p.first_leaf).bit_length()),
+                 "VR_TREE_STACK": layout.tree_stack(p.first_leaf),
                  # shade_glass.h (the shadow probe): one sun, refracting absorbing glass
                  "VR_UBER": 0, "VR_N_SUNS": 1, "VR_N_POINTS": 0, "VR_SHADOWS": 1,
                  "VR_REFRACTION": 1, "VR_ABSORPTION": 1, "VR_GLOW": 0, "VR_ENV_MAP": 0,

@@ -37,7 +37,7 @@ MAX_BRICK_SPHERES = 1 << 16   # sphere centres in one brick; beyond (coincident 
                               # tree walk, since every cell near them would scan them all
 CELL_FACTOR = 0.25            # automatic edge: CELL_FACTOR * (median radius + blend / 2)
 PAD = 1e-5                    # list threshold and bound margins, relative to the extent
-J = 4                         # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
+J = layout.CELL_BOUNDS_J      # sub-intervals of [M, U] in the bounds (cl/build_cells.cl CB_J)
 # The automatic cell edge. GPUs: the base edge, grown until the bricks the surface passes
 # through hold at most GPU_CELLS cells (the build is a small part of a frame there). CPUs:
 # the finest of EDGE_FACTORS x the base edge whose estimated cells (estimate_cells) are at
@@ -298,7 +298,7 @@ class _Builder:
         self.cl, self.cla, self.padded = cl, cla, padded
         self.device, self.q = device, device.queue
         self.max_runs = max_runs
-        flags = {"VR_TREE_STACK": max(2, int(first_leaf).bit_length())}
+        flags = {"VR_TREE_STACK": layout.tree_stack(first_leaf)}
         self.k = {n: device.kernel("build_cells", flags, n) for n in (
             "build_classify", "build_classify_sub", "build_fill", "build_expand",
             "build_paint_bricks", "build_mark_mixed", "build_paint_cells",
@@ -551,7 +551,7 @@ def oracle(centres, radii, blend, lo, hi):
     dlo, dhi = box_distances(centres, radii, lo, hi)
     M, U = dlo.min(axis=1), dhi.min(axis=1)
     k = float(blend)
-    if k <= 1e-20:
+    if k <= layout.BLEND_MIN:
         return dlo <= U[:, None], M, U
     member = dlo <= (U + k)[:, None]
     t = M[:, None] + (U - M)[:, None] * (np.arange(J + 1) / J)[None]
@@ -571,7 +571,7 @@ def support(x, centres, radii, blend):
     d = np.linalg.norm(np.asarray(x, np.float64)[:, None] - np.asarray(centres, np.float64)[None],
                        axis=2) - np.asarray(radii, np.float64)[None]
     m = d.min(axis=1, keepdims=True)
-    return d < m + blend if blend > 1e-20 else d <= m
+    return d < m + blend if blend > layout.BLEND_MIN else d <= m
 
 
 def host_lists(spheres, tree_lo, tree_hi, start, count, depth, blend, lo, hi):
@@ -585,7 +585,7 @@ def host_lists(spheres, tree_lo, tree_hi, start, count, depth, blend, lo, hi):
     c = np.asarray(spheres[:, :3], np.float64)
     r = np.asarray(spheres[:, 3], np.float64)
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    k = float(blend) if blend > 1e-20 else 0.0
+    k = float(blend) if blend > layout.BLEND_MIN else 0.0
     near = cKDTree(c).query(0.5 * (lo + hi))[1]
     u0 = np.linalg.norm(np.maximum(np.abs(c[near] - lo), np.abs(c[near] - hi)), axis=1) - r[near]
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from . import layout
 from .environment import env_mode
 
 
@@ -88,7 +89,7 @@ class GlassFeatures:
     tile_h: int = 0
     tile_cap: int = 0
     uber: bool = False         # every feature compiled in, chosen at run time
-    tree_stack: int = 48       # traversal stack entries: tree depth + 1 (private memory)
+    tree_stack: int = layout.MAX_TREE_DEPTH + 1   # traversal stack entries: depth + 1
     stats: bool = False        # diagnostics: rgb = evaluations, node and sphere tests per pixel
 
     @classmethod
@@ -108,7 +109,7 @@ class GlassFeatures:
                       tile_cap=GLASS_TILE_CAP if tiled else 0,
                       # the stack serves the tree walks (the field's, or the tile lists'):
                       # elsewhere a constant, so one program serves every sphere count
-                      tree_stack=max(2, int(packed.first_leaf).bit_length())
+                      tree_stack=layout.tree_stack(packed.first_leaf)
                       if tree or (tiled and grid) else 2,
                       stats=variant == "stats")
         if variant == "uber":

@@ -25,7 +25,7 @@ from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range
                        rgb)
 
 PIXELS_PER_LAUNCH = 1 << 14
-MAX_TREE_DEPTH = 47          # deepest tree the host accepts (the kernel's stack: depth + 1)
+MAX_TREE_DEPTH = layout.MAX_TREE_DEPTH   # deepest tree the host accepts (stacks: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
 NV_MAX_REGISTERS = 40         # per work-item, the glass kernel on NVIDIA (build_options)
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
@@ -326,7 +326,7 @@ def eye_color(packed: PackedSpheres, eye) -> np.ndarray:
     s = packed.spheres.astype(np.float64)
     d = np.linalg.norm(s[:, :3] - np.asarray(eye, np.float64), axis=1) - s[:, 3]
     m = d.min()
-    if packed.blend > 1e-20:
+    if packed.blend > layout.BLEND_MIN:
         h = np.maximum(1.0 - (d - m) / packed.blend, 0.0)
         w = h * h
     else:

@@ -303,7 +303,7 @@ def octave_tau_stop(settings: VolumeSettings) -> float:
     """Grey shadow optical depth past which every band's light is below MS_CUTOFF of the
     light's (exp(-A_inf s_c tau) < MS_CUTOFF in every channel c; at least the
     single-scattering 25)."""
-    stop = 25.0
+    stop = layout.SHADOW_TAU_STOP
     if settings.octaves > 1:
         rate = octave_decay(settings) * (np.asarray(settings.sigma_t_scale, np.float64)
                                          if settings.chromatic else 1.0)
