@@ -23,6 +23,7 @@
 #include "glass.h"
 #include "shade_glass.h"
 #include "glass_tile.h"
+#include "accum.h"
 
 
 #if VR_TILED
@@ -66,33 +67,22 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
     sc.stats = &stats;
 #endif
     /* samples s0 .. s1-1 of cam->spp: a launch continues the sums of the one before */
-    float3 acc = (float3)(0.0f);
-    float cover = 0.0f;
-    if (s0 > 0) {
-        acc = out[pixel].xyz;
-        cover = out[pixel].w;
-    }
+    VrAccum acc = vr_accum_load(out, 0, pixel, s0);
 #if VR_STATS
-    float3 before = acc;
+    float3 before = acc.rgb;
 #endif
     for (int s = s0; s < s1; ++s) {
         float2 j = vr_pixel_jitter(cam, pixel, (uint)s);
         float3 d = vr_camera_dir(cam, x, y, j.x, j.y);
         int covered;
-        acc += vr_safe_sample(glass_path(&sc, gp, lights, env, cam->origin.xyz, d, cam->seed,
-                                         pixel, (uint)s, &covered));
-        cover += (float)covered;
+        acc.rgb += vr_safe_sample(glass_path(&sc, gp, lights, env, cam->origin.xyz, d, cam->seed,
+                                             pixel, (uint)s, &covered));
+        acc.alpha += (float)covered;
     }
 #if VR_STATS
-    acc = before + convert_float3(stats);            /* the totals so far */
+    acc.rgb = before + convert_float3(stats);        /* the totals so far */
+    if (s1 >= cam->spp)
+        acc.rgb *= (float)cam->spp;                  /* so that the division gives the totals */
 #endif
-    if (s1 < cam->spp) {               /* more samples follow in a later launch */
-        out[pixel] = (float4)(acc, cover);
-        return;
-    }
-    float inv = 1.0f / (float)cam->spp;
-#if VR_STATS
-    acc *= (float)cam->spp;                          /* so that * inv gives the totals */
-#endif
-    out[pixel] = (float4)(acc * inv, cover * inv);
+    vr_accum_store(out, 0, pixel, acc, s1, cam->spp);
 }
