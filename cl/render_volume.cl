@@ -97,65 +97,13 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
         }
 #endif
 
-#if VR_CHROMATIC
-        /* per-channel media: the same march with a transmittance per channel */
+        /* VrSpec: one float for grey media, float3 per channel (VR_CHROMATIC, volume.h) */
         float3 L = (float3)(0.0f);
-        float3 T = (float3)(1.0f);
+        VrSpec T = 1.0f;
         float dsum = 0.0f, dw = 0.0f;
-        float3 ext = vp->extinction.xyz, alb = vp->albedo_rgb.xyz;
         for (int k = k0; t0 < t_end && k < VR_MAX_RAY_SAMPLES; ++k) {
             float t = t0 + ((float)k + u) * dt;
             if (t >= t_end || vr_spec_max(T) < VR_T_CUTOFF)
-                break;
-            float3 p = o + t * d;
-            float3 cf = floor(p);
-            int3 c = convert_int3(cf);
-            int slot = vr_brick_slot(&g, c);
-            if (slot < 0) {
-#if VR_SKIP_EMPTY
-                float te = VR_EMPTY_EXIT(&g, o, inv_d, p);
-                k = max(k, (int)ceil((te - t0) / dt - u) - 1);
-#endif
-                continue;
-            }
-            float3 f = p - cf;
-            float sigma = vp->density_scale * vr_trilinear(data, slot, c, f);
-            float3 sigma_t = sigma * ext;
-            float3 tau = sigma_t * dt;
-            float3 a = 1.0f - vr_spec_transmit(tau);
-#if VR_EMISSION
-            float e = vr_trilinear(emission, slot, c, f);
-            if (e > 0.0f) {
-                float3 len = select(a / sigma_t, (float3)(dt), tau <= 1e-4f);
-                L += T * e * len * vr_emission_color(vp, temperature, bb, slot, c, f);
-            }
-#endif
-            if (vr_spec_max(a) > 0.0f) {
-#if VR_N_SUNS + VR_N_POINTS > 0 || VR_ENV
-                float3 S = (float3)(0.0f);
-#if VR_N_SUNS + VR_N_POINTS > 0
-                S = vr_inscatter(&g, vp, lights, p, -dir, cam->seed, pixel, (uint)s, (uint)k);
-#endif
-#if VR_ENV
-                S += vr_env_inscatter(&g, vp, env, cdf, p, dir, cam->seed, pixel, (uint)s, (uint)k);
-#endif
-                L += T * a * alb * S;
-#endif
-#if VR_DEPTH
-                float w = vr_spec_mean(T * a);
-                dsum += w * t;
-                dw += w;
-#endif
-                T *= 1.0f - a;
-            }
-        }
-        L += T * vr_volume_behind(vp, env, dir);
-#else
-        float3 L = (float3)(0.0f);
-        float T = 1.0f, dsum = 0.0f, dw = 0.0f;
-        for (int k = k0; t0 < t_end && k < VR_MAX_RAY_SAMPLES; ++k) {
-            float t = t0 + ((float)k + u) * dt;
-            if (t >= t_end || T < VR_T_CUTOFF)
                 break;
             float3 p = o + t * d;
             float3 cf = floor(p);
@@ -169,22 +117,19 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 continue;
             }
             float3 f = p - cf;
-            float sigma_t = vp->density_scale * vr_trilinear(data, slot, c, f);
-            float tau = sigma_t * dt;
-            float a = 1.0f - vr_transmit(tau);              /* opacity of this step */
+            float sigma = vp->density_scale * vr_trilinear(data, slot, c, f);
+            VrSpec sigma_t = sigma * VR_EXTINCTION(vp);
+            VrSpec tau = sigma_t * dt;
+            VrSpec a = 1.0f - vr_spec_transmit(tau);      /* opacity of this step */
 #if VR_EMISSION
             float e = vr_trilinear(emission, slot, c, f);
             if (e > 0.0f) {
                 /* integral of T(s) over the step, per unit emission: (1-e^-tau)/sigma_t */
-                float len = tau > 1e-4f ? a / sigma_t : dt;
-#if VR_TEMPERATURE
+                VrSpec len = select(a / sigma_t, (VrSpec)(dt), tau <= 1e-4f);
                 L += T * e * len * vr_emission_color(vp, temperature, bb, slot, c, f);
-#else
-                L += T * e * len * vp->emission_color.xyz;
-#endif
             }
 #endif
-            if (a > 0.0f) {
+            if (vr_spec_max(a) > 0.0f) {
 #if VR_N_SUNS + VR_N_POINTS > 0 || VR_ENV
                 float3 S = (float3)(0.0f);
 #if VR_N_SUNS + VR_N_POINTS > 0
@@ -193,17 +138,17 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
 #if VR_ENV
                 S += vr_env_inscatter(&g, vp, env, cdf, p, dir, cam->seed, pixel, (uint)s, (uint)k);
 #endif
-                L += T * a * vp->albedo * S;
+                L += T * a * VR_ALBEDO(vp) * S;
 #endif
 #if VR_DEPTH
-                dsum += T * a * t;
-                dw += T * a;
+                float w = vr_spec_mean(T * a);
+                dsum += w * t;
+                dw += w;
 #endif
                 T *= 1.0f - a;
             }
         }
         L += T * vr_volume_behind(vp, env, dir);
-#endif
         acc.rgb += vr_safe_sample(L);
         acc.alpha += 1.0f - vr_spec_mean(T);
         acc.depth += dsum;
