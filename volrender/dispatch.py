@@ -101,7 +101,9 @@ class Dispatch:
 class Plan:
     """What one launch needs. Kernel arguments are `inputs` (uploaded read-only; numpy
     scalars are passed by value), then one buffer per output, then `extra`, then the
-    launch's first row and sample range (added by dispatch.run_rows)."""
+    launch's first row and sample range (added by dispatch.run_rows). Inputs and extra are
+    (kernel parameter name, value) pairs (tests/test_kernel_args.py checks the names
+    against the kernels')."""
     entry: str                       # cl/<entry>.cl and its kernel
     features: object                 # frozen Features with .flags()
     inputs: list
@@ -112,6 +114,11 @@ class Plan:
     aovs: tuple = ()                 # layers to return besides rgba
     info: dict = field(default_factory=dict)
     build_options: tuple = ()        # compiler options for this device (e.g. register caps)
+
+    def arg_names(self) -> list:
+        """The kernel's parameter names as this plan passes them (outputs by position)."""
+        return [n for n, _ in self.inputs] + [None] * len(self.outputs) + \
+            [n for n, _ in self.extra] + ["y0", "s0", "s1"]
 
 
 def parse_tile(text: str) -> tuple:

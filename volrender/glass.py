@@ -405,9 +405,10 @@ def plan(scene, device, variant=None, launch=None):
         info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.summary())
     if packed.note:
         info["note"] = packed.note
-    inputs = [scene.camera.pack(w2f, settings.spp, settings.seed), params,
-              lights_mod.pack(scene.lights, w2f), spheres, packed.nodes, env, colors,
-              *grid_arrays]
+    inputs = [("cam", scene.camera.pack(w2f, settings.spp, settings.seed)), ("gp", params),
+              ("lights", lights_mod.pack(scene.lights, w2f)), ("spheres", spheres),
+              ("nodes", packed.nodes), ("env", env), ("colors", colors),
+              *zip(("bricks", "cells", "lists", "runs"), grid_arrays)]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
                 PIXELS_PER_LAUNCH, info=info, build_options=build_options(features, device))

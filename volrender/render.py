@@ -91,11 +91,11 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
     ctx = dev.context
-    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.inputs]
+    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.inputs]
     outs = {name: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * int(np.prod(shape)))
             for name, shape in plan.outputs}
     args += list(outs.values())
-    args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for a in plan.extra]
+    args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     kernel_ms, launches = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,

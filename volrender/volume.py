@@ -408,16 +408,18 @@ def plan(scene, device, variant=None, launch=None):
     env, cdf = (np.zeros((1, 4), np.float32), np.zeros(1, np.float32))
     if features.env == 2:
         env, cdf = env_texels(scene.environment)[0], env_distribution(scene.environment.texels)
-    inputs = [scene.camera.pack(w2l, settings.spp, settings.seed), params,
-              lights_mod.pack(scene.lights, w2l), content.buffer(device, "table"),
-              content.buffer(device, "data"), emission, temperature, blackbody.table(), env, cdf]
+    inputs = [("cam", scene.camera.pack(w2l, settings.spp, settings.seed)), ("vp", params),
+              ("lights", lights_mod.pack(scene.lights, w2l)),
+              ("table", content.buffer(device, "table")), ("data", content.buffer(device, "data")),
+              ("emission", emission), ("temperature", temperature), ("bb", blackbody.table()),
+              ("env", env), ("cdf", cdf)]
     extra = []
     if settings.estimator != "march":
-        inputs.append(track_majorants(bricks, settings))
+        inputs.append(("majorant", track_majorants(bricks, settings)))
     else:                             # the occupied bricks, which only tiled culling reads
         occ = occupied_bricks(bricks) if features.tiled and features.skip_empty \
             else np.zeros((0, 4), np.int32)
-        extra = [occ, np.int32(len(occ))]
+        extra = [("occ", occ), ("n_occ", np.int32(len(occ)))]
     W, H = scene.camera.width, scene.camera.height
     # depth: (sum, weight) per pixel while samples are split across launches, then
     # (depth, weight); the layer is [..., 0]
