@@ -85,3 +85,29 @@ def test_a_malformed_frame_fails_alone_and_skip_existing_resumes(cloud_frames, t
     assert code == 0
     assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.png") if p.name in before} == before
     assert (out / "g_0003.png").is_file()
+
+
+def test_sequences_as_users_type_them(cloud_frames, tmp_path, capsys):
+    """An unquoted glob (the shell's list of files), a #### pattern without --frames (the
+    frames on disk), an output folder that does not exist yet, and a record that says what
+    ran and keeps the first run's rows when a second one resumes."""
+    files = sorted(str(p) for p in cloud_frames.glob("p_*.npy"))
+    out = tmp_path / "new" / "folder"
+    code = cli.main(["render", *files, "-o", str(out / "g_####.png"), "--size", "24x18",
+                     "--bounces", "1", "--workers", "0"])
+    assert code == 0, capsys.readouterr().err
+    assert sorted(p.name for p in out.glob("*.png")) == [f"g_{f:04d}.png" for f in range(1, 5)]
+    rec = json.loads((out / "g.sequence.json").read_text())
+    assert rec["argv"] and rec["version"] and rec["date"] and rec["camera"]["fov"] > 0
+    assert rec["settings"]["bounces"] == 1 and set(rec["options"]) == {"radius", "blend"}
+    first = {r["frame"]: r["seconds"] for r in rec["frames"]}
+    (out / "g_0002.png").unlink()
+    code = cli.main(["render", str(cloud_frames / "p_####.npy"), "-o", str(out / "g_####.png"),
+                     "--size", "24x18", "--bounces", "1", "--workers", "0", "--skip-existing"])
+    assert code == 0
+    rec = json.loads((out / "g.sequence.json").read_text())
+    by_frame = {r["frame"]: r for r in rec["frames"]}
+    assert rec["runs"] == 2 and sorted(by_frame) == [1, 2, 3, 4]
+    assert by_frame[2]["status"] == "ok" and not by_frame[2].get("from_earlier_run")
+    for f in (1, 3, 4):           # skipped now: the first run's rows, kept
+        assert by_frame[f]["from_earlier_run"] and by_frame[f]["seconds"] == first[f]

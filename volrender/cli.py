@@ -125,8 +125,10 @@ def build_parser():
                                    "glass_gather:2000, or a scene .toml) as molten glass. "
                                    "Command-line options override the scene file; an option "
                                    "the input's kind does not read is an error.")
-    r.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy), "
-                                 "GENERATOR:COUNT, or SCENE.toml")
+    r.add_argument("input", nargs="+", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy/"
+                                            ".las/.laz), GENERATOR:COUNT, or SCENE.toml; a "
+                                            "sequence: a pattern (smoke_####.vdb, quoted globs) "
+                                            "or several files (an unquoted glob)")
     r.add_argument("-o", "--output", required=True,
                    help="OUT.exr (linear premultiplied RGBA + layers), OUT.npy (float32 HxWx4) "
                         "or OUT.png (tone-mapped sRGB, opaque; --transparent: straight alpha); never one of the "
@@ -330,6 +332,9 @@ def cmd_sequence(args):
 
 def cmd_render(args):
     from .sequence import is_pattern
+    if len(args.input) > 1:                  # the shell expanded a glob: a sequence of files
+        return cmd_sequence(args)
+    args.input = args.input[0]
     if args.frames is not None or is_pattern(args.input):
         return cmd_sequence(args)
     given = [o for o in SEQUENCE_OPTIONS if getattr(args, o) not in (None, False)]

@@ -23,6 +23,7 @@ class PointCloud:
     radii: np.ndarray | None = None     # float64 (N,) or None (renderer picks one radius)
     colors: np.ndarray | None = None    # float32 (N, 3) in 0..1, or None
     source: str = ""
+    notes: tuple = ()                   # what the reader chose or left out (said to the user)
 
     def __post_init__(self):
         c = np.ascontiguousarray(self.centers, dtype=np.float64)
@@ -44,7 +45,7 @@ class PointCloud:
         return len(self.centers)
 
 
-def _finish(path, centers, radii, colors) -> PointCloud:
+def _finish(path, centers, radii, colors, notes=()) -> PointCloud:
     n = len(centers)
     if n == 0:
         raise UserError("the file holds zero points", path=path,
@@ -73,7 +74,8 @@ def _finish(path, centers, radii, colors) -> PointCloud:
             raise UserError(f"colours outside 0..1 (range {np.nanmin(colors)}.."
                             f"{np.nanmax(colors)})", path=path,
                             fix="store float colours in 0..1, or as uchar 0..255")
-    return PointCloud(centers=centers, radii=radii, colors=colors, source=str(path))
+    return PointCloud(centers=centers, radii=radii, colors=colors, source=str(path),
+                      notes=tuple(notes))
 
 
 _CHUNK_LINES = 1 << 16      # text lines parsed at a time

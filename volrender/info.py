@@ -46,14 +46,40 @@ def _box(lo, hi) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in lo) + ")..(" + ", ".join(f"{v:.4g}" for v in hi) + ")"
 
 
+def describe_points(path) -> list[str]:
+    """Lines describing a point file: count, bounds, radii, colours, the nearest-neighbour
+    spacing, and the radius and blend a render would choose (scene._scan_defaults)."""
+    from . import glass
+    from .points import load_points
+    from .scene import _scan_defaults
+    cloud = load_points(path)
+    n = len(cloud.centers)
+    lo, hi = cloud.centers.min(axis=0), cloud.centers.max(axis=0)
+    lines = [f"{printable(Path(path))}: {n} points, bounds {_box(lo, hi)}",
+             *(f"  {note}" for note in cloud.notes)]
+    if cloud.radii is not None:
+        r = cloud.radii
+        lines.append(f"  radii {r.min():.4g}..{r.max():.4g} (median {np.median(r):.4g}); "
+                     f"a render's blend: {2 * np.median(r):.4g} (twice the median radius)")
+    else:
+        settings, note = _scan_defaults(cloud, glass.GlassSettings())
+        lines.append(f"  no radii: {note}")
+    lines.append(f"  colours: {'per point' if cloud.colors is not None else 'none'}")
+    return lines
+
+
 def describe(path, device=None) -> list[str]:
-    """Lines describing every grid of a .vdb (or the grid of a .npz cache)."""
+    """Lines describing every grid of a .vdb (or the grid of a .npz cache), or a point
+    file (describe_points)."""
     from . import vdb
+    from .scene import POINT_SUFFIXES
     p = Path(path)
     suffix = p.suffix.lower()
+    if suffix in POINT_SUFFIXES:
+        return describe_points(p)
     if suffix not in (".vdb", ".npz"):
-        raise UserError(f"info describes volume files, not {suffix or '(no suffix)'!r}", path=p,
-                        fix="give a .vdb or .npz")
+        raise UserError(f"info describes volume and point files, not {suffix or '(no suffix)'!r}",
+                        path=p, fix="give a .vdb, .npz or a point file")
     lines = []
     if suffix == ".npz":
         grids = [None]

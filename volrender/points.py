@@ -51,19 +51,28 @@ def load_points(path) -> PointCloud:
               3 columns = x y z, 4 = x y z radius, 6 = x y z r g b,
               7 = x y z radius r g b.  Colours are taken as 0..1 when none
               exceeds 1, else as 0..255.
+              A header line naming the columns (x y z, radius, red green blue or
+              r g b, nx ny nz; CloudCompare's //X,Y,Z,...) is read by name; columns
+              it does not know, and normals, are ignored and said in a note.
+              Without one, 6 columns whose last three are unit vectors are
+              normals, and 9 are x y z with colours and normals in either order.
     ``.npy``  an (N,3) array of centres or (N,4) with the radius as 4th column.
+    ``.las`` / ``.laz``  LiDAR point records through laspy (the `las` extra): the
+              scaled x, y, z and, where the format has them, 16-bit colours.
 
     Raises UserError on a missing file, an unsupported suffix, a malformed or
     truncated file, zero points, NaN/Inf coordinates, or negative/non-finite radii.
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in _READERS and suffix != ".npy":
+    if suffix not in _READERS and suffix not in (".npy", ".las", ".laz"):
         raise UserError(f"unsupported suffix '{suffix or '(none)'}' for a point cloud",
-                        path=path, fix="use .ply, .xyz, .csv, .txt or .npy")
+                        path=path, fix="use .ply, .xyz, .csv, .txt, .npy, .las or .laz")
     check_input(path, "point-cloud file")
     if suffix == ".npy":
         return _finish(path, *_read_npy(path))
+    if suffix in (".las", ".laz"):
+        return _finish(path, *_read_las(path))
     with open(path, "rb") as f:
         return read_points(f, suffix, path)
 
@@ -93,16 +102,63 @@ def _stream_size(f) -> int:
 
 # ---- text: xyz / csv / txt
 
-_TEXT_LAYOUT = {3: "x y z", 4: "x y z radius", 6: "x y z r g b", 7: "x y z radius r g b"}
+_TEXT_LAYOUT = {3: "x y z", 4: "x y z radius", 6: "x y z r g b (or nx ny nz)",
+                7: "x y z radius r g b", 9: "x y z r g b nx ny nz (either order)"}
+# header names (lower case, leading '/' and '#' dropped: CloudCompare writes //X,Y,Z,...)
+_NAMES = {"x": "x", "y": "y", "z": "z", "radius": "radius", "rad": "radius",
+          "red": "r", "green": "g", "blue": "b", "r": "r", "g": "g", "b": "b",
+          "rf": "r", "gf": "g", "bf": "b", "nx": "nx", "ny": "ny", "nz": "nz",
+          "normal_x": "nx", "normal_y": "ny", "normal_z": "nz"}
+
+
+def _is_unit(v) -> bool:
+    """Whether the (N, 3) columns look like unit normals: within [-1, 1], |n| ~ 1 on 99%
+    of the rows and some component negative (colours are never negative)."""
+    if not len(v) or not np.isfinite(v).all() or np.abs(v).max() > 1.0 + 1e-6:
+        return False
+    norm = np.linalg.norm(v, axis=1)
+    return bool((np.abs(norm - 1.0) < 1e-2).mean() >= 0.99 and (v < 0).any())
+
+
+def _columns(path, header, values):
+    """{role: column} for x, y, z and the optional radius and r, g, b, from the header's
+    names when it has any, else from the count (6 and 9 columns: a triple of unit vectors
+    with a negative component is the normals); and what was left out (said in a note)."""
+    ncols = values.shape[1]
+    if header:
+        roles = [_NAMES.get(t.lower().lstrip("/#")) for t in header]
+        if len(roles) != ncols:
+            raise UserError(f"the header names {len(roles)} columns, the rows have {ncols}",
+                            path=path, fix="make the header match the rows")
+        cols = {r: i for i, r in reversed(list(enumerate(roles))) if r}
+        if not {"x", "y", "z"} <= set(cols):
+            raise UserError(f"the header ({' '.join(header)}) names no x, y and z columns",
+                            path=path, fix="name the coordinate columns x, y, z")
+        if any(c in cols for c in "rgb") and not all(c in cols for c in "rgb"):
+            cols = {k: v for k, v in cols.items() if k not in "rgb"}
+        left = [h for h, r in zip(header, roles) if r is None or r in ("nx", "ny", "nz")]
+        return cols, left
+    cols = {"x": 0, "y": 1, "z": 2}
+    if ncols in (4, 7):
+        cols["radius"] = 3
+    if ncols in (6, 7):
+        if ncols == 6 and _is_unit(values[:, 3:6]):
+            return cols, ["nx", "ny", "nz"]
+        cols.update(r=ncols - 3, g=ncols - 2, b=ncols - 1)
+    if ncols == 9:
+        rgb, normals = (6, 3) if _is_unit(values[:, 3:6]) else (3, 6)
+        cols.update(r=rgb, g=rgb + 1, b=rgb + 2)
+        return cols, [f"columns {normals + 1}-{normals + 3} (normals)"]
+    return cols, []
 
 
 def _read_text(f, size, path):
-    """x y z [radius] [r g b] rows, a chunk of lines at a time (memory: the numbers, plus
-    one chunk of text)."""
-    fix = "give one point per line: x y z [radius] [r g b]"
+    """Text rows, a chunk of lines at a time (memory: the numbers, plus one chunk of
+    text); the columns from a header's names (x, y, z, radius, red/green/blue or r/g/b,
+    nx/ny/nz) or the count (_TEXT_LAYOUT). Returns centres, radii, colours and notes."""
+    fix = "give one point per line: x y z [radius] [r g b], or a header naming the columns"
     projection = _Projection(path, size)
-    parts, ncols, header_checked, nonblank = [], None, False, False
-    first_row = None
+    parts, ncols, header_checked, nonblank, header = [], None, False, False, None
     lineno = 0
     while True:
         chunk = f.readlines(_CHUNK_LINES * 32)
@@ -122,22 +178,28 @@ def _read_text(f, size, path):
         rows, numbers = [], []
         for i, line in enumerate(lines):
             toks = line.split()
-            if toks and not toks[0].startswith("#"):
+            if toks and toks[0].startswith("//") and not header_checked:
+                toks = [toks[0][2:] or "x", *toks[1:]] if len(toks[0]) > 2 else toks[1:]
+            elif toks and toks[0].startswith("#"):
+                continue
+            if toks:
                 rows.append(lineno + i + 1)
                 numbers.append(toks)
         lineno += len(lines)
         if not header_checked and rows:
             header_checked = True
             if not _all_numbers(numbers[0]):
+                header = numbers[0]
                 rows, numbers = rows[1:], numbers[1:]      # header line
         if not rows:
             continue
         if ncols is None:
-            ncols, first_row = len(numbers[0]), rows[0]
-            if ncols not in _TEXT_LAYOUT:
-                raise UserError(f"line {rows[0]}: expected 3, 4, 6 or 7 numbers "
-                                f"(x y z [radius] [r g b]), got {ncols}", path=path,
-                                fix="use one of those column layouts")
+            ncols = len(numbers[0])
+            if header is None and ncols not in _TEXT_LAYOUT:
+                raise UserError(f"line {rows[0]}: expected 3, 4, 6, 7 or 9 numbers "
+                                f"(x y z [radius] [r g b] [nx ny nz]), got {ncols}", path=path,
+                                fix="use one of those column layouts, or a header line "
+                                    "naming the columns (x y z ...)")
         values = _text_values(path, rows, numbers, ncols)
         parts.append(values)
         projection.add(len(raw), values.nbytes)
@@ -146,18 +208,22 @@ def _read_text(f, size, path):
     if not parts:
         raise UserError("the file holds zero points", path=path, fix=fix)
     values = parts[0] if len(parts) == 1 else np.concatenate(parts)
-    centers = values[:, :3].copy()
-    radii = values[:, 3].copy() if ncols in (4, 7) else None
+    cols, left = _columns(path, header, values)
+    centers = values[:, [cols["x"], cols["y"], cols["z"]]].copy()
+    radii = values[:, cols["radius"]].copy() if "radius" in cols else None
     colors = None
-    if ncols >= 6:
-        rgb = values[:, -3:]
+    if "r" in cols:
+        rgb = values[:, [cols["r"], cols["g"], cols["b"]]]
         if np.isfinite(rgb).all() and rgb.max() > 1.0:
             if rgb.max() > 255.0 or rgb.min() < 0.0:
                 raise UserError(f"colours outside 0..255 (range {rgb.min()}..{rgb.max()})",
                                 path=path, fix="give colours as 0..1 or 0..255")
             rgb = rgb / 255.0
         colors = rgb.astype(np.float32)
-    return centers, radii, colors
+    notes = (f"{path}: read x y z{' radius' if radii is not None else ''}"
+             f"{' r g b' if colors is not None else ''}; ignored: {', '.join(left)} (the "
+             f"glass takes its normals from the field)",) if left else ()
+    return centers, radii, colors, notes
 
 
 def _text_values(path, rows, numbers, ncols):
@@ -167,7 +233,8 @@ def _text_values(path, rows, numbers, ncols):
         k = int(bad[0])
         raise UserError(f"line {rows[k]}: expected {ncols} numbers, got {int(lens[k])}",
                         path=path, fix=f"every line needs {ncols} numbers "
-                                       f"({_TEXT_LAYOUT[ncols]}), like the first")
+                                       f"({_TEXT_LAYOUT.get(ncols, 'as the header names')}), "
+                                       "like the first")
     try:
         values = np.array([t for toks in numbers for t in toks], dtype=np.float64)
     except ValueError:
@@ -214,6 +281,32 @@ def load_npy_checked(path, fix: str):
 
 
 _READERS = {".ply": _read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _read_text}
+
+
+def _read_las(path):
+    """(centres, radii, colours, notes) of a LAS/LAZ file through laspy."""
+    try:
+        import laspy
+    except ImportError:
+        raise UserError("reading .las/.laz needs laspy", path=path,
+                        fix="pip install 'volrender[las]' (laspy with its LAZ backend)") from None
+    try:
+        with laspy.open(path) as reader:
+            n = int(reader.header.point_count)
+            check_memory(n * (3 * 8 + 3 * 4) * 3, path, "reading this point cloud", _MEMORY_FIX)
+            las = reader.read()
+    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+        raise UserError(f"not a readable LAS/LAZ file ({str(exc).splitlines()[0][:160]})",
+                        path=path, fix="check the file (LAZ needs laspy's lazrs backend)") from None
+    centers = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
+                               np.asarray(las.z, np.float64)])
+    colors = None
+    names = set(las.point_format.dimension_names)
+    if {"red", "green", "blue"} <= names:
+        rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)
+        if rgb.max() > 0:
+            colors = (rgb / (65535.0 if rgb.max() > 255 else 255.0)).astype(np.float32)
+    return centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id})",)
 
 
 def _read_npy(path):

@@ -51,7 +51,7 @@ from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, ch
 
 MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
-POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy")
+POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy", ".las", ".laz")
 KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 
 
@@ -627,6 +627,7 @@ class Request:
                 cloud = generated_cloud(self.source, settings.seed)
             else:
                 cloud = points.load_points(self.source)
+            notes += list(cloud.notes)
             if cloud.radii is None and (settings.radius is None or settings.blend is None):
                 t1 = time.perf_counter()
                 settings, note = _scan_defaults(cloud, settings)

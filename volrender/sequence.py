@@ -165,8 +165,56 @@ def _short(text: str) -> str:
     return text if len(text) <= 80 else text[:40] + "..." + text[-30:]
 
 
+def frame_number(path) -> int | None:
+    """The frame number of a file: the last run of digits in its name's stem."""
+    digits = re.findall(r"\d+", Path(path).stem)
+    return int(digits[-1]) if digits else None
+
+
+def explicit_inputs(paths, frames=None) -> dict[int, Path]:
+    """{frame: path} of several input files (an unquoted glob the shell expanded), each
+    numbered by the last run of digits in its name."""
+    out = {}
+    for p in paths:
+        f = frame_number(p)
+        if f is None:
+            raise UserError("an input of the sequence has no frame number in its name",
+                            path=p, fix="name the frames with their numbers (smoke_0001.vdb)")
+        if f in out:
+            raise UserError(f"frame {f} is given twice: {out[f]} and {p}", path=p,
+                            fix="give each frame once")
+        out[f] = Path(p)
+    if frames is not None:
+        missing = [f for f in frames if f not in out]
+        if missing:
+            raise UserError(f"--frames asks for frames the inputs do not have: "
+                            f"{', '.join(map(str, missing[:8]))}", fix="give those files too")
+        out = {f: out[f] for f in frames}
+    return dict(sorted(out.items()))
+
+
+def _on_disk(pattern: Pattern) -> dict[int, Path]:
+    """{frame: path} of the files a #### / %04d pattern names that exist (any number of
+    digits where the width is 0, at least the width's otherwise)."""
+    folder = Path(pattern.prefix).parent
+    head, tail = Path(pattern.prefix).name, pattern.suffix
+    rx = re.compile(re.escape(head) + r"(\d{%d,})" % max(pattern.width, 1) + re.escape(tail))
+    found = {}
+    try:
+        names = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    except OSError:
+        names = []
+    for name in names:
+        m = rx.fullmatch(name)
+        if m and (pattern.width == 0 or len(m.group(1)) == pattern.width or
+                  m.group(1)[0] != "0"):
+            found.setdefault(int(m.group(1)), folder / name)
+    return found
+
+
 def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
-    """{frame: input path} for the frames asked for; every one must exist."""
+    """{frame: input path} for the frames asked for (every one must exist); without
+    --frames, the frames found on disk."""
     if pattern.glob:
         found = pattern.matches()
         if not found:
@@ -176,8 +224,11 @@ def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
         paths = {f: found[f] for f in wanted if f in found}
     else:
         if frames is None:
-            raise UserError(f"{pattern.text!r} needs --frames A-B to say which frames",
-                            fix="give --frames, e.g. --frames 1-240")
+            found = _on_disk(pattern)
+            if not found:
+                raise UserError(f"no file matches {pattern.text!r}",
+                                fix="check the pattern, or give --frames A-B")
+            return found
         paths = {f: pattern.path(f) for f in frames}
         missing = [f for f, p in paths.items() if not p.is_file()]
     if missing:
@@ -444,11 +495,20 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     are in the result's `failed` (the others are written). `say`: called with each note
     (choices made for every frame) before the frames render."""
     from . import image
-    src = parse_pattern(pattern)
     dst = parse_pattern(output, output=True)
     frame_list = parse_frames(frames) if isinstance(frames, str) else (
         sorted(set(int(f) for f in frames)) if frames is not None else None)
-    paths = frame_inputs(src, frame_list)
+    if isinstance(pattern, (list, tuple)):        # several files: an expanded glob
+        paths = explicit_inputs(pattern, frame_list)
+    else:
+        paths = frame_inputs(parse_pattern(pattern), frame_list)
+    folder = Path(dst.prefix).parent
+    if not folder.exists():
+        try:
+            folder.mkdir(parents=True)
+        except OSError as exc:
+            raise UserError(f"cannot create the output folder ({exc.strerror or exc})",
+                            path=folder, fix="give an output pattern in a folder you can write") from None
     if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
         raise UserError(f"--chunk must be an integer >= 1, got {chunk!r}")
     outs = {f: dst.path(f) for f in paths}
@@ -486,7 +546,9 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
                             time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
                             options=extra)
-    result.record_path = _write_record(dst, result, pattern, output)
+    settings = {k: (list(v) if isinstance(v, tuple) else v) for k, v in overrides.items()
+                if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
+    result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
     return result
 
 
@@ -567,15 +629,36 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
     return records
 
 
-def _write_record(dst, result, pattern, output):
+def _write_record(dst, result, pattern, output, settings=None, resume=False):
+    """The JSON record beside the outputs: the command, settings, camera, version and date,
+    and one row per frame; a resumed run (--skip-existing) keeps the earlier run's rows of
+    the frames it skipped."""
+    import datetime
+    from . import __version__
     from .atomic import write_bytes
     path = record_path(dst)
-    payload = {"input": str(pattern), "output": str(output), "options": result.options,
-               "wall_s": result.wall_s,
-               "workers": result.workers, "fps": result.fps,
-               "failed": [r["frame"] for r in result.failed], "frames": result.records}
+    frames = result.records
+    runs = 1
+    if resume and path.is_file():
+        try:
+            old = json.loads(path.read_text())
+            earlier = {r["frame"]: r for r in old.get("frames", []) if r.get("status") == "ok"}
+            frames = [{**earlier[r["frame"]], "from_earlier_run": True}
+                      if r["status"] == "skipped" and r["frame"] in earlier else r for r in frames]
+            runs = int(old.get("runs", 1)) + 1
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            pass                      # an unreadable old record is replaced
+    cam = result.camera
+    payload = {"input": pattern if isinstance(pattern, str) else [str(p) for p in pattern],
+               "output": str(output), "argv": sys.argv, "version": __version__,
+               "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+               "runs": runs, "settings": settings or {}, "options": result.options,
+               "camera": camera_overrides(cam) if cam is not None else None,
+               "wall_s": result.wall_s, "workers": result.workers, "fps": result.fps,
+               "failed": [r["frame"] for r in result.failed], "frames": frames}
     try:
-        return write_bytes(path, json.dumps(payload, indent=1).encode(), "sequence record")
+        return write_bytes(path, json.dumps(payload, indent=1, default=str).encode(),
+                           "sequence record")
     except UserError as exc:
         print(f"volrender: warning: {exc}", file=sys.stderr)
         return None
