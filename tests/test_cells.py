@@ -398,3 +398,24 @@ def test_a_scene_builds_its_acceleration_once(cl_device):
         cont, settings=dataclasses.replace(cont.settings, blend=0.2)))
     render_scene(changed, cl_device)
     assert cont.builds == 2                    # the blend changes the acceleration
+
+
+def test_the_hit_threshold_stops_growing_far_away(cl_device):
+    """The hit threshold eps (base + t) is capped at the length the cells' skip threshold
+    covers (GlassParams.hit_len): a cloud framed from 60 box diagonals covers the share of
+    the frame it covers from 20 (uncapped, eps x 60 diagonals dilates every silhouette:
+    +30% coverage at epsilon 1e-3), and the support cells still agree with the tree."""
+    cloud = points.blob(250, seed=5)
+    lo, hi = cloud.centers.min(0), cloud.centers.max(0)
+    c, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+    way = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
+    cover = {}
+    for dist in (20, 60):
+        fov = float(np.degrees(2 * np.arctan(0.6 / dist)))
+        cam = Camera(tuple(c + way * dist * diag), tuple(c), (0.0, 1.0, 0.0), fov, 32, 32)
+        kw = dict(blend=0.16, bounces=2, epsilon=1e-3)
+        grid = render(cl_device, cloud, cam=cam, lights=[], **kw)
+        tree = render(cl_device, cloud, cam=cam, lights=[], accel="tree", **kw)
+        cover[dist] = (tree[..., 3] > 0).mean()
+        assert np.abs(grid[..., 3] - tree[..., 3]).sum() <= 2
+    assert cover[60] == pytest.approx(cover[20], rel=0.03)
