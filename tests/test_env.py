@@ -10,7 +10,8 @@ from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.image import write_image
 from volrender.lights import Sun
-from volrender.environment import Environment, env_distribution, env_mode, env_weights
+from volrender.environment import (Environment, env_distribution, env_mode, env_weights,
+                                  load_environment)
 from volrender.scene import Scene, VolumeContent
 from volrender.vdb import Bricks
 from volrender.volume import VolumeSettings
@@ -275,3 +276,38 @@ def test_a_missing_env_map_is_a_user_error(tmp_path):
         scene.request(tmp_path / "v.npz", env=str(tmp_path / "nope.exr"))
     with pytest.raises(UserError, match="env"):
         scene.request(tmp_path / "v.npz", env=(1.0, 2.0))
+
+
+def write_rgbe(path, texels):
+    import OpenImageIO as oiio
+    out = oiio.ImageOutput.create(str(path))
+    h, w = texels.shape[:2]
+    out.open(str(path), oiio.ImageSpec(w, h, 3, "float"))
+    out.write_image(np.ascontiguousarray(texels, np.float32))
+    out.close()
+
+
+def test_a_radiance_hdr_environment_reads_as_the_map_it_holds(tmp_path, cl_device):
+    """RGBE keeps 8 bits of mantissa under a shared exponent: every channel within 2^-7 of
+    its texel's largest; row 0 stays the top (the sun spot where it was); rendering with the
+    .hdr equals rendering with the same texels as an .exr."""
+    from volrender import render, scene
+    t = sky()
+    write_rgbe(tmp_path / "sky.hdr", t)
+    got = load_environment(tmp_path / "sky.hdr")
+    assert got.shape == t.shape and got.dtype == np.float32
+    assert np.all(np.abs(got - t) <= t.max(axis=-1, keepdims=True) * 2.0 ** -7)
+    assert np.unravel_index(np.argmax(got[..., 0]), got.shape[:2]) == (3, 20)
+    write_image(tmp_path / "same.exr", np.concatenate([got, np.ones_like(got[..., :1])], -1))
+    thin_slab().save_npz(tmp_path / "v.npz")
+    imgs = [render(scene.load_scene(tmp_path / "v.npz", env=str(tmp_path / f), size=(24, 16),
+                                    spp=1, density_scale=0.01), cl_device).rgba
+            for f in ("sky.hdr", "same.exr")]
+    assert np.array_equal(imgs[0], imgs[1]) and imgs[0][..., :3].max() > 0
+
+
+def test_a_broken_hdr_environment_is_a_user_error(tmp_path):
+    p = tmp_path / "cut.hdr"
+    p.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n\x02\x02")
+    with pytest.raises(UserError, match=r"cut\.hdr: cannot read the Radiance HDR image"):
+        load_environment(p)

@@ -32,15 +32,43 @@ def uniform(rgb) -> Environment:
     return Environment(texels, "uniform " + ",".join(f"{v:g}" for v in rgb))
 
 
+HDR_SUFFIXES = (".hdr", ".pic", ".rgbe")      # Radiance RGBE
+
+
+def read_hdr(path) -> np.ndarray:
+    """float32 (H, W, 3) radiance of a Radiance RGBE file (.hdr), row 0 the top, through
+    OpenImageIO."""
+    import OpenImageIO as oiio
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        reason = oiio.geterror().strip().splitlines()[-1:] or ["unreadable"]
+        raise UserError(f"cannot read the Radiance HDR image ({reason[0]})", path=path,
+                        fix="re-export it as .hdr or .exr")
+    try:
+        spec = inp.spec()
+        img = inp.read_image(0, 0, 0, min(spec.nchannels, 3), "float")
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if img is None or err or spec.nchannels < 3:
+        raise UserError(f"cannot read the Radiance HDR image ({err or 'fewer than 3 channels'})",
+                        path=path, fix="re-export it as .hdr or .exr")
+    return np.asarray(img, np.float32).reshape(spec.height, spec.width, 3)
+
+
 def load_environment(path):
-    """float32 (H, W, 3) texels of an equirectangular .exr/.npy: NaN/Inf and negative
+    """float32 (H, W, 3) texels of an equirectangular .exr/.npy/.hdr: NaN/Inf and negative
     texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
     them), so every radiance the kernel reads is finite."""
+    from pathlib import Path
     from .image import read_image
-    img = np.asarray(read_image(path))
+    if Path(path).suffix.lower() in HDR_SUFFIXES:
+        img = read_hdr(path)
+    else:
+        img = np.asarray(read_image(path))
     if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
-        raise UserError("the environment must be a float image (.exr or .npy)", path=path,
-                        fix="convert it to an equirectangular .exr")
+        raise UserError("the environment must be a float image (.exr, .hdr or .npy)", path=path,
+                        fix="convert it to an equirectangular .exr or .hdr")
     rgb = img[..., :3].astype(np.float64)
     bad = int(np.count_nonzero(~np.isfinite(rgb) | (rgb < 0) | (rgb > MAX_VALUE)))
     if bad:

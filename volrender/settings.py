@@ -264,7 +264,7 @@ class CommonSettings:
                              toml=("render", "transparent"))
     env: str | tuple | None = knob(
         None, "environment: R,G,B (a uniform radiance; one value = grey) or an "
-        "equirectangular map (.exr, .npy; centre looks along -z, top row up). Glass reflects "
+        "equirectangular map (.exr, .hdr, .npy; centre looks along -z, top row up). Glass reflects "
         "and refracts it (default: a procedural sky over a checker ground); a volume is lit by "
         "it and shows it behind (default: none)", metavar="R,G,B|ENV.exr", parse=env_value,
         check=env_ok, toml=("environment", "map"), kind=ENV, show_default=False)
