@@ -77,15 +77,62 @@ class Camera:
                              height=self.height, spp=spp, seed=seed & 0xFFFFFFFF)
 
 
-def frame_bounds(lo, hi, width, height, fov=DEFAULT_FOV, view=DEFAULT_VIEW, up=(0.0, 1.0, 0.0)):
-    """Camera looking at the box centre from `view`, at the distance where the box's
-    bounding sphere exactly fills the vertical field of view."""
+def frame_bounds(lo, hi, width, height, fov=DEFAULT_FOV, view=DEFAULT_VIEW, up=(0.0, 1.0, 0.0),
+                 fill=1.0, fit_fov=None, distance=None):
+    """Camera looking at the box centre from `view`. Its distance: `distance`, else where the
+    box's bounding sphere covers `fill` of the image height at `fit_fov` (default: `fov`;
+    fill 1: the sphere exactly fills the vertical field of view)."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-12 * max(1.0, float(np.abs(centre).max())))
-    dist = radius / math.sin(math.radians(fov) / 2.0)
+    dist = distance if distance is not None else framing_distance(radius, fit_fov or fov, fill)
     origin = centre + dist * _unit(view, "view")
     return Camera(tuple(origin), tuple(centre), tuple(up), fov, width, height)
+
+
+def framing_distance(radius, fov, fill=1.0):
+    """Distance at which a sphere of `radius`, centred in view, covers `fill` of the image
+    height at vertical field of view `fov`: its silhouette's half-angle a has
+    tan(a) = fill * tan(fov / 2), and sin(a) = radius / distance."""
+    half = math.radians(fov) / 2.0
+    a = half if fill == 1.0 else math.atan(fill * math.tan(half))
+    return radius / math.sin(a)
+
+
+def projected_fill(radius, dist, fov):
+    """The fraction of the image height a centred sphere covers (framing_distance's inverse)."""
+    return math.tan(math.asin(min(radius / dist, 1.0))) / math.tan(math.radians(fov) / 2.0)
+
+
+# Options that place the default framing's camera, which an explicit origin replaces, and
+# pairs that set the same thing twice: giving both is an error, never a silent choice.
+CONFLICTS = (("origin", "azimuth", "--origin places the camera; --azimuth orbits the default framing"),
+             ("origin", "elevation", "--origin places the camera; --elevation orbits the default framing"),
+             ("origin", "fill", "--origin places the camera; --fill sets the default framing's distance"),
+             ("origin", "distance", "--origin places the camera; --distance sets the default framing's"),
+             ("fill", "distance", "both set the default framing's distance"))
+
+
+# the options that only shape the default framing (gone once the camera is resolved)
+FRAMING = ("azimuth", "elevation", "fill", "distance")
+
+
+def check_conflicts(where: dict):
+    """Raise UserError for two camera options that conflict. where: {View field: how the
+    user wrote it (`--origin`, `cam.toml: [camera].origin`, `origin=`)} of the given ones."""
+    for a, b, why in CONFLICTS:
+        if a in where and b in where:
+            raise UserError(f"{where[a]} and {where[b]} conflict ({why})",
+                            fix="give only one of them")
+
+
+def describe(camera) -> str:
+    """One line for -v: origin, target, up, fov, size and the distance."""
+    def show(v):
+        return ",".join(f"{float(c):g}" for c in v)
+    d = float(np.linalg.norm(np.subtract(camera.origin, camera.target)))
+    return (f"camera origin {show(camera.origin)} target {show(camera.target)} up {show(camera.up)} "
+            f"fov {camera.fov:g} distance {d:g} size {camera.width}x{camera.height}")
 
 
 def _vec3_or_none(v):
@@ -134,9 +181,18 @@ class View:
     up: tuple | None = knob(None, "camera up vector (default: the up axis)", metavar="X,Y,Z",
                             parse=floats(3, name="--up"), check=_vec3_or_none,
                             toml=("camera", "up"), kind=VEC3, show_default=False)
-    fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees; the default framing "
-                      "fits the bounds at this fov", check=in_range(1e-3, 179),
+    fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees: it zooms, from the same "
+                      "place (the default framing stands where the bounds' sphere fills 40 "
+                      "degrees; --fill fits it to this fov instead)", check=in_range(1e-3, 179),
                       toml=("camera", "fov"))
+    fill: float | None = knob(None, "default framing: the fraction of the image height the "
+                              "bounds' bounding sphere covers at --fov (default: 1 at 40 degrees, "
+                              "and --fov zooms from there)", check=in_range(1e-3, 1e3, allow_none=True),
+                              metavar="F", toml=("camera", "fill"), kind=NUM, show_default=False)
+    distance: float | None = knob(None, "default framing: the camera's distance from the target "
+                                  "(default: set by --fill)", check=in_range(1e-20, 1e30, allow_none=True),
+                                  metavar="D", toml=("camera", "distance"), kind=NUM,
+                                  show_default=False)
     up_axis: str = knob("auto", "the world's up axis: y, z (Blender caches are Z-up), or "
                         "auto: z when the file says Blender wrote it, else y",
                         check=one_of(UP_AXES), choices=UP_AXES, toml=("camera", "up_axis"))
@@ -152,6 +208,8 @@ class View:
     def __post_init__(self):
         from .settings import check_fields
         check_fields(self)
+        check_conflicts({f: f"{f}=" for f in ("origin", "azimuth", "elevation", "fill", "distance")
+                         if getattr(self, f) is not None})
 
     def axis(self, hint=None) -> str:
         """The up axis: up_axis, or with "auto" the file's hint (else y)."""
@@ -165,10 +223,19 @@ class View:
         up = self.up or ((0.0, 1.0, 0.0) if frame is None else tuple(frame[:, 1]))
         view = view if frame is None else frame @ view
         w, h = self.size
-        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up, view=tuple(view))
-        if self.origin is not None or self.target is not None:
-            cam = Camera(tuple(self.origin or cam.origin), tuple(self.target or cam.target),
-                         tuple(up), self.fov, w, h)
+        if self.fill is None:           # fixed place: --fov zooms
+            fill, fit = 1.0, DEFAULT_FOV
+        else:
+            fill, fit = self.fill, self.fov
+        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up, view=tuple(view), fill=fill,
+                           fit_fov=fit, distance=self.distance)
+        if self.origin is None and self.target is not None:      # orbit the given target
+            dist = float(np.linalg.norm(np.subtract(cam.origin, cam.target)))
+            origin = np.asarray(self.target, np.float64) + dist * _unit(view, "view")
+            cam = Camera(tuple(origin), tuple(self.target), tuple(up), self.fov, w, h)
+        elif self.origin is not None:
+            cam = Camera(tuple(self.origin), tuple(self.target or cam.target), tuple(up),
+                         self.fov, w, h)
         return cam
 
 

@@ -105,6 +105,27 @@ def add_render_options(r):
 RENDER_DEST = None      # the render options' argparse dests (set by build_parser)
 
 
+def add_camera_options(t):
+    """tree: the render's camera options (the image size is --window-size), so the view
+    is the render's."""
+    from .camera import View
+    from .scene import options
+    g = t.add_argument_group("camera (as render's: the view is the render's camera)")
+    defaults = {f.name: f.default for f in dataclasses.fields(View)}
+    for opt in options().values():
+        if opt.owner == "view" and opt.field != "size":
+            add_option(g, opt, defaults[opt.field])
+    g.add_argument("--camera", default=None, metavar="CAM.toml",
+                   help="the camera of a --camera-out file (options given beside it win)")
+
+
+def camera_overrides(args) -> dict:
+    """The camera options given to `volrender tree`."""
+    from .scene import options
+    keys = [o.key for o in options().values() if o.owner == "view" and o.field != "size"]
+    return {k: getattr(args, k) for k in keys + ["camera"] if getattr(args, k, None) is not None}
+
+
 def build_parser():
     global RENDER_DEST
     parser = Parser(
@@ -205,6 +226,7 @@ def build_parser():
     lv.add_argument("--depth", type=_int("--depth"), default=None, help="show only this level")
     lv.add_argument("--leaves", action="store_true", help="show only the leaves")
     lv.add_argument("--max-depth", type=_int("--max-depth"), default=None, help="show levels 0..D")
+    add_camera_options(t)
     t.add_argument("--show", action="store_true", help="open an interactive window")
     t.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to a PNG")
     t.add_argument("--export", default=None, metavar="OUT.vtm", help="write the boxes (.vtm, .vtk, .vtp)")
@@ -314,6 +336,7 @@ def cmd_sequence(args):
                         skip_existing=args.skip_existing, device=args.device,
                         progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
                         say=lambda note: print(f"volrender: {note}", file=sys.stderr),
+                        camera_out=args.camera_out, verbose=args.verbose,
                         **render_overrides(args))
     for rec in r.failed:
         print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
@@ -361,9 +384,8 @@ def cmd_render(args):
     for note in scene.notes:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
-        c = scene.camera
-        print(f"volrender: camera origin {_show(tuple(c.origin))} target {_show(tuple(c.target))} "
-              f"up {_show(tuple(c.up))} fov {c.fov:g} size {c.width}x{c.height}", file=sys.stderr)
+        from .camera import describe as describe_camera
+        print(f"volrender: {describe_camera(scene.camera)}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
     if img.info.get("adaptive"):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
@@ -415,7 +437,8 @@ def cmd_tree(args):
                 screenshot=args.screenshot, export=args.export, show=args.show,
                 window_size=args.window_size)
     t = inspect.inspect_input(args.input, leaf_size=args.leaf_size, radius=args.radius,
-                              blend=args.blend, grid=args.grid, cells=args.cells, **view)
+                              blend=args.blend, grid=args.grid, cells=args.cells,
+                              camera=camera_overrides(args), **view)
     done = [p for p in (args.screenshot, args.export) if p]
     if done:
         print(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})", file=sys.stderr)

@@ -344,8 +344,21 @@ def _plotter(show, window_size):
     return pv.Plotter(off_screen=not show, window_size=list(window_size))
 
 
+def set_view(plotter, camera=None):
+    """The render's camera (a volrender Camera: position, focal point, up, vertical view
+    angle), else pyvista's isometric view."""
+    if camera is None:
+        plotter.view_isometric()
+        return
+    c = plotter.camera
+    c.position, c.focal_point, c.up = (tuple(map(float, v)) for v in
+                                       (camera.origin, camera.target, camera.up))
+    c.view_angle = float(camera.fov)
+    plotter.reset_camera_clipping_range()
+
+
 def show_tree(tree, centers, *, depth=None, leaves=False, max_depth=None, screenshot=None,
-              export=None, show=False, window_size=(1024, 768), point_size=4.0):
+              export=None, show=False, window_size=(1024, 768), point_size=4.0, camera=None):
     """Draw the tree's boxes coloured by depth, and the points coloured by leaf.
 
     Parameters
@@ -365,6 +378,8 @@ def show_tree(tree, centers, *, depth=None, leaves=False, max_depth=None, screen
         Open an interactive window (needs a display).
     window_size : (int, int)
     point_size : float
+    camera : volrender.camera.Camera, optional
+        View through this camera (the render's); default: pyvista's isometric view.
 
     Returns
     -------
@@ -395,13 +410,13 @@ def show_tree(tree, centers, *, depth=None, leaves=False, max_depth=None, screen
     p.add_mesh(cloud, scalars="leaf colour", cmap="tab20", clim=[0, 19],
                point_size=point_size, show_scalar_bar=False)
     p.add_text(_legend(tree_stats(tree)), position="upper_left", font_size=9)
-    p.view_isometric()
+    set_view(p, camera)
     _finish(p, screenshot, show)
     return blocks
 
 
 def show_bricks(bricks, *, screenshot=None, export=None, show=False,
-                window_size=(1024, 768)):
+                window_size=(1024, 768), camera=None):
     """Draw the occupied bricks in world space, coloured by their majorant.
 
     Parameters
@@ -430,7 +445,7 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
     p.add_text(f"{bricks.grid_name}: {bricks.n_slots} occupied bricks of "
                f"{int(np.prod(bricks.dims))} ({' x '.join(str(int(d)) for d in bricks.dims)})",
                position="upper_left", font_size=9)
-    p.view_isometric()
+    set_view(p, camera)
     _finish(p, screenshot, show)
     return boxes
 
@@ -462,7 +477,7 @@ def cell_boxes(grid, centre=(0.0, 0.0, 0.0)):
 
 
 def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export=None,
-               show=False, window_size=(1024, 768), point_size=3.0):
+               show=False, window_size=(1024, 768), point_size=3.0, camera=None):
     """Draw the support cells that hold a list, coloured by list length, over the points.
 
     Parameters
@@ -515,7 +530,7 @@ def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export
                f"{st['bricks_outside'] + st['bricks_inside']} bricks skipped\n"
                f"{st['bytes'] / max(len(centers), 1):.0f} bytes per sphere",
                position="upper_left", font_size=9)
-    p.view_isometric()
+    set_view(p, camera)
     _finish(p, screenshot, show)
     return boxes
 
@@ -550,7 +565,7 @@ def show_cloud(cloud, *, leaf_size=16, radius=None, blend=0.0, depth=None, leave
 
 def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, depth=None,
                   leaves=False, max_depth=None, screenshot=None, export=None, show=False,
-                  window_size=(1024, 768), cells=False):
+                  window_size=(1024, 768), cells=False, camera=None):
     """View any render input: a volume's bricks, or a point cloud's tree.
 
     Parameters
@@ -575,6 +590,9 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     cells : bool
         Points: draw the renderer's support cells (:func:`show_cells`, built with the
         renderer's blend and cell size on the default device) instead of the tree.
+    camera : dict, optional
+        The render's camera options (``fov=``, ``azimuth=``, ``camera="cam.toml"``, ...):
+        the view is the camera ``volrender render`` would use at ``window_size``.
 
     Returns
     -------
@@ -584,8 +602,10 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     from .glass import sphere_radii
     from .scene import load_scene
     _check_outputs(screenshot, export, show)      # fail before loading a large file
-    output = dict(screenshot=screenshot, export=export, show=show, window_size=window_size)
-    scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid)
+    scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid,
+                       size=tuple(window_size), **(camera or {}))
+    output = dict(screenshot=screenshot, export=export, show=show, window_size=window_size,
+                  camera=scene.camera)
     if scene.kind == "volume":
         show_bricks(scene.content.bricks, **output)
         return scene.content.bricks

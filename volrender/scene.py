@@ -690,6 +690,9 @@ def request(source, **overrides) -> Request:
                 given[by_field[name]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     _check_kinds(given, kind, str(source))
+    from .camera import check_conflicts
+    check_conflicts({options()[k].field: where for k, (_, where) in given.items()
+                     if k not in EXTRA_KEYS and options()[k].owner == "view"})
     view = View(**_field_values(given, ("view",)))
     lights = _lights(given, doc, Path(source) if origin == "scene" else None)
     values = _field_values(given, ("common", kind))

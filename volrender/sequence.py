@@ -488,13 +488,16 @@ def record_path(output: Pattern) -> Path:
 
 def render_sequence(pattern, output, frames=None, client=None, *, workers=None, scheduler=None,
                     chunk=None, skip_existing=False, device=None, progress=None, exposure=0.0,
-                    tonemap="filmic", say=None, **overrides) -> SequenceResult:
+                    tonemap="filmic", say=None, camera_out=None, verbose=False,
+                    **overrides) -> SequenceResult:
     """Render every frame of `pattern` to `output` (see the module docstring). `client`: a
     dask.distributed.Client to use (else one is created from `scheduler` or `workers`).
     Raises UserError before rendering for bad patterns and missing frames; failed frames
     are in the result's `failed` (the others are written). `say`: called with each note
-    (choices made for every frame) before the frames render."""
+    (choices made for every frame) before the frames render; with `verbose` also the
+    camera. `camera_out`: write the one camera there (a --camera file)."""
     from . import image
+    from .camera import FRAMING, describe as describe_camera, write_camera_file
     dst = parse_pattern(output, output=True)
     frame_list = parse_frames(frames) if isinstance(frames, str) else (
         sorted(set(int(f) for f in frames)) if frames is not None else None)
@@ -521,8 +524,13 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     camera, bad, extra, notes = sequence_camera(paths, overrides)
     for note in notes if say else ():
         say(note)
+    if verbose and say:
+        say(describe_camera(camera))
+    if camera_out is not None:
+        write_camera_file(camera, camera_out)
     frame_kw = {**overrides, **extra, **camera_overrides(camera)}
-    frame_kw.pop("camera", None)
+    for key in ("camera", *FRAMING):          # the camera is resolved: frames get it whole
+        frame_kw.pop(key, None)
     save_kw = {"exposure": exposure, "tonemap": tonemap}
     jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
     failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
