@@ -276,4 +276,5 @@ def test_image_save_writes_every_format(tmp_path):
     assert set(img.aovs) == {"depth", "transmittance"}
     np.testing.assert_allclose(img.aovs["transmittance"], 1 - img.rgba[..., 3])
     ch = image.read_exr_channels(img.save(tmp_path / "a.exr"))
-    np.testing.assert_array_equal(ch["Z"], img.aovs["depth"])
+    np.testing.assert_array_equal(ch["Z"], np.where(np.isinf(img.aovs["depth"]), image.DEPTH_FAR,
+                                                    img.aovs["depth"]))

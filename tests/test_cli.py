@@ -67,6 +67,12 @@ def test_exr_layers_depth_and_transmittance(tmp_path, capsys):
     np.testing.assert_allclose(ch["T"], 1 - rgba[..., 3], atol=1e-7)
     hit = rgba[..., 3] > 0.01
     assert np.all(np.isfinite(ch["Z"][hit])) and np.all(ch["Z"][hit] > 0)
+    empty = rgba[..., 3] == 0                 # nothing met: the documented far value
+    assert empty.any() and np.all(ch["Z"][empty] == image.DEPTH_FAR)
+    assert np.all(ch["Z"][~empty] < 1e3)
+    import OpenEXR
+    with OpenEXR.File(str(out)) as f:
+        assert f.header()["depthFar"] == pytest.approx(image.DEPTH_FAR)
 
 
 def test_convert_then_render_npz_equals_vdb(tmp_path, capsys):

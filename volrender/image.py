@@ -38,6 +38,9 @@ TONEMAPS = ('filmic', 'clamp')
 PNG_BITS = (8, 16)
 PNG_ALPHAS = ('opaque', 'straight')
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
+# Z where a ray meets nothing (the render's depth is +inf there): finite, as compositors
+# expect (Blender/Cycles write the same 1e10), and named in the header as `depthFar`.
+DEPTH_FAR = 1.0e10
 
 # Filmic shoulder: identity up to the knee, then an exponential shoulder that meets the
 # line with the same slope (C1) and approaches 1 asymptotically.
@@ -226,9 +229,14 @@ def _write_exr(f, rgba, channels: dict, options: dict) -> None:
     # The bindings read the raw buffer and ignore strides: pass C-contiguous arrays only.
     pixels = {'RGBA': np.ascontiguousarray(rgba, dtype=np.float32)}
     for name, data in channels.items():
-        pixels[name] = np.ascontiguousarray(data, dtype=np.float32)
+        data = np.ascontiguousarray(data, dtype=np.float32)
+        if name == 'Z':
+            data = np.where(np.isposinf(data), np.float32(DEPTH_FAR), data)
+        pixels[name] = data
     # A fresh header each time: the constructor adds dataWindow/displayWindow to it.
     header = {'compression': OpenEXR.ZIP_COMPRESSION, 'type': OpenEXR.scanlineimage}
+    if 'Z' in pixels:
+        header['depthFar'] = float(DEPTH_FAR)
     if options.get('camera') is not None:
         header.update(camera_attributes(options['camera']))
     try:
@@ -271,7 +279,9 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
     ``aovs``: optional dict of layer name -> ``H x W`` float array, ``.exr`` only (channel
     names: ``AOV_CHANNELS``). ``exposure``, ``tonemap``, ``png_bits`` (8 or 16) and
     ``background`` (the radiance composited behind, see ``png_pixels``) and ``png_alpha``
-    (``'opaque'``, the default, or ``'straight'``) apply to ``.png`` only. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too).
+    (``'opaque'``, the default, or ``'straight'``) apply to ``.png`` only. ``.exr`` and ``.npy`` store the linear values untouched (NaN/Inf too),
+    except the EXR's ``Z`` where nothing was hit (+inf): ``DEPTH_FAR`` (1e10), also in the
+    header as ``depthFar``.
     ``camera``: a camera.Camera recorded in the EXR header (``camera_attributes``).
 
     Raises ``UserError`` for a bad path or a failed write (disk full, permissions); on any
