@@ -103,6 +103,15 @@ def test_info_lists_grids_of_a_vdb(capsys):
     assert code == 0 and "density" in out and "fog volume" in out
 
 
+def test_info_describes_each_file_given(tmp_path, capsys):
+    """`volrender info *.ply demo.vdb`: every file, in order (a shell glob gives several)."""
+    pts = tmp_path / "p.xyz"
+    pts.write_text("0 0 0\n1 0 0\n0 1 0\n")
+    code, out, err = run(capsys, "info", pts, DEMO)
+    assert code == 0, err
+    assert out.index(f"{pts}: 3 points") < out.index(f"{DEMO}: OpenVDB")
+
+
 def test_missing_file(tmp_path, capsys):
     out = tmp_path / "o.png"
     code, _, err = run(capsys, "render", tmp_path / "nope.vdb", "-o", out, *SMALL)

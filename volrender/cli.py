@@ -246,7 +246,8 @@ def build_parser():
 
     i = sub.add_parser("info", formatter_class=Formatter,
                        help="list OpenCL devices and versions, or describe an input file")
-    i.add_argument("input", nargs="?", help="optional: a .vdb or .npz to describe")
+    i.add_argument("input", nargs="*", help="optional: volume or point files to describe "
+                   "(.vdb, .npz, .ply, .xyz, ...; several, or a glob)")
     add_common(i)
     return parser
 
@@ -449,8 +450,9 @@ def cmd_info(args):
     from . import device as device_mod
     if args.input:
         from .info import describe
-        for line in describe(args.input, args.device):
-            print(line)
+        for path in args.input:
+            for line in describe(path, args.device):
+                print(line)
         return 0
     import numpy
     import pyopencl
