@@ -2,7 +2,7 @@
 # Set-up and entry points for volrender on Debian (run as root, or with sudo).
 #   bash run.sh demo    install what is missing, then render the bundled demo to demo.png
 #   bash run.sh test    install what is missing, then run the test suite
-#   bash run.sh setup   install only
+#   bash run.sh setup   install only (add --inspect for `volrender tree`: pyvista and VTK)
 #   bash run.sh peers   optional: install vdb_render and Mitsuba 3.5, then compare (bench/peers.py)
 # Idempotent: a second run installs nothing new.
 set -euo pipefail
@@ -29,6 +29,15 @@ apt_deps() {
   fi
 }
 
+# covers HAVE WANT: every comma-separated extra of WANT is in HAVE
+covers() { local e; for e in ${2//,/ }; do [[ ",$1," == *",$e,"* ]] || return 1; done; }
+merge_extras() { echo "$1,$2" | tr , '\n' | awk 'NF && !seen[$0]++' | paste -sd, -; }
+
+# The default install renders everything but `volrender tree` (whose pyvista and VTK are
+# over half the venv); `--inspect` adds it, and the tests install it to test it.
+EXTRAS=vdb,bench
+for a in "$@"; do [ "$a" = --inspect ] && EXTRAS=$EXTRAS,inspect; done
+
 venv() {
   if [ ! -x "$VENV/bin/python" ]; then
     echo "run.sh: creating $VENV on $SYS_PY" >&2
@@ -40,13 +49,16 @@ venv() {
   for so in /usr/lib/python3/dist-packages/pyopenvdb*.so /usr/lib/python3/dist-packages/openvdb*.so; do
     [ -e "$so" ] && ln -sf "$so" "$site/"
   done
-  local stamp="$VENV/.installed" want
-  want=$(sha256sum pyproject.toml | cut -c1-16)
-  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-    echo "run.sh: installing Python packages into $VENV" >&2
+  # $1: the extras to install; a venv that already has them (same pyproject.toml) is kept.
+  local extras=$1 stamp="$VENV/.installed" hash have
+  hash=$(sha256sum pyproject.toml | cut -c1-16)
+  have=$(cat "$stamp" 2>/dev/null || true)
+  if [ "${have%% *}" != "$hash" ] || ! covers "${have#* }" "$extras"; then
+    [ "${have%% *}" = "$hash" ] && extras=$(merge_extras "${have#* }" "$extras")
+    echo "run.sh: installing Python packages into $VENV (extras: $extras)" >&2
     "$VENV/bin/pip" install -q --upgrade pip >/dev/null
-    "$VENV/bin/pip" install -q -e ".[vdb,inspect,bench,test]"
-    echo "$want" > "$stamp"
+    "$VENV/bin/pip" install -q -e ".[$extras]"
+    echo "$hash $extras" > "$stamp"
   fi
   "$VENV/bin/python" -c 'import volrender.vdb as v; v.import_openvdb()' \
     || { echo "run.sh: OpenVDB's Python binding does not import in $VENV" >&2; exit 1; }
@@ -77,8 +89,8 @@ peers() {
 
 cmd=${1:-demo}
 case "$cmd" in
-  setup) apt_deps; venv ;;
-  demo)  apt_deps; venv
+  setup) apt_deps; venv "$EXTRAS"; du -sh "$VENV" | sed 's/^/run.sh: the venv takes /' >&2 ;;
+  demo)  apt_deps; venv "$EXTRAS"
          # a white cloud: albedo 0.98, lit by the sun and a blue sky (--env), multiple
          # scattering by 3 octaves (docs/error_time.md: 16% from the path-traced image;
          # `--estimator path --spp 256` renders that image, grainier, in ~1 minute)
@@ -86,9 +98,9 @@ case "$cmd" in
            --density-scale 6 --albedo 0.98 --sun=-0.6,-1,-0.5,10 --fov 28 --env 0.32,0.42,0.58 \
            --ms-octaves 3
          echo "run.sh: wrote demo.png" >&2 ;;
-  test)  apt_deps; venv; shift || true
+  test)  apt_deps; venv vdb,inspect,bench,test; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
-  peers) apt_deps; venv; shift || true
+  peers) apt_deps; venv "$EXTRAS"; shift || true
          peers "$@" ;;
   *) echo "usage: bash run.sh [demo|test|setup|peers]" >&2; exit 2 ;;
 esac
