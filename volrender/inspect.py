@@ -50,7 +50,7 @@ def _pv():
         import pyvista
     except ImportError as exc:
         raise UserError(f"pyvista is not installed ({exc})",
-                        fix="pip install 'volrender[inspect]' (bash run.sh setup installs it)") from None
+                        fix="bash run.sh setup --inspect (or pip install 'volrender[inspect]')") from None
     return pyvista
 
 
