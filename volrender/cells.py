@@ -61,9 +61,8 @@ class Cells:
     dims: np.ndarray          # int (3,): cells per axis
     bdims: np.ndarray         # int (3,): bricks per axis
     bricks: np.ndarray        # int32 (n_bricks, 2): code, bound bits (cl/cells.h)
-    cells: np.ndarray         # int32 (n_blocks * B^3, 2): code, bound bits
-    lists: np.ndarray         # int32 (n_lists, 4): list start, count, core start, count
-                              # in runs (core: the spheres that can be the nearest)
+    n_cell_rows: int          # rows of `cells`: n_blocks * B^3
+    n_lists: int              # rows of `lists`: the listed cells
     runs_device: object       # cl.Buffer of the runs, in the builder's context: renders
                               # read it there, the host copy (runs) is made on first use
     n_runs: int
@@ -73,24 +72,39 @@ class Cells:
     build_ms: float
     build_kernel_ms: float = 0.0    # of build_ms, in the build's kernels (profiling events)
     build_launches: int = 0
-    buffers: tuple = ()       # device copies of bricks, cells, lists (the builder's context)
+    buffers: tuple = ()       # device bricks, cells, lists (the builder's context): renders
+                              # there read them; the host cells and lists are copied on use
+
+    def _host(self, key, buffer, rows, cols):
+        host = self.__dict__.get(key)
+        if host is None:
+            import pyopencl as cl
+            host = np.empty((max(rows, 1), cols), np.int32)
+            cl.enqueue_copy(self.queue, host, buffer)
+            host = host[:rows]
+            object.__setattr__(self, key, host)
+        return host
+
+    @property
+    def cells(self) -> np.ndarray:
+        """int32 (n_blocks * B^3, 2): code, bound bits of every cell of the mixed bricks."""
+        return self._host("_cells", self.buffers[1], self.n_cell_rows, 2)
+
+    @property
+    def lists(self) -> np.ndarray:
+        """int32 (n_lists, 4): list start, count, core start, count in runs (core: the
+        spheres that can be the nearest)."""
+        return self._host("_lists", self.buffers[2], self.n_lists, 4)
 
     @property
     def runs(self) -> np.ndarray:
         """int32 (n_runs, 2): first sphere, count of consecutive sphere indices (tree
         order), ascending within a list."""
-        host = self.__dict__.get("_runs")
-        if host is None:
-            import pyopencl as cl
-            host = np.empty((max(self.n_runs, 1), 2), np.int32)
-            cl.enqueue_copy(self.queue, host, self.runs_device)
-            host = host[:self.n_runs]
-            object.__setattr__(self, "_runs", host)
-        return host
+        return self._host("_runs", self.runs_device, self.n_runs, 2)
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.bricks, self.cells, self.lists)) + 8 * self.n_runs
+        return self.bricks.nbytes + 8 * self.n_cell_rows + 16 * self.n_lists + 8 * self.n_runs
 
     def lengths(self, core=False):
         """Spheres on each list (or core)."""
@@ -102,7 +116,7 @@ class Cells:
     def summary(self) -> dict:
         """What a render reports (cheap: the runs stay on the device)."""
         return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
-                "cells_listed": int(len(self.lists)), "runs": int(self.n_runs),
+                "cells_listed": int(self.n_lists), "runs": int(self.n_runs),
                 "bytes": int(self.nbytes), "build_ms": self.build_ms,
                 "build_kernel_ms": self.build_kernel_ms}
 
@@ -261,11 +275,12 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
             break
         cell *= max(1.1, (level.kept * B3 / max_cells) ** 0.5)
     level = b.cells(level)
-    bricks, cells_, lists = b.tables(level)
+    bricks, n_cell_rows = b.tables()
     kernel_ms = b.kernel_ms()
-    return Cells(lo, cell, dims, bdims, bricks, cells_, lists, level.runs, level.total,
-                 device.queue, float(tau), pad, 1e3 * (time.perf_counter() - t0), kernel_ms,
-                 b.launches, buffers=b.buffers)
+    return Cells(lo, cell, dims, bdims, bricks, n_cell_rows, level.kept, level.runs,
+                 level.total, device.queue, float(tau), pad, 1e3 * (time.perf_counter() - t0),
+                 kernel_ms, b.launches,
+                 buffers=(b.table.data, b.cells_table.data, level.lists.data))
 
 
 TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
@@ -442,16 +457,12 @@ class _Builder:
                 return lv
             parent, lv = lv, self._expand(lv)
 
-    def tables(self, last):
-        """Host copies of the brick table, the cell table and the lists; self.buffers keeps
-        the device ones for renders on this device."""
+    def tables(self):
+        """The host copy of the brick table (small) and the cell table's rows; the cells
+        and lists stay on the device until read (Cells.cells, Cells.lists)."""
         bricks = self.table.get().view(np.int32).reshape(-1, 2)
         assert (bricks[:, 0] != -99).all(), "a brick was left unclassified"
-        n_cells = int(np.count_nonzero(bricks[:, 0] >= 0)) * B3
-        cells_ = self.cells_table.get().view(np.int32).reshape(-1, 2)[:n_cells]
-        lists = last.lists.get().view(np.int32).reshape(-1, 4)[:last.kept]
-        self.buffers = (self.table.data, self.cells_table.data, last.lists.data)
-        return bricks, cells_, lists
+        return bricks, int(np.count_nonzero(bricks[:, 0] >= 0)) * B3
 
     def kernel_ms(self):
         self.q.finish()
