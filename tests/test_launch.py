@@ -82,14 +82,15 @@ def test_progress_counts_every_sample(cl_device, monkeypatch, capsys):
 
 
 def test_launches_adapt_to_the_target(cl_device, monkeypatch):
-    """With a tiny target every launch shrinks to one tile row and one sample; with a
-    huge one they grow (x8 at most per launch) to whole bands of every sample."""
+    """With a tiny target every launch stays one tile row and one sample; with launches
+    that take long enough to measure (a faked 0.1 s each) they grow, at most x GROW per
+    launch, towards whole bands of every sample."""
     sizes = []
     real = dispatch.Progress.update
 
-    def spy(self, samples, rows=None):
+    def spy(self, samples, rows=None, s1=None):
         sizes.append(samples)
-        return real(self, samples, rows)
+        return real(self, samples, rows, s1)
     monkeypatch.setattr(dispatch.Progress, "update", spy)
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 64)
     scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=4)))
@@ -97,5 +98,8 @@ def test_launches_adapt_to_the_target(cl_device, monkeypatch):
     render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1e-9))
     assert sizes == ([16 * 64] * 4 if gpu else [16 * 8] * (8 * 4))
     sizes.clear()
-    render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1e9))
-    assert sum(sizes) == 16 * 64 * 4 and len(sizes) <= 4 and (gpu or sizes[1] > sizes[0])
+    enqueue = dispatch._enqueue
+    monkeypatch.setattr(dispatch, "_enqueue", lambda *a: (enqueue(*a)[0], 0.1))
+    render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1.0))
+    assert sum(sizes) == 16 * 64 * 4 and (gpu or sizes[1] > sizes[0])
+    assert all(b <= dispatch.GROW * a for a, b in zip(sizes, sizes[1:]))

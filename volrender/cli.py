@@ -402,7 +402,7 @@ def cmd_render(args):
     if args.camera_out:
         from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)
-    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.wall_ms / 1e3:.2f} s "
+    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {(img.info.get('setup_ms', 0.0) + img.wall_ms) / 1e3:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
     return 0
 

@@ -20,6 +20,12 @@ Launch sizes adapt to the measured speed so that each takes about TARGET_S (CPUs
 GPU_TARGET_S: Ctrl-C and the progress bar (both act between launches) wait no longer
 than that. GPUs get whole frames (GPU_BAND_PIXELS) and split only samples, since small
 launches leave most of the device idle.
+
+Issue 23: a cheap launch (empty rows above a cloud, < target / CHEAP) says nothing about
+the rows below, so it does not grow the next one: CPUs start at one tile row and one
+sample and stay there until a launch takes long enough to measure, then grow at most
+x GROW per launch from the slowest rate seen so far. (Before, a 1 ms band of empty rows
+grew the next launch x8 over most of smoke.vdb: one 11.6 s launch, signals held as long.)
 """
 from __future__ import annotations
 
@@ -37,6 +43,29 @@ KINDS = CHOICES + ("fragment-driver",)   # fragment with the driver's local size
 GPU_BAND_PIXELS = 1 << 22      # a 1080p frame is one launch on a GPU
 TARGET_S = 0.25                # launch length aimed at on CPUs (PoCL)
 GPU_TARGET_S = 0.5             # on GPUs
+GROW = 4                       # a launch is at most GROW x the pixel-samples of the last
+CHEAP = 16                     # a launch under target / CHEAP does not grow the next
+
+
+@dataclass
+class Stats:
+    """What run_rows did: kernel ms (profiling events), launches, and each launch's
+    (seconds, rows, samples) and its end in seconds from the first launch's start."""
+    kernel_ms: float = 0.0
+    kernel_ns: int = 0
+    launches: int = 0
+    took: list = field(default_factory=list)     # (seconds, rows, samples) per launch
+    ends: list = field(default_factory=list)     # seconds from the start to each launch's end
+
+
+def _enqueue(device, kernel, global_size, local_size):
+    """One launch, waited for: (kernel ns from its profiling event, wall seconds). Tests
+    replace it to fake a slow kernel."""
+    import pyopencl as cl
+    start = time.perf_counter()
+    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, global_size, local_size)
+    ev.wait()
+    return ev.profile.end - ev.profile.start, time.perf_counter() - start
 
 
 @dataclass(frozen=True)
@@ -153,18 +182,17 @@ def row_bands(width: int, height: int, pixels: int, unit: int = 1):
 
 
 def run_rows(device, kernel, args, width, height, pixels, progress=None,
-             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None):
+             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None) -> Stats:
     """Launch `kernel(*args, y0, s0, s1)` over the image, band by band and sample range by
-    sample range (see the module docstring); returns (kernel ms from OpenCL profiling
-    events, launches). `pixels`: pixel-samples of the first launch on CPUs (unless
-    launch.first), after which launches grow or shrink (at most x8 per launch) towards
-    the target (launch.target_s, else TARGET_S or GPU_TARGET_S); launch.fixed: (rows,
-    samples) per launch."""
+    sample range (see the module docstring); returns Stats. `pixels`: pixel-samples of the
+    first launch on CPUs (unless launch.first), at most one tile row of one sample; later
+    launches grow (at most x GROW, and only after one that was not cheap) or shrink
+    towards the target (launch.target_s, else TARGET_S or GPU_TARGET_S) at the slowest
+    rate seen; launch.fixed: (rows, samples) per launch."""
     launch = launch or Launch()
     fixed = launch.fixed
     if launch.first is not None:
         pixels = launch.first
-    import pyopencl as cl
     dispatch = (dispatch or Dispatch()).resolve(device)
     dispatch.check(device, kernel)
     driver = dispatch.driver_local
@@ -173,11 +201,14 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     gpu = is_gpu(device)
     target = launch.target_s or (GPU_TARGET_S if gpu else TARGET_S)
     gpu_rows = row_bands(width, height, GPU_BAND_PIXELS, th)[0][1]
-    work = gpu_rows * width if gpu else max(1, pixels)        # pixel-samples per launch
-    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height)
-    kernel_ns = launches = 0
+    first = gpu_rows * width if gpu else max(1, min(int(pixels), width * th))
+    work = first                                         # pixel-samples of the next launch
+    rate = 0.0                                           # slowest seconds per pixel-sample
+    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height, spp=spp)
+    stats = Stats()
     gx = -(-width // tw) * tw
     y0 = 0
+    t_start = time.perf_counter()
     try:
         while y0 < height:
             if fixed is not None:
@@ -195,22 +226,36 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 chunk = -(-(spp - s0) // -(-(spp - s0) // chunk))    # even chunks, no stub
                 s1 = min(spp, s0 + chunk)
                 kernel.set_args(*args, np.int32(y0), np.int32(s0), np.int32(s1))
-                start = time.perf_counter()
                 if driver:
-                    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (width, rows), None)
+                    ns, took = _enqueue(device, kernel, (width, rows), None)
                 else:
-                    gy = -(-rows // th) * th
-                    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, (gx, gy), (tw, th))
-                ev.wait()
-                took = time.perf_counter() - start
-                kernel_ns += ev.profile.end - ev.profile.start
-                launches += 1
+                    ns, took = _enqueue(device, kernel, (gx, -(-rows // th) * th), (tw, th))
+                stats.kernel_ns += ns
+                stats.launches += 1
+                stats.took.append((took, rows, s1 - s0))
+                stats.ends.append(time.perf_counter() - t_start)
                 done = width * rows * (s1 - s0)
                 if fixed is None:
-                    work = int(min(max(done * target / max(took, 1e-6), done / 8), done * 8))
-                bar.update(done, y0 + rows if s1 == spp else y0)
+                    # GPUs always launch the whole frame: every timing is representative
+                    work = next_work(done, took, target, rate, None if gpu else first)
+                    if gpu or took >= target / CHEAP:
+                        rate = max(rate, took / done)
+                bar.update(done, y0 + rows if s1 == spp else y0, s1)
                 s0 = s1
             y0 += rows
     finally:
         bar.close()
-    return kernel_ns * 1e-6, launches
+    stats.kernel_ms = stats.kernel_ns * 1e-6
+    return stats
+
+
+def next_work(done: int, took: float, target: float, rate: float, first) -> int:
+    """Pixel-samples of the next launch after one of `done` that took `took` seconds:
+    a cheap one (< target / CHEAP) keeps the size (not above `first`; first None: no
+    such rule); otherwise the
+    target at the slowest rate seen (`rate`, this launch's included), between done / 8
+    and done x GROW."""
+    if first is not None and took < target / CHEAP:
+        return max(1, min(done, first))
+    slowest = max(rate, took / max(done, 1))
+    return int(max(1, min(max(target / slowest, done / 8), done * GROW)))

@@ -23,8 +23,10 @@ import numpy as np
 from . import device as device_mod, glass, volume
 from .dispatch import Launch, run_rows, upload
 from .errors import UserError
+from .progress import say
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
+BUILD_NOTE = 100_000                   # clouds from which the build says so (seconds on PoCL)
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,6 +89,8 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
         return render_passes(scene, dev, progress=progress, launch=launch)
     cam = scene.camera
     t_plan = time.perf_counter()
+    if scene.kind == "glass" and scene.content.builds == 0 and len(scene.content.cloud) >= BUILD_NOTE:
+        say(f"building the acceleration for {len(scene.content.cloud)} spheres ...", progress)
     plan = PLANNERS[scene.kind](scene, dev, variant, launch)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
@@ -98,8 +102,8 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
-    kernel_ms, launches = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                         dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
+    run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
+                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -114,10 +118,11 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
             aovs[name] = host[name][..., 0].copy() if host[name].ndim == 3 else host[name]
         else:
             aovs[name] = _derived_aov(name, rgba)
-    return Image(rgba=rgba, aovs=aovs, kernel_ms=kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
+    return Image(rgba=rgba, aovs=aovs, kernel_ms=run.kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
-                       **plan.info, "setup_ms": setup_ms, "launches": launches})
+                       **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                       "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 
 
 def _derived_aov(name, rgba):

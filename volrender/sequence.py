@@ -564,7 +564,7 @@ def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device):
     from .progress import Progress
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
-    bar = Progress(len(jobs), "frames", progress)
+    bar = Progress(len(jobs), "frames", progress, unit="frame")
     records = []
     try:
         for job in jobs:
@@ -619,7 +619,7 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
     futures = [client.submit(render_chunk, c, frame_kw, save_kw, skip_existing, pure=False,
                              retries=2, key=f"volrender-frames-{c[0][0]}-{c[-1][0]}-{os.getpid()}")
                for c in chunks]
-    bar = Progress(len(jobs), "frames", progress)
+    bar = Progress(len(jobs), "frames", progress, unit="frame")
     records = []
     try:
         for fut in as_completed(futures):
