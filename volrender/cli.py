@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__, atomic
-from .errors import UserError, printable
+from .errors import SPELLING, UserError, printable, suggest
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -635,12 +635,14 @@ def main(argv=None) -> int:
     global _written_from
     _written_from = len(atomic.WRITTEN)
     streams = _guard_streams()
+    spelling = SPELLING.set("cli")            # errors name the flags, not Python keywords
     try:
         code = _main(argv)
         if code == 0:
             code = _stdout_failed(_command) or 0
         return code
     finally:
+        SPELLING.reset(spelling)
         sys.stdout.flush()
         sys.stderr.flush()
         if argv is not None:                 # called from Python: give its streams back

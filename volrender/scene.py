@@ -45,7 +45,7 @@ import numpy as np
 
 from .camera import View
 from .environment import Environment, load_environment, uniform
-from .errors import UserError
+from .errors import KEYWORDS, UserError, option_name, suggest
 from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
                        knobs, override_key)
 
@@ -270,7 +270,8 @@ def _section(table, name, where, base):
     out = {}
     for key, value in table.items():
         if key not in schema:
-            raise UserError(f"unknown key {where}.{key}",
+            close = suggest(key, schema, lambda k: f"{where}.{k}")
+            raise UserError(f"unknown key {where}.{key}" + (f"; {close}" if close else ""),
                             fix=f"known keys: {', '.join(sorted(schema))}")
         out[key] = _check_type(value, schema[key], f"{where}.{key}", base)
     return out
@@ -293,7 +294,9 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
     scene = {}
     for name, table in raw.items():
         if name not in SCHEMA:
-            raise UserError(f"unknown section [{name}]", fix=f"known sections: {', '.join(sorted(SCHEMA))}")
+            close = suggest(name, SCHEMA, lambda k: f"[{k}]")
+            raise UserError(f"unknown section [{name}]" + (f"; {close}" if close else ""),
+                            fix=f"known sections: {', '.join(sorted(SCHEMA))}")
         if name == "lights":
             if not isinstance(table, list):
                 raise UserError("lights must be an array of tables: write [[lights]]")
@@ -385,6 +388,59 @@ def _explicit(overrides) -> set:
     return {by_field.get(k, k) for k, v in overrides.items() if v is not None}
 
 
+def _plain(value):
+    """numpy arrays and scalars as tuples and Python numbers; lists as tuples."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return tuple(_plain(v) for v in value)
+    return value
+
+
+def _python_value(opt, value, where):
+    """A keyword's value in the form the settings hold: one number where the option takes
+    one value (albedo=0.99: grey), "WxH" for sizes, one string for a list of strings."""
+    from .settings import pair
+    value = _plain(value)
+    kind, check = opt.meta["kind"], opt.meta["check"]
+    if kind == SIZE and isinstance(value, str):
+        import argparse
+        try:
+            return pair(where)(value)
+        except argparse.ArgumentTypeError as exc:
+            raise UserError(str(exc)) from None
+    if kind == STRS and isinstance(value, str):
+        return (value,)
+    if kind in (VEC, VEC3) and _finite(value) and check is not None and check((value,)) is None:
+        return (float(value),)
+    return value
+
+
+def _light_values(key, value, where):
+    """sun= / point_light=: one (x, y, z, power) tuple or a list of them, each 4 finite
+    numbers; lights=: Sun and PointLight objects."""
+    from .lights import PointLight, Sun
+    value = _plain(value) if key != "lights" else value
+    if key in ("sun", "point_light"):
+        if isinstance(value, tuple) and value and all(_finite(v) for v in value):
+            value = (value,)                 # one light given as one tuple
+        what = "DX,DY,DZ,E" if key == "sun" else "X,Y,Z,I"
+        if not isinstance(value, tuple) or not all(
+                isinstance(v, tuple) and len(v) == 4 and all(map(_finite, v)) for v in value):
+            raise UserError(f"{where} takes 4 finite numbers ({what}) or a list of such "
+                            f"tuples, got {value!r}")
+    if key == "lights":
+        if isinstance(value, (Sun, PointLight)):
+            value = (value,)
+        if not isinstance(value, (list, tuple)) or not all(
+                isinstance(v, (Sun, PointLight)) for v in value):
+            raise UserError(f"{where} takes a list of volrender.Sun and volrender.PointLight, "
+                            f"got {value!r}")
+    return value
+
+
 def _negates(opt) -> bool:
     """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
     return opt.meta["kind"] is bool and opt.key != opt.field
@@ -400,14 +456,15 @@ def _given_from_overrides(overrides) -> dict:
         if value is None:
             continue
         if key in EXTRA_KEYS:
-            given[key] = (value, "--" + key.replace("_", "-"))
+            flag = "--" + key.replace("_", "-")
+            given[key] = (_light_values(key, value, flag), flag)
             continue
         opt = opts.get(key) or by_field.get(key)
         if opt is None:
-            known = ", ".join(sorted([*opts, *EXTRA_KEYS]))
-            raise UserError(f"unknown option {key!r}", fix=f"known options: {known}")
-        if isinstance(value, list):
-            value = tuple(value)
+            raise UserError(f"unknown option {key!r}",
+                            fix=suggest(key, [*opts, *EXTRA_KEYS], option_name) or
+                            "`volrender render --help` and docs/options.md list them")
+        value = _python_value(opt, value, opt.flag if key == opt.key else f"{key}=")
         if key == opt.key and _negates(opt):
             if not isinstance(value, bool):
                 raise UserError(f"{opt.flag} is a switch: give True or False, got {value!r}")
@@ -714,3 +771,8 @@ def load_scene(source, **overrides) -> Scene:
 
 
 SCHEMA = _schema()
+# the flags errors.spell writes as Python keywords: the options, the lights and the
+# keywords of render_sequence and Image.save that the CLI has as flags
+KEYWORDS.update(options(), EXTRA_KEYS, ("frames", "workers", "scheduler", "chunk",
+                                        "skip_existing", "device", "exposure", "tonemap",
+                                        "png_bits"))
