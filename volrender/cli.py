@@ -26,7 +26,24 @@ class Parser(argparse.ArgumentParser):
     """Usage errors as one line, like every other error (subparsers inherit it)."""
 
     def error(self, message):
+        unknown = re.match(r"unrecognized arguments: (.*)", message)
+        if unknown:           # "unknown option --spps; did you mean --spp?"
+            words = [w.split("=")[0] for w in unknown.group(1).split() if w.startswith("--")]
+            if words:
+                known = [o[2:] for o in self._all_options()]
+                close = suggest(words[0][2:], known, lambda o: f"--{o}")
+                message = f"unknown option {printable(words[0])}" + (f"; {close}" if close else "")
         self.exit(2, f"volrender: error: {message}; see `{self.prog} --help`\n")
+
+    def _all_options(self) -> list:
+        """The long options of this parser and of its subcommands."""
+        out = []
+        for action in self._actions:
+            out += [o for o in action.option_strings if o.startswith("--")]
+            for sub in (getattr(action, "choices", None) or {}).values() \
+                    if isinstance(action, argparse._SubParsersAction) else ():
+                out += sub._all_options()
+        return list(dict.fromkeys(out))
 
 
 def add_common(p):

@@ -462,7 +462,7 @@ def _given_from_overrides(overrides) -> dict:
         opt = opts.get(key) or by_field.get(key)
         if opt is None:
             raise UserError(f"unknown option {key!r}",
-                            fix=suggest(key, [*opts, *EXTRA_KEYS], option_name) or
+                            fix=suggest(key, [*opts, *EXTRA_KEYS, *by_field], option_name) or
                             "`volrender render --help` and docs/options.md list them")
         value = _python_value(opt, value, opt.flag if key == opt.key else f"{key}=")
         if key == opt.key and _negates(opt):
