@@ -286,24 +286,10 @@ def describe(scene, img=None) -> str:
 
 
 def look_problems(img, scene) -> list[str]:
-    """Warnings for an image that came out empty or saturated, with the fix."""
-    import numpy as np
-    alpha = img.rgba[..., 3]
-    what = "volume" if scene.kind == "volume" else "point cloud"
-    if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
-        fix = ("raise --density-scale (`volrender info FILE` suggests one) or check the camera"
-               if scene.kind == "volume" else "check the camera (--origin, --target, --fov)")
-        return [f"the image is empty: the {what} covers no pixel (alpha < 0.001 everywhere); {fix}"]
-    out = []
-    covered = alpha > 0.01
-    if scene.kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
-        out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
-                   "covers); lower --density-scale (`volrender info FILE` suggests one)")
-    rgb = img.rgba[..., :3][covered]
-    if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
-        out.append("the image is overexposed (half the covered pixels are above 4); lower the "
-                   "lights' irradiance or --exposure")
-    return out
+    """Warnings for an image that came out empty or saturated, with the fix (render()
+    warns with them: render.image_problems)."""
+    from .render import image_problems
+    return image_problems(img, scene.kind)
 
 
 SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
@@ -384,8 +370,6 @@ def cmd_render(args):
     img = render(scene, dev, progress=args.progress)
     if img.info.get("adaptive"):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
-    for problem in look_problems(img, scene):
-        warnings.warn(problem)
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
