@@ -102,3 +102,19 @@ class MissingFileError(UserError, FileNotFoundError):
 class ImageWarning(UserWarning):
     """A rendered image that came out empty, a solid silhouette or overexposed (render()
     warns with it; the CLI prints it as `volrender: warning: ...`)."""
+
+
+def one_line_if_uncaught(exc: BaseException) -> BaseException:
+    """Make `exc`, should it reach the top of a script uncaught, print as the CLI prints
+    errors (`volrender: error: ...`, no traceback); any other exception keeps the hook that
+    was there. Returns exc (raise it)."""
+    import sys
+    previous = sys.excepthook
+
+    def hook(kind, value, tb):
+        if value is exc:
+            print(f"volrender: error: {value}", file=sys.stderr)
+        else:
+            previous(kind, value, tb)
+    sys.excepthook = hook
+    return exc
