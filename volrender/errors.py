@@ -64,7 +64,7 @@ def option_name(key: str) -> str:
 
 def suggest(word: str, known, spell_as=str) -> str:
     """"did you mean X?" for the close matches of `word` among `known` ('' for none)."""
-    close = difflib.get_close_matches(word, list(dict.fromkeys(known)), n=2, cutoff=0.7)
+    close = difflib.get_close_matches(word, list(dict.fromkeys(known)), n=2, cutoff=0.6)
     if not close:
         return ""
     return "did you mean " + " or ".join(spell_as(c) for c in close) + "?"
