@@ -37,7 +37,8 @@ def xyz(tmp_path, points):
 # ------------------------------------------------------------------ values as Python writes them
 
 def test_a_scalar_means_grey_where_a_vector_takes_one_value(box):
-    s = volrender.load_scene(box, albedo=0.9, background=0.25, size=SIZE)
+    s = volrender.load_scene(box, albedo=0.9, background=0.25, env=0.5, size=SIZE)
+    assert s.settings.env == (0.5, 0.5, 0.5)
     assert s.settings.albedo == volrender.load_scene(box, albedo=(0.9,), size=SIZE).settings.albedo
     assert np.allclose(s.settings.albedo, 0.9) and np.allclose(s.settings.background, 0.25)
     with pytest.raises(UserError, match="origin= "):     # a position takes no single value

@@ -5,7 +5,8 @@
     scene = volrender.load_scene("scenes/molten_glass.toml", spp=4)
 
 `source` is a volume (.vdb, .npz), a point cloud (.ply, .xyz, .csv, .txt, .npy), a
-generator `NAME:COUNT` (blob:2000) or a scene file (.toml). Override keys are the command
+generator `NAME:COUNT` (blob:2000), a scene file (.toml) or a numpy array (a dense 3-D
+volume, voxel (i, j, k) at world (i, j, k); points (N, 3) or (N, 4) with radii). Override keys are the command
 line's option names with underscores (`density_scale=2.0`, `no_tree=True`, `origin=(0, 0, 4)`,
 `sun=[(-1, -1, 0, 3)]`, or `lights=[Sun(...), PointLight(...)]`); they win over the scene
 file, whose values win over the defaults, which live once, in the settings classes
@@ -472,6 +473,8 @@ def _python_value(opt, value, where):
             raise UserError(str(exc)) from None
     if kind == STRS and isinstance(value, str):
         return (value,)
+    if kind == ENV and _finite(value):
+        return (float(value),)               # env=0.5: a grey uniform radiance
     if kind in (VEC, VEC3) and _finite(value) and check is not None and check((value,)) is None:
         return (float(value),)
     return value
