@@ -6,8 +6,9 @@
     image.save("smoke.exr")
 
 load_scene takes the command line's option names with underscores as keywords
-(`volrender render --help` lists them); Image holds rgba (H x W x 4 float32, linear), the
-AOVs, timings and the device name.
+(`volrender render --help` lists them); render also takes what load_scene takes (a path,
+GENERATOR:COUNT, a numpy volume or points) with the keywords. Image holds rgba (H x W x 4
+float32, linear), the AOVs, timings and the device name. docs/python.md has the whole API.
 """
 __version__ = "0.1.0"
 

@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__, atomic
-from .errors import UserError, printable
+from .errors import SPELLING, UserError, printable, suggest
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -26,7 +26,24 @@ class Parser(argparse.ArgumentParser):
     """Usage errors as one line, like every other error (subparsers inherit it)."""
 
     def error(self, message):
+        unknown = re.match(r"unrecognized arguments: (.*)", message)
+        if unknown:           # "unknown option --spps; did you mean --spp?"
+            words = [w.split("=")[0] for w in unknown.group(1).split() if w.startswith("--")]
+            if words:
+                known = [o[2:] for o in self._all_options()]
+                close = suggest(words[0][2:], known, lambda o: f"--{o}")
+                message = f"unknown option {printable(words[0])}" + (f"; {close}" if close else "")
         self.exit(2, f"volrender: error: {message}; see `{self.prog} --help`\n")
+
+    def _all_options(self) -> list:
+        """The long options of this parser and of its subcommands."""
+        out = []
+        for action in self._actions:
+            out += [o for o in action.option_strings if o.startswith("--")]
+            for sub in (getattr(action, "choices", None) or {}).values() \
+                    if isinstance(action, argparse._SubParsersAction) else ():
+                out += sub._all_options()
+        return list(dict.fromkeys(out))
 
 
 def add_common(p):
@@ -292,24 +309,10 @@ def describe(scene, img=None) -> str:
 
 
 def look_problems(img, scene) -> list[str]:
-    """Warnings for an image that came out empty or saturated, with the fix."""
-    import numpy as np
-    alpha = img.rgba[..., 3]
-    what = "volume" if scene.kind == "volume" else "point cloud"
-    if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
-        fix = ("raise --density-scale (`volrender info FILE` suggests one) or check the camera"
-               if scene.kind == "volume" else "check the camera (--origin, --target, --fov)")
-        return [f"the image is empty: the {what} covers no pixel (alpha < 0.001 everywhere); {fix}"]
-    out = []
-    covered = alpha > 0.01
-    if scene.kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
-        out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
-                   "covers); lower --density-scale (`volrender info FILE` suggests one)")
-    rgb = img.rgba[..., :3][covered]
-    if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
-        out.append("the image is overexposed (half the covered pixels are above 4); lower the "
-                   "lights' irradiance or --exposure")
-    return out
+    """Warnings for an image that came out empty or saturated, with the fix (render()
+    warns with them: render.image_problems)."""
+    from .render import image_problems
+    return image_problems(img, scene.kind)
 
 
 SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
@@ -390,8 +393,6 @@ def cmd_render(args):
     img = render(scene, dev, progress=args.progress)
     if img.info.get("adaptive"):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
-    for problem in look_problems(img, scene):
-        warnings.warn(problem)
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
@@ -660,12 +661,14 @@ def main(argv=None) -> int:
     global _written_from
     _written_from = len(atomic.WRITTEN)
     streams = _guard_streams()
+    spelling = SPELLING.set("cli")            # errors name the flags, not Python keywords
     try:
         code = _main(argv)
         if code == 0:
             code = _stdout_failed(_command) or 0
         return code
     finally:
+        SPELLING.reset(spelling)
         sys.stdout.flush()
         sys.stderr.flush()
         if argv is not None:                 # called from Python: give its streams back

@@ -1,4 +1,12 @@
-"""User-facing errors: one line naming the file, the problem and the fix."""
+"""User-facing errors: one line naming the file, the problem and the fix.
+
+Messages name options as the caller spells them: `--density-scale` on the command line,
+`density_scale=` from Python (`spelling`, set by the CLI for its run; `spell` rewrites the
+flags a message was written with). `suggest` adds difflib's close matches ("did you mean").
+"""
+import contextvars
+import difflib
+import re
 
 
 def printable(text) -> str:
@@ -25,10 +33,49 @@ def printable(text) -> str:
     return "".join(out)
 
 
-class UserError(Exception):
+# "cli" while the command line runs (cli.main), else "python": how messages name options.
+SPELLING = contextvars.ContextVar("volrender_spelling", default="python")
+# Python keywords that have a flag (filled by scene.py from the settings knobs): only these
+# flags are rewritten, so `--help` or a file name with dashes in it stays as written.
+KEYWORDS: set = set()
+_FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9]*(?:-[a-z0-9]+)*)\b(?!-)")
+
+
+def spelling() -> str:
+    return SPELLING.get()
+
+
+def spell(text: str) -> str:
+    """`text` with each option flag (`--density-scale`) as the Python keyword
+    (`density_scale=`) when the caller is Python; unchanged for the CLI."""
+    if SPELLING.get() == "cli":
+        return text
+
+    def keyword(m):
+        key = m.group(1).replace("-", "_")
+        return f"{key}=" if key in KEYWORDS else m.group(0)
+    return _FLAG.sub(keyword, text)
+
+
+def option_name(key: str) -> str:
+    """An option key (`density_scale`) as the caller spells it."""
+    return "--" + key.replace("_", "-") if SPELLING.get() == "cli" else f"{key}="
+
+
+def suggest(word: str, known, spell_as=str) -> str:
+    """"did you mean X?" for the close matches of `word` among `known` ('' for none)."""
+    close = difflib.get_close_matches(word, list(dict.fromkeys(known)), n=2, cutoff=0.6)
+    if not close:
+        return ""
+    return "did you mean " + " or ".join(spell_as(c) for c in close) + "?"
+
+
+class UserError(ValueError):
     """An error caused by input or environment, reported without a traceback.
 
-    The CLI prints ``volrender: error: <message>`` and exits with status 2.
+    A ValueError, so that Python callers can catch it as one (MissingFileError is also a
+    FileNotFoundError). The CLI prints ``volrender: error: <message>`` and exits with
+    status 2.
     Compose messages as ``"<file>: <problem>; <fix>"``. Non-printable characters (from
     file contents or names) are escaped (`printable`); subclasses that carry a log
     (device.BuildError) keep its line breaks.
@@ -41,7 +88,33 @@ class UserError(Exception):
             text = f"{path}: {text}"
         if fix:
             text = f"{text}; {fix}"
+        text = spell(text)
         if self.multiline:
             super().__init__("\n".join(printable(line) for line in text.split("\n")))
         else:
             super().__init__(printable(text))
+
+
+class MissingFileError(UserError, FileNotFoundError):
+    """A named input file that does not exist (also a FileNotFoundError)."""
+
+
+class ImageWarning(UserWarning):
+    """A rendered image that came out empty, a solid silhouette or overexposed (render()
+    warns with it; the CLI prints it as `volrender: warning: ...`)."""
+
+
+def one_line_if_uncaught(exc: BaseException) -> BaseException:
+    """Make `exc`, should it reach the top of a script uncaught, print as the CLI prints
+    errors (`volrender: error: ...`, no traceback); any other exception keeps the hook that
+    was there. Returns exc (raise it)."""
+    import sys
+    previous = sys.excepthook
+
+    def hook(kind, value, tb):
+        if value is exc:
+            print(f"volrender: error: {value}", file=sys.stderr)
+        else:
+            previous(kind, value, tb)
+    sys.excepthook = hook
+    return exc

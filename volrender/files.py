@@ -11,7 +11,7 @@ import os
 import stat
 from pathlib import Path
 
-from .errors import UserError
+from .errors import MissingFileError, UserError
 
 
 def _kind(mode) -> str:
@@ -27,9 +27,9 @@ def check_input(path, what: str = "file", fix: str = "check the path") -> Path:
     try:
         st = os.stat(p)
     except FileNotFoundError:
-        raise UserError("no such file", path=p, fix="check the path") from None
+        raise MissingFileError("no such file", path=p, fix="check the path") from None
     except NotADirectoryError:
-        raise UserError("no such file (a folder on its path is a file)", path=p,
+        raise MissingFileError("no such file (a folder on its path is a file)", path=p,
                         fix="check the path") from None
     except (OSError, ValueError) as e:
         reason = "a symlink loop" if getattr(e, "errno", None) == 40 else \

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import device as device_mod, glass, volume
 from .dispatch import Launch, run_rows, upload
-from .errors import UserError
+from .errors import ImageWarning, UserError, spell
 from .progress import say
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
@@ -65,6 +65,18 @@ class Image:
                            background=self.info.get("background"),
                            png_alpha="straight" if transparent else "opaque")
 
+    def _repr_png_(self) -> bytes:
+        """The image as PNG bytes (Jupyter shows an Image with it): tone-mapped sRGB as
+        `save` writes a .png (opaque unless the scene is transparent)."""
+        import io
+        from PIL import Image as PILImage
+        from .image import png_pixels
+        alpha = "straight" if self.info.get("transparent") else "opaque"
+        codes = png_pixels(self.rgba, background=self.info.get("background"), alpha=alpha)
+        buf = io.BytesIO()
+        PILImage.fromarray(codes, "RGBA").save(buf, format="PNG")
+        return buf.getvalue()
+
     def as_dict(self) -> dict:
         """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
         return {"rgba": self.rgba, **self.aovs, "kernel_ms": self.kernel_ms,
@@ -75,11 +87,54 @@ class Image:
 PLANNERS = {"volume": volume.plan, "glass": glass.plan}
 
 
-def render(scene, device=None, *, progress=None, variant=None, launch: Launch | None = None) -> Image:
+def render(scene, device=None, *, progress=None, variant=None, launch: Launch | None = None,
+           **overrides) -> Image:
     """Render a Scene (volrender.load_scene) on `device` (a spec such as "nvidia", a
-    device.Device, or None for the default). `progress`: a bar on stderr (None: when it
-    is a terminal). `variant`: "uber" or "stats" builds of the glass kernel (benchmarks).
-    `launch`: how the image is cut into launches (dispatch.Launch; the default adapts)."""
+    device.Device, or None for the default). `scene` may also be what load_scene takes (a
+    path, GENERATOR:COUNT, a numpy array), loaded with the `overrides`; with a Scene they
+    change it (Scene.replace). `progress`: a bar on stderr (None: when it is a terminal).
+    `variant`: "uber" or "stats" builds of the glass kernel (benchmarks). `launch`: how the
+    image is cut into launches (dispatch.Launch; the default adapts). An image that came out
+    empty, a solid silhouette or overexposed warns (errors.ImageWarning), saying the fix."""
+    import warnings
+    from .scene import Scene, load_scene
+    if not isinstance(scene, Scene):
+        if not isinstance(scene, (str, os.PathLike, np.ndarray)):
+            raise UserError(f"render() takes a Scene (volrender.load_scene), a file path or a "
+                            f"numpy array, got {type(scene).__name__}")
+        scene = load_scene(scene, **overrides)
+    elif overrides:
+        scene = scene.replace(**overrides)
+    img = _render(scene, device, progress=progress, variant=variant, launch=launch)
+    for problem in image_problems(img, scene.kind):
+        warnings.warn(problem, ImageWarning, stacklevel=2)
+    return img
+
+
+def image_problems(img, kind) -> list[str]:
+    """Warnings for an image that came out empty, a solid silhouette or overexposed, each
+    with its fix (kind: "volume" or "glass")."""
+    alpha = img.rgba[..., 3]
+    what = "volume" if kind == "volume" else "point cloud"
+    if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
+        fix = ("raise --density-scale (`volrender info FILE` suggests one) or check the camera"
+               if kind == "volume" else "check the camera (--origin, --target, --fov)")
+        return [spell(f"the image is empty: the {what} covers no pixel (alpha < 0.001 "
+                      f"everywhere); {fix}")]
+    out = []
+    covered = alpha > 0.01
+    if kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
+        out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
+                   "covers); lower --density-scale (`volrender info FILE` suggests one)")
+    rgb = img.rgba[..., :3][covered]
+    if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
+        out.append("the image is overexposed (half the covered pixels are above 4); lower the "
+                   "lights' irradiance or --exposure")
+    return [spell(p) for p in out]
+
+
+def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> Image:
+    """render() of a Scene, without the image warnings (adaptive passes call it per pass)."""
     import pyopencl as cl
 
     if variant not in VARIANTS:
@@ -179,7 +234,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     while True:
         st = dataclasses.replace(base, spp=batch, seed=s.seed + passes)
         content = dataclasses.replace(scene.content, settings=st)
-        img = render(scene.replace(content=content), device, progress=progress, launch=launch)
+        img = _render(scene.replace(content=content), device, progress=progress, launch=launch)
         x = img.rgba.astype(np.float64)
         if mean is None:
             mean, m2 = x, np.zeros_like(x)

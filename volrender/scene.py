@@ -5,7 +5,8 @@
     scene = volrender.load_scene("scenes/molten_glass.toml", spp=4)
 
 `source` is a volume (.vdb, .npz), a point cloud (.ply, .xyz, .csv, .txt, .npy), a
-generator `NAME:COUNT` (blob:2000) or a scene file (.toml). Override keys are the command
+generator `NAME:COUNT` (blob:2000), a scene file (.toml) or a numpy array (a dense 3-D
+volume, voxel (i, j, k) at world (i, j, k); points (N, 3) or (N, 4) with radii). Override keys are the command
 line's option names with underscores (`density_scale=2.0`, `no_tree=True`, `origin=(0, 0, 4)`,
 `sun=[(-1, -1, 0, 3)]`, or `lights=[Sun(...), PointLight(...)]`); they win over the scene
 file, whose values win over the defaults, which live once, in the settings classes
@@ -45,7 +46,7 @@ import numpy as np
 
 from .camera import View
 from .environment import Environment, load_environment, uniform
-from .errors import UserError
+from .errors import KEYWORDS, UserError, option_name, suggest
 from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
                        knobs, override_key)
 
@@ -127,6 +128,7 @@ class Scene:
     inputs: tuple = ()                # every file the scene reads (resolved paths)
     notes: tuple = ()                 # choices made while resolving (the CLI prints them)
     timings: dict = field(default_factory=dict, compare=False)  # seconds: load, radii
+    request: object = field(default=None, compare=False, repr=False)   # what load_scene read
 
     @property
     def kind(self) -> str:
@@ -145,7 +147,35 @@ class Scene:
         return cls(camera, tuple(lights), content, environment)
 
     def replace(self, **changes) -> "Scene":
-        return dataclasses.replace(self, **changes)
+        """A Scene with some keywords changed: load_scene's (density_scale=2, size=(64, 48),
+        sun=...) or the Scene's own fields (camera=..., lights=...). Option keywords are
+        checked as load_scene checks them and resolved again (framing, defaults, notes);
+        the volume's bricks, the cloud and what the first render built (uploads, tree,
+        cells) are reused whenever the changed options do not change them."""
+        own = {f.name for f in dataclasses.fields(self)}
+        fields = {k: v for k, v in changes.items() if k in own}
+        opts = {k: v for k, v in changes.items() if k not in own}
+        scene = self
+        if opts:
+            if self.request is None:
+                scene = self._with_settings(opts)
+            else:
+                scene = self.request.again(opts).load(reuse=self)
+        return dataclasses.replace(scene, **fields) if fields else scene
+
+    def _with_settings(self, opts) -> "Scene":
+        """replace() of a Scene.of scene (no request to resolve again): settings only."""
+        given = _given_from_overrides(opts)
+        other = [k for k, _ in given.items() if k in EXTRA_KEYS or options()[k].owner == "view"]
+        if other:
+            raise UserError(f"{given[other[0]][1]} cannot change a Scene made by Scene.of "
+                            "(it has no camera framing or lights to resolve again)",
+                            fix="pass camera=... or lights=... (Scene fields), or use load_scene")
+        _check_kinds(given, self.kind, "the scene")
+        values = _field_values(given, ("common", self.kind))
+        content = dataclasses.replace(self.content, settings=dataclasses.replace(
+            self.content.settings, **values))
+        return dataclasses.replace(self, content=content)
 
 
 # --------------------------------------------------------------------------- options
@@ -270,7 +300,8 @@ def _section(table, name, where, base):
     out = {}
     for key, value in table.items():
         if key not in schema:
-            raise UserError(f"unknown key {where}.{key}",
+            close = suggest(key, schema, lambda k: f"{where}.{k}")
+            raise UserError(f"unknown key {where}.{key}" + (f"; {close}" if close else ""),
                             fix=f"known keys: {', '.join(sorted(schema))}")
         out[key] = _check_type(value, schema[key], f"{where}.{key}", base)
     return out
@@ -293,7 +324,9 @@ def parse(raw: dict, base: Path = Path(".")) -> dict:
     scene = {}
     for name, table in raw.items():
         if name not in SCHEMA:
-            raise UserError(f"unknown section [{name}]", fix=f"known sections: {', '.join(sorted(SCHEMA))}")
+            close = suggest(name, SCHEMA, lambda k: f"[{k}]")
+            raise UserError(f"unknown section [{name}]" + (f"; {close}" if close else ""),
+                            fix=f"known sections: {', '.join(sorted(SCHEMA))}")
         if name == "lights":
             if not isinstance(table, list):
                 raise UserError("lights must be an array of tables: write [[lights]]")
@@ -344,6 +377,11 @@ def _light(d, i):
 def source_kind(source) -> str:
     """'volume', 'points', 'scene' or 'generator' for a render input."""
     from . import points
+    if isinstance(source, np.ndarray):
+        return "array"
+    if not isinstance(source, (str, Path)) and not hasattr(source, "__fspath__"):
+        raise UserError(f"the source must be a file path, GENERATOR:COUNT or a numpy array, got "
+                        f"{type(source).__name__}")
     text = str(source)
     suffix = Path(text).suffix.lower()
     if suffix in VOLUME_SUFFIXES:
@@ -358,6 +396,31 @@ def source_kind(source) -> str:
                     fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
                         f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
                         f"with GENERATOR one of {', '.join(points.GENERATORS)}")
+
+
+def check_array(a) -> str:
+    """'volume' for a dense 3-D array, 'glass' for points (N, 3) or (N, 4: x, y, z, radius);
+    else a UserError."""
+    if a.dtype.kind not in "biuf":
+        raise UserError(f"a numpy array source must hold real numbers, got dtype {a.dtype}")
+    if a.ndim == 3 and a.size:
+        return "volume"
+    if a.ndim == 2 and a.shape[1] in (3, 4) and len(a):
+        return "glass"
+    raise UserError(f"a numpy array source is a dense volume (nx, ny, nz) or points (N, 3) "
+                    f"or (N, 4: x, y, z, radius), got shape {a.shape}")
+
+
+def _array_content(a, kind):
+    """Bricks of a dense volume (voxel (i, j, k) at world (i, j, k)) or the PointCloud of
+    an (N, 3) / (N, 4) array."""
+    from .cloud import _finish
+    label = f"array {'x'.join(map(str, a.shape))}"
+    if kind == "volume":
+        from .vdb import Bricks
+        return Bricks.from_dense(np.asarray(a, np.float32))
+    a = np.asarray(a, np.float64)
+    return _finish(label, a[:, :3], a[:, 3].copy() if a.shape[1] == 4 else None, None)
 
 
 def generated_cloud_count(text: str) -> int:
@@ -385,6 +448,62 @@ def _explicit(overrides) -> set:
     return {by_field.get(k, k) for k, v in overrides.items() if v is not None}
 
 
+def _plain(value):
+    """numpy arrays and scalars as tuples and Python numbers; lists as tuples."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return tuple(_plain(v) for v in value)
+    return value
+
+
+def _python_value(opt, value, where):
+    """A keyword's value in the form the settings hold: one number where the option takes
+    one value (albedo=0.99: grey), "WxH" for sizes, one string for a list of strings."""
+    from .settings import pair
+    value = _plain(value)
+    kind, check = opt.meta["kind"], opt.meta["check"]
+    if kind == SIZE and isinstance(value, str):
+        import argparse
+        try:
+            return pair(where)(value)
+        except argparse.ArgumentTypeError as exc:
+            raise UserError(str(exc)) from None
+    if kind == STRS and isinstance(value, str):
+        return (value,)
+    if kind == ENV and _finite(value):
+        return (float(value),)               # env=0.5: a grey uniform radiance
+    if kind in (VEC, VEC3) and _finite(value) and check is not None and check((value,)) is None:
+        return (float(value),)
+    return value
+
+
+def _light_values(key, value, where):
+    """sun= / point_light=: one (x, y, z, power) tuple or a list of them, each 4 finite
+    numbers; lights=: Sun and PointLight objects."""
+    from .lights import PointLight, Sun
+    value = _plain(value) if key != "lights" else value
+    if key in ("sun", "point_light"):
+        if isinstance(value, tuple) and value and all(_finite(v) for v in value):
+            value = (value,)                 # one light given as one tuple
+        what = "DX,DY,DZ,E" if key == "sun" else "X,Y,Z,I"
+        if not isinstance(value, tuple) or not all(
+                isinstance(v, tuple) and len(v) == 4 and all(map(_finite, v)) for v in value):
+            raise UserError(f"{where} takes 4 finite numbers ({what}) or a list of such "
+                            f"tuples, got {value!r}")
+        value = tuple(tuple(float(c) for c in v) for v in value)
+    if key == "lights":
+        if isinstance(value, (Sun, PointLight)):
+            value = (value,)
+        if not isinstance(value, (list, tuple)) or not all(
+                isinstance(v, (Sun, PointLight)) for v in value):
+            raise UserError(f"{where} takes a list of volrender.Sun and volrender.PointLight, "
+                            f"got {value!r}")
+    return value
+
+
 def _negates(opt) -> bool:
     """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
     return opt.meta["kind"] is bool and opt.key != opt.field
@@ -400,14 +519,15 @@ def _given_from_overrides(overrides) -> dict:
         if value is None:
             continue
         if key in EXTRA_KEYS:
-            given[key] = (value, "--" + key.replace("_", "-"))
+            flag = "--" + key.replace("_", "-")
+            given[key] = (_light_values(key, value, flag), flag)
             continue
         opt = opts.get(key) or by_field.get(key)
         if opt is None:
-            known = ", ".join(sorted([*opts, *EXTRA_KEYS]))
-            raise UserError(f"unknown option {key!r}", fix=f"known options: {known}")
-        if isinstance(value, list):
-            value = tuple(value)
+            raise UserError(f"unknown option {key!r}",
+                            fix=suggest(key, [*opts, *EXTRA_KEYS, *by_field], option_name) or
+                            "`volrender render --help` and docs/options.md list them")
+        value = _python_value(opt, value, opt.flag if key == opt.key else f"{key}=")
         if key == opt.key and _negates(opt):
             if not isinstance(value, bool):
                 raise UserError(f"{opt.flag} is a switch: give True or False, got {value!r}")
@@ -506,15 +626,20 @@ def _lights(given, doc, path=None):
     return None                           # the defaults, turned to the up axis by load()
 
 
-def _scan_defaults(cloud, settings):
+def _scan_defaults(cloud, settings, store=None):
     """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
     spacings: radius half the median, blend glass.SCAN_BLEND times the SCAN_PERCENTILE-th
     percentile (neighbours melt into one surface, also where the scan is sparser). Returns
     (settings, note)."""
     from . import points
     from .glass import SCAN_BLEND, SCAN_PERCENTILE
-    nn = points.nn_distances(cloud.centers)
-    s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
+    if store is not None and "spacing" in store:      # Scene.replace: the same cloud
+        s, far = store["spacing"]
+    else:
+        nn = points.nn_distances(cloud.centers)
+        s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
+        if store is not None:
+            store["spacing"] = (s, far)
     radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
     blend = settings.blend if settings.blend is not None else \
         (SCAN_BLEND * far if far > 0 else 2.0 * radius)
@@ -579,11 +704,35 @@ class Request:
     settings: object                  # VolumeSettings or GlassSettings
     given: dict                       # {option key: (value, where)}
     camera_file: Path | None = None   # --camera FILE
+    overrides: dict = field(default_factory=dict)   # the keywords as given (Scene.replace)
+    array: object = None              # the numpy array of an array source
+
+    def again(self, changes) -> "Request":
+        """This request with some keywords changed (lights given replace the lights)."""
+        keep = {k: v for k, v in self.overrides.items()
+                if not (k in LIGHT_KEYS and any(c in LIGHT_KEYS for c in changes))}
+        return request(self.array if self.origin == "array" else self.source,
+                       **{**keep, **changes})
+
+    def _reusable(self, reuse, settings):
+        """The content of `reuse` (a Scene) when it holds what this request would read."""
+        req = getattr(reuse, "request", None)
+        if req is None or reuse.kind != self.kind or req.source != self.source \
+                or req.origin != self.origin or req.array is not self.array:
+            return None
+        if self.kind == "volume":
+            same = all(getattr(reuse.settings, f) == getattr(settings, f)
+                       for f in ("grid", "emission_grid", "temperature_grid"))
+        else:
+            same = self.origin != "generator" or reuse.settings.seed == settings.seed
+        return reuse.content if same else None
 
     @property
     def inputs(self) -> tuple:
         """Every file the request names (the content and environment files too)."""
         out = []
+        if self.origin == "array":
+            return ()
         if self.origin in ("volume", "points", "scene"):
             out.append(Path(self.source))
         for section in ("volume", "points"):
@@ -595,7 +744,9 @@ class Request:
             out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
-    def load(self) -> Scene:
+    def load(self, reuse=None) -> Scene:
+        """The Scene; `reuse`: a Scene whose bricks or cloud (and device builds) serve this
+        one when they are what it would read (Scene.replace)."""
         import time
         t0 = time.perf_counter()
         timings = {}
@@ -605,19 +756,32 @@ class Request:
         fire = False
         if self.kind == "volume":
             from . import vdb
-            path = self.doc["volume"]["file"] if self.doc else Path(self.source)
-            settings, note = _fire_defaults(path, settings, self.given)
-            fire = note is not None
-            notes += [note] if note else []
-            bricks = vdb.load_volume(path, grid=settings.grid, emission_grid=settings.emission_grid,
-                                     temperature_grid=settings.temperature_grid)
+            if self.origin != "array":
+                path = self.doc["volume"]["file"] if self.doc else Path(self.source)
+                settings, note = _fire_defaults(path, settings, self.given)
+                fire = note is not None
+                notes += [note] if note else []
+            old = self._reusable(reuse, settings)
+            if old is not None:
+                bricks = old.bricks
+            elif self.origin == "array":
+                bricks = _array_content(self.array, "volume")
+            else:
+                bricks = vdb.load_volume(path, grid=settings.grid,
+                                         emission_grid=settings.emission_grid,
+                                         temperature_grid=settings.temperature_grid)
             from .volume import auto_estimator
             settings, note = auto_estimator(bricks, settings)
             notes += [note] if note else []
-            content = VolumeContent(bricks, settings)
+            content = VolumeContent(bricks, settings, **({"store": old.store} if old else {}))
         else:
             from . import points
-            if self.origin == "scene":
+            old = self._reusable(reuse, settings)
+            if old is not None:
+                cloud = old.cloud
+            elif self.origin == "array":
+                cloud = _array_content(self.array, "glass")
+            elif self.origin == "scene":
                 pts = self.doc["points"]
                 if "file" in pts:
                     cloud = points.load_points(pts["file"])
@@ -630,10 +794,10 @@ class Request:
             notes += list(cloud.notes)
             if cloud.radii is None and (settings.radius is None or settings.blend is None):
                 t1 = time.perf_counter()
-                settings, note = _scan_defaults(cloud, settings)
+                settings, note = _scan_defaults(cloud, settings, old.store if old else None)
                 timings["radii"] = time.perf_counter() - t1
                 notes.append(note)
-            content = GlassContent(cloud, settings)
+            content = GlassContent(cloud, settings, **({"store": old.store} if old else {}))
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
@@ -665,7 +829,7 @@ class Request:
                            for l in DEFAULT_LIGHTS)
         timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
-                     tuple(notes), timings)
+                     tuple(notes), timings, request=self)
 
 
 def request(source, **overrides) -> Request:
@@ -673,6 +837,10 @@ def request(source, **overrides) -> Request:
     but a scene file; see load_scene."""
     given = _given_from_overrides(overrides)
     origin = source_kind(source)
+    array = None
+    if origin == "array":
+        array, source = source, f"array {'x'.join(map(str, source.shape))}"
+        array_kind = check_array(array)
     doc = {}
     if origin == "scene":
         doc = read(source)
@@ -689,6 +857,8 @@ def request(source, **overrides) -> Request:
             if by_field[name] not in explicit:
                 given[by_field[name]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
+    if origin == "array":
+        kind = array_kind
     _check_kinds(given, kind, str(source))
     from .camera import check_conflicts
     check_conflicts({options()[k].field: where for k, (_, where) in given.items()
@@ -708,7 +878,8 @@ def request(source, **overrides) -> Request:
             check_input(settings.env, "environment map")
         except UserError as exc:
             raise UserError(f"{given['env'][1]}: {exc}") from None
-    return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file)
+    return Request(str(source), kind, origin, doc, view, lights, settings, given, camera_file,
+                   dict(overrides), array)
 
 
 def load_scene(source, **overrides) -> Scene:
@@ -717,3 +888,8 @@ def load_scene(source, **overrides) -> Scene:
 
 
 SCHEMA = _schema()
+# the flags errors.spell writes as Python keywords: the options, the lights and the
+# keywords of render_sequence and Image.save that the CLI has as flags
+KEYWORDS.update(options(), EXTRA_KEYS, ("frames", "workers", "scheduler", "chunk",
+                                        "skip_existing", "device", "exposure", "tonemap",
+                                        "png_bits"))

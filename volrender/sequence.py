@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import UserError
+from .errors import UserError, one_line_if_uncaught
 
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
@@ -45,6 +45,10 @@ _GLOB = re.compile(r"[*?\[]")
 MAX_WIDTH = 32                  # digits a frame number is padded to, at most
 CPU_CORES_PER_WORKER = 8        # default LocalCluster size on CPUs: one worker per 8 cores
 KILL_HOOK = "VOLRENDER_TEST_KILL_WORKER_ONCE"   # tests: a marker file; the first task dies
+GUARD_MARK = "VOLRENDER_MAIN_REIMPORTED"     # a file a worker touches when it re-ran the script
+MAIN_GUARD_FIX = ("a script that starts Dask workers (render_sequence with workers) must call "
+                  "it under `if __name__ == \"__main__\":` (the workers start as new Python "
+                  "processes that import the script again); indent the call below that line")
 
 
 # --------------------------------------------------------------------------- patterns
@@ -496,6 +500,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     are in the result's `failed` (the others are written). `say`: called with each note
     (choices made for every frame) before the frames render; with `verbose` also the
     camera. `camera_out`: write the one camera there (a --camera file)."""
+    _exit_if_reimported()
     from . import image
     from .camera import FRAMING, describe as describe_camera, write_camera_file
     dst = parse_pattern(output, output=True)
@@ -575,8 +580,56 @@ def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device):
     return records
 
 
+def _exit_if_reimported():
+    """In a worker process that is importing the user's script again (multiprocessing's
+    spawn start: the script called render_sequence without a `__main__` guard): mark it for
+    the parent (GUARD_MARK) and leave quietly, instead of starting workers of its own."""
+    import multiprocessing
+    if not getattr(multiprocessing.current_process(), "_inheriting", False):
+        return
+    mark = os.environ.get(GUARD_MARK)
+    if mark:
+        try:
+            Path(mark).touch()
+        except OSError:
+            pass
+    raise SystemExit(3)
+
+
+def _local_cluster(**kw):
+    """A LocalCluster; a UserError naming the `__main__` guard when its workers died
+    re-running the script (see _exit_if_reimported), with the cluster's logs held back."""
+    import tempfile
+    from distributed import LocalCluster
+    names = ("distributed.nanny", "distributed.deploy.spec", "distributed.core",
+             "distributed.process", "distributed.worker")
+    levels = {n: logging.getLogger(n).level for n in names}
+    with tempfile.TemporaryDirectory(prefix="volrender-guard-") as tmp:
+        mark = Path(tmp) / "reimported"
+        old = os.environ.get(GUARD_MARK)
+        os.environ[GUARD_MARK] = str(mark)      # spawned workers inherit the environment
+        for n in names:
+            logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+        try:
+            return LocalCluster(**kw)
+        except Exception:
+            if mark.exists():     # one line even uncaught: the cluster's traceback is noise
+                raise one_line_if_uncaught(UserError(
+                    "the Dask workers re-ran this script and stopped",
+                    path=getattr(sys.modules.get("__main__"), "__file__", None),
+                    fix=MAIN_GUARD_FIX)) from None
+            raise
+        finally:
+            for n, level in levels.items():
+                logging.getLogger(n).setLevel(level)
+            if old is None:
+                os.environ.pop(GUARD_MARK, None)
+            else:
+                os.environ[GUARD_MARK] = old
+
+
 def _start_client(workers, scheduler, device):
-    from distributed import Client, LocalCluster
+    from distributed import Client
     if scheduler is not None:
         try:
             client = Client(scheduler, timeout="20s")
@@ -598,8 +651,8 @@ def _start_client(workers, scheduler, device):
         env["POCL_MAX_PTHREAD_COUNT"] = str(max(1, (os.cpu_count() or 1) // n))
     if os.environ.get(KILL_HOOK):
         env[KILL_HOOK] = os.environ[KILL_HOOK]
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, env=env, silence_logs=logging.ERROR)
+    cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
+                             dashboard_address=None, env=env, silence_logs=logging.ERROR)
     client = Client(cluster)
     if gpus:
         client.register_plugin(device_per_worker(gpus))
