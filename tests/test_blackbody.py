@@ -152,7 +152,7 @@ def test_temperature_grid_round_trips_through_npz(tmp_path):
 
 def test_temperature_grid_needs_an_emission_grid():
     from volrender.errors import UserError
-    with pytest.raises(UserError, match="emission-grid"):
+    with pytest.raises(UserError, match="emission_grid="):
         VolumeSettings(temperature_grid="temperature")
 
 
