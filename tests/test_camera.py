@@ -110,7 +110,7 @@ def test_conflicts_in_scene_files_and_python(tmp_path):
     with pytest.raises(volrender.UserError, match=r"s.toml: \[camera\].fill and .*"
                                                    r"\[camera\].distance conflict"):
         volrender.load_scene(scene)
-    with pytest.raises(volrender.UserError, match="--origin and --azimuth conflict"):
+    with pytest.raises(volrender.UserError, match="origin= and azimuth= conflict"):
         volrender.load_scene("blob:50", origin=(0, 0, 5), azimuth=10)
     with pytest.raises(volrender.UserError, match="fill= and distance= conflict"):
         View(fill=0.5, distance=2.0)

@@ -210,7 +210,7 @@ def test_real_file(cl_device, shared_data):
 
 
 def test_settings_validate_the_dispatch():
-    with pytest.raises(UserError, match="--dispatch must be one of"):
+    with pytest.raises(UserError, match="dispatch= must be one of"):
         VolumeSettings(dispatch="compute")
     with pytest.raises(UserError, match="out of range"):
         VolumeSettings(dispatch="tiled", tile=(0, 8))

@@ -272,7 +272,7 @@ def glass_content(cloud, s):
 def test_a_missing_env_map_is_a_user_error(tmp_path):
     from volrender import scene
     thin_slab().save_npz(tmp_path / "v.npz")
-    with pytest.raises(UserError, match="--env: .*nope.exr: no such file"):
+    with pytest.raises(UserError, match="env=: .*nope.exr: no such file"):
         scene.request(tmp_path / "v.npz", env=str(tmp_path / "nope.exr"))
     with pytest.raises(UserError, match="env"):
         scene.request(tmp_path / "v.npz", env=(1.0, 2.0))

@@ -197,7 +197,7 @@ def test_soft_shadows(cl_device):
 
 
 def test_soft_shadow_angle_is_validated():
-    with pytest.raises(UserError, match="shadow-angle"):
+    with pytest.raises(UserError, match="shadow_angle="):
         glass.GlassSettings(shadow_angle=90.0)
     with pytest.raises(UserError, match="tile"):
         glass.GlassSettings(dispatch="tiled", tile=(64, 64))

@@ -91,9 +91,9 @@ def test_octave_scales_mean_what_they_say(cl_device, demo):
 
 
 def test_octave_settings_are_checked():
-    with pytest.raises(UserError, match="ms-octaves"):
+    with pytest.raises(UserError, match="ms_octaves="):
         VolumeSettings(ms_octaves=0)
-    with pytest.raises(UserError, match="ms-octave-scales"):
+    with pytest.raises(UserError, match="ms_octave_scales="):
         VolumeSettings(ms_octave_scales=(0.5, 150.0, 0.5))
     assert volume_mod.octave_tau_stop(VolumeSettings()) == 25.0
     # every band's light is below 1e-4 of the light's past the stop: exp(-A_inf tau) < 1e-4
