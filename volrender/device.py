@@ -195,7 +195,10 @@ class Device:
             return self._programs[key]
         start = time.perf_counter()
         failure = None
-        with _compiler_output() as noise:
+        from .atomic import signals_held
+        # held: a signal inside the compiler (PoCL's in-process clang) breaks the build
+        # ("1 error generated.") instead of ending the render cleanly after it
+        with signals_held(), _compiler_output() as noise:
             try:
                 prg = cl.Program(self.context, source).build(options=["-I", str(src_dir), *defines])
             except cl.RuntimeError as exc:
