@@ -21,11 +21,10 @@ GPU_TARGET_S: Ctrl-C and the progress bar (both act between launches) wait no lo
 than that. GPUs get whole frames (GPU_BAND_PIXELS) and split only samples, since small
 launches leave most of the device idle.
 
-Issue 23: a cheap launch (empty rows above a cloud, < target / CHEAP) says nothing about
-the rows below, so it does not grow the next one: CPUs start at one tile row and one
-sample and stay there until a launch takes long enough to measure, then grow at most
-x GROW per launch from the slowest rate seen so far. (Before, a 1 ms band of empty rows
-grew the next launch x8 over most of smoke.vdb: one 11.6 s launch, signals held as long.)
+A cheap launch (empty rows above a cloud, < target / CHEAP) says nothing about the rows
+below, so it does not grow the next one: CPUs start at one tile row and one sample and
+stay there until a launch takes long enough to measure, then grow at most x GROW per
+launch from the slowest rate seen so far (docs/benchmarks.md: the launch cadence).
 """
 from __future__ import annotations
 
