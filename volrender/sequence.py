@@ -329,11 +329,14 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
     return sorted(records, key=lambda r: r["frame"])
 
 
-def _exists(out) -> bool:
+def _found(out):
+    """The identity of an existing output file (None when there is none), to tell whether
+    another run replaced it."""
     try:
-        return Path(out).stat().st_size > 0 and Path(out).is_file()
+        st = os.stat(out)
     except OSError:
-        return False
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
 
 
 _LOCK_NAME = ".volrender-frames.lock"
@@ -370,6 +373,7 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
+    from .image import unusable
     from .render import render
     from .scene import load_scene
     frame, src, out = job
@@ -378,14 +382,20 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     t0 = time.perf_counter()
     release = lambda: None  # noqa: E731
     if skip_existing:
-        if _exists(out):
-            rec.update(status="skipped", seconds=0.0)
-            return rec
+        found = _found(out)
+        if found is not None:
+            why = unusable(out, overrides.get("size"))
+            if why is None:
+                rec.update(status="skipped", seconds=0.0)
+                return rec
+            rec["redone"] = why             # rendered again, and said so
         release = _claim(out, wait)
         if release is None:
             return None
-        if _exists(out):                # the run that held it has written it
-            release()
+        now = _found(out)
+        if now is not None and now != found and unusable(out, overrides.get("size")) is None:
+            release()                   # the run that held it has written it
+            rec.pop("redone", None)
             rec.update(status="skipped", seconds=time.perf_counter() - t0)
             return rec
     try:
@@ -559,6 +569,10 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
                             time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
                             options=extra)
+    for rec in result.records if say else ():
+        if rec.get("redone"):
+            say(f"frame {rec['frame']}: {rec['output']} was there but {rec['redone']}; "
+                "rendered it again")
     settings = {k: (list(v) if isinstance(v, tuple) else v) for k, v in overrides.items()
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
