@@ -88,3 +88,47 @@ def test_an_existing_output_is_checked_whole_for_each_format(tmp_path):
         for cut in (len(whole) - 1, len(whole) // 2, 10):
             p.write_bytes(whole[:cut])
             assert unusable(p, (8, 6)) is not None, (suffix, cut)
+
+
+# ------------------------------------------------------------------ the file at fault, limits first
+
+def _huge_maps(folder):
+    """An .exr whose header's data window is 200000x100000 (its pixels: 8x4) and an .hdr
+    whose resolution line says the same: the header lies, the file is small."""
+    import struct
+    from volrender.image import write_image
+    write_image(folder / "small.exr", np.ones((4, 8, 4), np.float32))
+    b = bytearray((folder / "small.exr").read_bytes())
+    i = b.index(b"dataWindow\x00box2i\x00") + len(b"dataWindow\x00box2i\x00") + 4
+    assert struct.unpack("<4i", b[i:i + 16]) == (0, 0, 7, 3)
+    b[i:i + 16] = struct.pack("<4i", 0, 0, 199_999, 99_999)
+    (folder / "huge.exr").write_bytes(bytes(b))
+    (folder / "huge.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n"
+                                      b"-Y 100000 +X 200000\n" + b"\x02\x02" * 64)
+
+
+def test_an_environment_map_with_absurd_header_dimensions_is_named(tmp_path):
+    """Refused from its header, naming the map (not the scene input) and its size."""
+    pytest.importorskip("OpenImageIO")
+    _huge_maps(tmp_path)
+    for name in ("huge.exr", "huge.hdr"):
+        err = _one_error(volrender("render", "blob:200", "--env", name, "-o", "o.png", *SMALL,
+                                   cwd=tmp_path))
+        assert err.startswith(f"volrender: error: {name}: the 200000x100000 environment map "
+                              "needs about"), err
+        assert "of memory" in err and "blob:200" not in err
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_a_sequence_too_large_for_memory_is_refused_once_before_any_frame_is_read(tmp_path):
+    """An image size no frame can have: one line, before the first frame's load (the
+    frames here are not even readable: the size is what is said)."""
+    for f in (1, 2, 3):
+        (tmp_path / f"c_{f:04d}.npz").write_bytes(os.urandom(3000))
+    host = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 3
+    for workers in ("0", "1") if host < 16 << 30 else ("0",):    # Dask: host memory only
+        err = _one_error(volrender("render", "c_####.npz", "-o", "f_####.png", "--frames", "1-3",
+                                   "--workers", workers, "--size", "32768x32768",
+                                   "--no-progress", cwd=tmp_path))
+        assert "a 32768x32768 image needs 16.0 GiB of buffers" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"c_{f:04d}.npz" for f in (1, 2, 3)]

@@ -61,11 +61,19 @@ def load_environment(path):
     texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
     them), so every radiance the kernel reads is finite."""
     from pathlib import Path
+    from .files import check_memory
     from .image import read_image
-    if Path(path).suffix.lower() in HDR_SUFFIXES:
-        img = read_hdr(path)
-    else:
-        img = np.asarray(read_image(path))
+    hdr = Path(path).suffix.lower() in HDR_SUFFIXES
+    size = _header_size(path, hdr)
+    if size is not None:              # its header's size, before any texel is read
+        w, h, nch = size
+        check_memory(w * h * (8 * nch + 64), path, f"the {w}x{h} environment map",
+                     "give a smaller map (or one whose header is not damaged), or free memory")
+    try:
+        img = read_hdr(path) if hdr else np.asarray(read_image(path))
+    except MemoryError:
+        raise UserError("out of host memory while reading the environment map", path=path,
+                        fix="give a smaller map, or free memory") from None
     if img.dtype.kind != "f" or img.ndim != 3 or img.shape[2] < 3:
         raise UserError("the environment must be a float image (.exr, .hdr or .npy)", path=path,
                         fix="convert it to an equirectangular .exr or .hdr")
@@ -125,3 +133,26 @@ def env_distribution(texels) -> np.ndarray:
                    np.linspace(0.0, 1.0, w + 1)[None, :])
     col[:, -1] = 1.0
     return np.concatenate([row_cdf, col.ravel()]).astype(np.float32)
+
+
+def _header_size(path, hdr: bool):
+    """(width, height, channels) of an .exr or .hdr map from its header alone; None for a
+    .npy (its reader checks its header) or a header that cannot be read (the reader says
+    why)."""
+    try:
+        if hdr:
+            import OpenImageIO as oiio
+            inp = oiio.ImageInput.open(str(path))
+            if inp is None:
+                return None
+            spec = inp.spec()
+            inp.close()
+            return spec.width, spec.height, spec.nchannels
+        if str(path).lower().endswith(".exr"):
+            import OpenEXR
+            head = OpenEXR.File(str(path), header_only=True).header()
+            lo, hi = head["dataWindow"]
+            return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1), len(head["channels"])
+    except Exception:                 # noqa: BLE001 (a damaged header: the reader reports it)
+        return None
+    return None

@@ -189,20 +189,23 @@ def _derived_aov(name, rgba):
 def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
     """Refuse an image whose buffers cannot exist, before anything is allocated: the RGBA
     float32 buffer (plus one float per extra layer) must fit in one device allocation
-    and in the device's memory, and a few copies of it in host memory."""
+    and in the device's memory, and a few copies of it in host memory (`dev` None: host
+    memory only, for a sequence whose frames render on workers' devices)."""
     pixels = width * height
     need = pixels * 4 * (4 + n_layers)
     gib = 1 << 30
-    d = dev.device
-    limit = min(int(d.max_mem_alloc_size) * (4 + n_layers) // 4, int(d.global_mem_size) // 2)
-    where = f"on {dev.name}"
+    limit, where = float("inf"), ""
+    if dev is not None:
+        d = dev.device
+        limit = min(int(d.max_mem_alloc_size) * (4 + n_layers) // 4, int(d.global_mem_size) // 2)
+        where = f"on {dev.name}"
     try:
         host = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 3
     except (ValueError, OSError, AttributeError):
         host = None
     if host is not None and host < limit:
         limit, where = host, "in this machine's memory"
-    if need > limit:
+    if need > limit and limit != float("inf"):
         side = int(math.sqrt(limit / (4 * (4 + n_layers)) * width / height))
         hint = f"e.g. {max(1, side)}x{max(1, side * height // width)}"
         raise UserError(f"a {width}x{height} image needs {need / gib:.1f} GiB of buffers, more than "

@@ -536,6 +536,8 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     if clash:
         raise UserError(f"an output frame is also an input: {sorted(clash)[0]}",
                         fix="write the frames somewhere else")
+    _check_every_frame(next(iter(paths.values())), overrides, device,
+                       serial=client is None and workers == 0 and scheduler is None)
     camera, bad, extra, notes = sequence_camera(paths, overrides)
     for note in notes if say else ():
         say(note)
@@ -577,6 +579,19 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
     return result
+
+
+def _check_every_frame(first, overrides, device, serial):
+    """The limits every frame shares, once, before any frame is read: the options, and
+    the image's buffers against memory (the device's too when frames render here)."""
+    from .render import check_image_memory
+    from .scene import request
+    req = request(first, **overrides)             # every option checked, nothing loaded
+    dev = None
+    if serial:
+        from .device import resolve
+        dev = resolve(device)
+    check_image_memory(*req.view.size, dev, len(req.settings.aovs) if req.kind == "volume" else 0)
 
 
 def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device):
