@@ -132,3 +132,22 @@ def test_a_sequence_too_large_for_memory_is_refused_once_before_any_frame_is_rea
                                    "--no-progress", cwd=tmp_path))
         assert "a 32768x32768 image needs 16.0 GiB of buffers" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"c_{f:04d}.npz" for f in (1, 2, 3)]
+
+
+# ------------------------------------------------------------------ numbers checked before any work
+
+def test_nonsense_worker_and_chunk_counts_are_refused_before_any_work(tmp_path):
+    """`--workers -1` waited forever for a LocalCluster of -1 workers; every count is now
+    range-checked first: one line, status 2, no output folder made, no cluster started."""
+    _frames(tmp_path, 2)
+    for opt, value in (("--workers", "-1"), ("--workers", "100000"), ("--chunk", "0"),
+                       ("--chunk", "-3")):
+        t0 = time.perf_counter()
+        err = _one_error(volrender("render", "c_####.npz", "-o", "out/f_####.png", opt, value,
+                                   *SMALL, cwd=tmp_path, timeout=120))
+        assert f"{opt} must be an integer in [" in err and f"got {value}" in err, err
+        assert time.perf_counter() - t0 < 60
+        assert not (tmp_path / "out").exists()
+    from volrender import render_sequence
+    with pytest.raises(ValueError, match=r"workers= must be an integer in \[0, 1024\], got -1"):
+        render_sequence(str(tmp_path / "c_####.npz"), str(tmp_path / "o_####.png"), workers=-1)

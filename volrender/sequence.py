@@ -511,6 +511,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     (choices made for every frame) before the frames render; with `verbose` also the
     camera. `camera_out`: write the one camera there (a --camera file)."""
     _exit_if_reimported()
+    _check_counts(workers=workers, chunk=chunk)
     from . import image
     from .camera import FRAMING, describe as describe_camera, write_camera_file
     dst = parse_pattern(output, output=True)
@@ -527,8 +528,6 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
         except OSError as exc:
             raise UserError(f"cannot create the output folder ({exc.strerror or exc})",
                             path=folder, fix="give an output pattern in a folder you can write") from None
-    if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
-        raise UserError(f"--chunk must be an integer >= 1, got {chunk!r}")
     outs = {f: dst.path(f) for f in paths}
     for f, out in outs.items():
         image.check_output(out, overrides.get("aov", ()))
@@ -579,6 +578,23 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
     return result
+
+
+MAX_WORKERS = 1024              # Dask workers one LocalCluster may start
+MAX_CHUNK = MAX_FRAMES
+
+
+def _check_counts(**counts):
+    """workers in 0..MAX_WORKERS and chunk in 1..MAX_CHUNK (None: the default), before
+    any work: a LocalCluster asked for -1 workers waits for them forever."""
+    from .errors import option_name
+    from .settings import in_range
+    checks = {"workers": in_range(0, MAX_WORKERS, integer=True, allow_none=True),
+              "chunk": in_range(1, MAX_CHUNK, integer=True, allow_none=True)}
+    for key, value in counts.items():
+        problem = checks[key](value)
+        if problem:
+            raise UserError(f"{option_name(key)} {problem}, got {value!r}")
 
 
 def _check_every_frame(first, overrides, device, serial):
