@@ -213,10 +213,31 @@ def _frames_seeds():
                                  "0-9999", "1-2,2-3")]
 
 
+def _las_seeds():
+    """A few points in LAS formats 0-3 (1.2) and 6-8 (1.4), each uncompressed and LAZ."""
+    import laspy
+    import numpy as np
+    rows = np.array(ROWS, np.float64)
+    out = []
+    for fmt, version in ((0, "1.2"), (1, "1.2"), (2, "1.2"), (3, "1.2"), (6, "1.4"), (7, "1.4"),
+                         (8, "1.4")):
+        header = laspy.LasHeader(point_format=fmt, version=version)
+        header.scales, header.offsets = [0.001] * 3, [0.0] * 3
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = rows[:, 0], rows[:, 1], rows[:, 2]
+        if "red" in las.point_format.dimension_names:
+            las.red = las.green = las.blue = np.arange(len(rows), dtype=np.uint16) * 4000
+        for compress in (False, True):
+            f = io.BytesIO()
+            las.write(f, do_compress=compress)
+            out.append(f.getvalue())
+    return out
+
+
 SEEDS = {"ply": _ply_seeds, "text": _text_seeds, "npy": _npy_seeds, "vdb_header": _vdb_seeds,
          "npz": _npz_seeds,
          "bricks": _bricks_seeds, "scene": _scene_seeds, "camera": _camera_seeds,
-         "pattern": _pattern_seeds, "frames": _frames_seeds}
+         "pattern": _pattern_seeds, "frames": _frames_seeds, "las": _las_seeds}
 
 
 def seeds(name) -> list[bytes]:

@@ -26,7 +26,7 @@ INSTRUMENT = {
     "npy": ["volrender", "numpy.lib.format"],
     "npz": ["volrender", "zipfile", "numpy.lib.format"], "bricks": ["volrender"],
     "scene": ["volrender", "tomllib"], "camera": ["volrender", "tomllib"],
-    "pattern": ["volrender"], "frames": ["volrender"],
+    "pattern": ["volrender"], "frames": ["volrender"], "las": ["volrender", "laspy"],
 }
 
 TIME_BOUND = (2.0, 50e-6)       # seconds: a constant plus this much per input byte
@@ -241,6 +241,14 @@ def _in_file(data, name, fn):
     p = work_dir() / name
     p.write_bytes(data)
     return fn(p)
+
+
+@target
+def las(data):
+    """LAS and LAZ point records (points.load_points: the header checked by las.py, then
+    laspy, with lazrs decoding LAZ; the compression bit, not the suffix, decides)."""
+    from volrender.points import load_points
+    _check_cloud(_in_file(data, "cloud.laz", load_points))
 
 
 @target

@@ -16,7 +16,7 @@ target=$1 secs=$2
 shift 2
 work=fuzz/work
 declare -A MAXLEN=([ply]=4096 [text]=4096 [npy]=1024 [vdb_header]=8192 [npz]=8192 [bricks]=8192
-                   [scene]=4096 [camera]=2048 [pattern]=256 [frames]=256)
+                   [scene]=4096 [camera]=2048 [pattern]=256 [frames]=256 [las]=8192)
 
 campaign() {
     local t=$1 end=$((SECONDS + secs)) rc

@@ -151,3 +151,73 @@ def test_nonsense_worker_and_chunk_counts_are_refused_before_any_work(tmp_path):
     from volrender import render_sequence
     with pytest.raises(ValueError, match=r"workers= must be an integer in \[0, 1024\], got -1"):
         render_sequence(str(tmp_path / "c_####.npz"), str(tmp_path / "o_####.png"), workers=-1)
+
+
+# ------------------------------------------------------------------ compressed point clouds
+
+def _las_file(folder, name, n=2000, compress=True):
+    laspy = pytest.importorskip("laspy", reason="laspy is not installed (pip install 'volrender[las]')")
+    rng = np.random.default_rng(0)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = [0.01] * 3, [0.0] * 3
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = rng.random(n) * 10, rng.random(n) * 10, rng.random(n) * 10
+    las.write(folder / name, do_compress=compress)
+    return (folder / name).read_bytes()
+
+
+def test_damaged_las_and_laz_files_are_one_line_naming_the_file_within_bounds(tmp_path):
+    """A LAZ cut short (lazrs raised), a header claiming 788 million variable-length records
+    (laspy read them on, growing without end), an uncompressed file shorter than its point
+    count: one line each, status 2, in seconds, under a 2 GB address-space cap."""
+    import resource
+    import struct
+    laz = _las_file(tmp_path, "ok.laz")
+    las = _las_file(tmp_path, "ok.las", compress=False)
+    (tmp_path / "cut.laz").write_bytes(laz[:len(laz) // 2])
+    bomb = bytearray(laz)
+    bomb[100:104] = struct.pack("<I", 788_529_153)
+    (tmp_path / "vlrs.laz").write_bytes(bytes(bomb))
+    (tmp_path / "short.las").write_bytes(las[:-100])
+    expect = {"cut.laz": "not a readable LAZ file (LazrsError",
+              "vlrs.laz": "788529153 variable-length records, more than the",
+              "short.las": "the header says 2000 points of 34 bytes, but the file holds"}
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+    for name, words in expect.items():
+        t0 = time.perf_counter()
+        r = subprocess.run([PY, "-m", "volrender", "render", name, "-o", "o.png", *SMALL],
+                           cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=120,
+                           preexec_fn=cap)
+        err = _one_error(r)
+        assert err.startswith(f"volrender: error: {name}: ") and words in err, err
+        assert time.perf_counter() - t0 < 60
+    assert not (tmp_path / "o.png").exists()
+    r = volrender("render", "ok.laz", "-o", "o.png", *SMALL, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+
+
+def test_random_damage_to_a_laz_file_never_escapes_as_a_traceback(tmp_path):
+    """1-8 random bytes changed (mostly in the header and VLRs), 40 times, in-process: each
+    load gives the cloud or one UserError line (lazrs raised LazrsError on most)."""
+    import random
+    from volrender.errors import UserError
+    from volrender.points import load_points
+    laz = _las_file(tmp_path, "ok.laz", n=500)
+    rnd = random.Random(2)
+    outcomes = []
+    for i in range(40):
+        b = bytearray(laz)
+        for _ in range(rnd.randint(1, 8)):
+            j = rnd.randrange(0, 700) if rnd.random() < 0.7 else rnd.randrange(len(b))
+            b[j] = rnd.randrange(256)
+        p = tmp_path / f"m{i}.laz"
+        p.write_bytes(bytes(b))
+        try:
+            load_points(p)
+            outcomes.append("ok")
+        except UserError as exc:
+            assert str(exc).startswith(f"{p}: ") and "\n" not in str(exc), exc
+            outcomes.append("error")
+    assert outcomes.count("error") > 20, outcomes

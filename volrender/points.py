@@ -284,29 +284,9 @@ _READERS = {".ply": _read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _
 
 
 def _read_las(path):
-    """(centres, radii, colours, notes) of a LAS/LAZ file through laspy."""
-    try:
-        import laspy
-    except ImportError:
-        raise UserError("reading .las/.laz needs laspy", path=path,
-                        fix="pip install 'volrender[las]' (laspy with its LAZ backend)") from None
-    try:
-        with laspy.open(path) as reader:
-            n = int(reader.header.point_count)
-            check_memory(n * (3 * 8 + 3 * 4) * 3, path, "reading this point cloud", _MEMORY_FIX)
-            las = reader.read()
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
-        raise UserError(f"not a readable LAS/LAZ file ({str(exc).splitlines()[0][:160]})",
-                        path=path, fix="check the file (LAZ needs laspy's lazrs backend)") from None
-    centers = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
-                               np.asarray(las.z, np.float64)])
-    colors = None
-    names = set(las.point_format.dimension_names)
-    if {"red", "green", "blue"} <= names:
-        rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)
-        if rgb.max() > 0:
-            colors = (rgb / (65535.0 if rgb.max() > 255 else 255.0)).astype(np.float32)
-    return centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id})",)
+    """(centres, radii, colours, notes) of a LAS/LAZ file (volrender/las.py)."""
+    from .las import read_las
+    return read_las(path)
 
 
 def _read_npy(path):
