@@ -221,3 +221,48 @@ def test_random_damage_to_a_laz_file_never_escapes_as_a_traceback(tmp_path):
             assert str(exc).startswith(f"{p}: ") and "\n" not in str(exc), exc
             outcomes.append("error")
     assert outcomes.count("error") > 20, outcomes
+
+
+# ------------------------------------------------------------------ interrupted sequences
+
+def _stopped_sequence(tmp_path, workers, signum, group):
+    """A sequence of 8 frames, stopped by `signum` once its first frame is on disk: sent
+    to its process group as a terminal's Ctrl-C is (its Dask workers get it too), or to
+    the main process alone as `kill` sends SIGTERM."""
+    out = tmp_path / f"out{workers}{signum}"
+    out.mkdir()
+    p = subprocess.Popen([PY, "-m", "volrender", "render", "c_####.npz", "-o",
+                          f"{out.name}/f_####.png", "--frames", "1-8", "--workers", workers,
+                          "--size", "200x150", "--spp", "16", "--no-progress", *CAMERA],
+                         cwd=tmp_path, env=ENV, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    t0 = time.time()
+    while not list(out.glob("f_*.png")) and p.poll() is None and time.time() - t0 < 240:
+        time.sleep(0.02)
+    (os.killpg if group else os.kill)(p.pid, signum)
+    err = p.communicate(timeout=120)[1]
+    return p.returncode, err, out
+
+
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_a_stopped_sequence_says_which_frames_were_written_and_records_them(tmp_path, workers):
+    """Ctrl-C (SIGINT to the group) and SIGTERM (to the main process), serial and on Dask:
+    one line naming the frames written and those not, as the files on disk are; status
+    128 + signal; the record written, its rows saying the same; no temporary file."""
+    pytest.importorskip("distributed")
+    _frames(tmp_path, 8)
+    for signum, group in ((signal.SIGINT, True), (signal.SIGTERM, False)):
+        code, err, out = _stopped_sequence(tmp_path, workers, signum, group)
+        assert code == 128 + signum, err
+        assert err.count("\n") == 1 and "Traceback" not in err, err
+        on_disk = sorted(int(p.stem[2:]) for p in out.glob("f_*.png"))
+        assert on_disk and on_disk[-1] < 8, on_disk
+        from volrender.sequence import _ranges
+        rest = [f for f in range(1, 9) if f not in on_disk]
+        words = (f"{'frame' if len(on_disk) == 1 else 'frames'} {_ranges(on_disk)} written, "
+                 f"{'frame' if len(rest) == 1 else 'frames'} {_ranges(rest)} not; record ")
+        assert err.startswith(f"volrender: interrupted ({signal.Signals(signum).name}); {words}"), err
+        rec = json.loads((out / "f.sequence.json").read_text())
+        assert {r["frame"]: r["status"] for r in rec["frames"]} == \
+            {f: "ok" if f in on_disk else "interrupted" for f in range(1, 9)}
+        assert [p.name for p in out.iterdir() if ".tmp" in p.name] == []

@@ -578,6 +578,7 @@ def _interrupted(exc) -> int:
     signum = getattr(exc, "signum", signal.SIGINT)
     done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
     what = f"{done} was written before that" if done else "no output written"
+    what = getattr(exc, "summary", None) or what        # a sequence says which frames
     print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
     return 128 + signum
 

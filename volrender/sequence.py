@@ -551,22 +551,25 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
     failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
                "error": err, "seconds": 0.0} for f, err in bad.items()]
-    t0 = time.perf_counter()
-    own = None
-    if client is None and (workers == 0 and scheduler is None):
-        records = _serial(jobs, frame_kw, save_kw, skip_existing, progress, device)
-        n_workers = 0
-    else:
-        if client is None:
-            own = _start_client(workers, scheduler, device)
-            client = own[0]
-        try:
+    t0, started = time.perf_counter(), time.time_ns()
+    own, records, n_workers, stopped, handlers = None, [], 0, None, {}
+    try:
+        if client is None and (workers == 0 and scheduler is None):
+            _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records)
+        else:
+            if client is None:
+                own = _start_client(workers, scheduler, device)
+                client = own[0]
             n_workers = len(client.scheduler_info().get("workers", {})) or 1
             k = chunk or max(1, min(8, len(jobs) // (2 * n_workers) or 1))
-            records = _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k)
-        finally:
-            if own is not None:
-                _stop_client(*own)
+            _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records)
+    except KeyboardInterrupt as exc:      # Ctrl-C, SIGTERM, SIGHUP: stop, say what is done
+        stopped, handlers = exc, _ignore_signals()
+    finally:
+        if own is not None:
+            _stop_client(*own)
+    if stopped is not None:
+        records = _rows_when_stopped(records, jobs, started)
     result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
                             time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
                             options=extra)
@@ -577,7 +580,88 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     settings = {k: (list(v) if isinstance(v, tuple) else v) for k, v in overrides.items()
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
+    if stopped is not None:
+        _restore_signals(handlers)
+        signum = getattr(stopped, "signum", signal.SIGINT)
+        raise Interrupted(signum, _stopped_summary(result)) from None
     return result
+
+
+class Interrupted(KeyboardInterrupt):
+    """A sequence stopped by a signal, after its record was written: `summary` names the
+    frames written and those not; `signum` the signal."""
+
+    def __init__(self, signum: int, summary: str):
+        super().__init__(signum)
+        self.signum, self.summary = signum, summary
+
+
+def _ignore_signals() -> dict:
+    """SIGINT/SIGTERM/SIGHUP ignored while a stopped sequence winds up (its workers stop,
+    its record is written): a second Ctrl-C cannot cut that short. The old handlers."""
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    old = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            old[sig] = signal.signal(sig, signal.SIG_IGN)
+    return old
+
+
+def _restore_signals(old):
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def _rows_when_stopped(records, jobs, started_ns):
+    """The records of a stopped run, one per job: a frame without a record was written
+    if its output is there, complete and newer than the run's start (a worker finished it
+    as the run stopped), and is 'interrupted' otherwise."""
+    have = {r["frame"] for r in records}
+    out = list(records)
+    for frame, src, dst in jobs:
+        if frame in have:
+            continue
+        row = {"frame": frame, "input": str(src), "output": str(dst), "seconds": 0.0}
+        try:
+            fresh = os.stat(dst).st_mtime_ns >= started_ns
+        except OSError:
+            fresh = False
+        row["status"] = "ok" if fresh else "interrupted"
+        out.append(row)
+    return out
+
+
+def _ranges(frames) -> str:
+    """1,2,3,5,7,8 -> '1-3, 5, 7-8'."""
+    out, frames = [], sorted(frames)
+    i = 0
+    while i < len(frames):
+        j = i
+        while j + 1 < len(frames) and frames[j + 1] == frames[j] + 1:
+            j += 1
+        out.append(str(frames[i]) if i == j else f"{frames[i]}-{frames[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def _stopped_summary(result) -> str:
+    """'frames 1-3 written, 4-8 not (record out/f.sequence.json)' and the like."""
+    by = {}
+    for r in result.records:
+        by.setdefault(r["status"], []).append(r["frame"])
+    ok, left = by.get("ok", []), by.get("interrupted", [])
+    parts = [f"{'frame' if len(ok) == 1 else 'frames'} {_ranges(ok)} written" if ok
+             else "no frame written"]
+    parts.append(f"{'frame' if len(left) == 1 else 'frames'} {_ranges(left)} not" if left
+                 else "none left")
+    for status, words in (("skipped", "kept (there already)"), ("failed", "failed")):
+        if by.get(status):
+            parts.append(f"{_ranges(by[status])} {words}")
+    record = f"record {result.record_path}" if result.record_path else "no record written"
+    return f"{', '.join(parts)}; {record}"
 
 
 MAX_WORKERS = 1024              # Dask workers one LocalCluster may start
@@ -610,12 +694,12 @@ def _check_every_frame(first, overrides, device, serial):
     check_image_memory(*req.view.size, dev, len(req.settings.aovs) if req.kind == "volume" else 0)
 
 
-def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device):
+def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
+    """Render the jobs here, appending each frame's record to `records` as it is done."""
     from .progress import Progress
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
     bar = Progress(len(jobs), "frames", progress, unit="frame")
-    records = []
     try:
         for job in jobs:
             records += render_chunk([job], frame_kw, save_kw, skip_existing)
@@ -710,7 +794,8 @@ def _stop_client(client, cluster):
         cluster.close()
 
 
-def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
+def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records):
+    """Render the jobs as Dask tasks of k frames, appending the records as they come."""
     from distributed import as_completed
     from .progress import Progress
     chunks = [jobs[i:i + k] for i in range(0, len(jobs), k)]
@@ -718,7 +803,6 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k):
                              retries=2, key=f"volrender-frames-{c[0][0]}-{c[-1][0]}-{os.getpid()}")
                for c in chunks]
     bar = Progress(len(jobs), "frames", progress, unit="frame")
-    records = []
     try:
         for fut in as_completed(futures):
             try:
