@@ -266,3 +266,52 @@ def test_a_stopped_sequence_says_which_frames_were_written_and_records_them(tmp_
         assert {r["frame"]: r["status"] for r in rec["frames"]} == \
             {f: "ok" if f in on_disk else "interrupted" for f in range(1, 9)}
         assert [p.name for p in out.iterdir() if ".tmp" in p.name] == []
+
+
+# ------------------------------------------------------------------ a signal at any moment
+
+def _classify(code, err, signum, wrote):
+    """What one interrupted run did: 'line' (volrender's one line and 128 + signal, true
+    about the output), 'done' (it had finished: status 0, the status line), or 'python'
+    (the interpreter's own start, before volrender's first line: killed by the signal
+    before Python took it over, or Python's KeyboardInterrupt with no volrender frame)."""
+    name = signal.Signals(signum).name
+    if err.startswith("Error processing line ") and "Remainder of file ignored\n" in err:
+        err = err.split("Remainder of file ignored\n", 1)[1]   # site.py went on past a .pth
+    if code == 0 and err.startswith("wrote ") and err.count("\n") == 1 and wrote:
+        return "done"
+    if code == 128 + signum and err.count("\n") == 1 and \
+            err.startswith(f"volrender: interrupted ({name})"):
+        said = "o.png was written before that" in err
+        assert said == wrote, (err, wrote)
+        return "line"
+    assert "volrender/" not in err and "volrender:" not in err and not wrote, (code, err)
+    assert code in (-signum, 1) and (err == "" or err.rstrip().endswith("KeyboardInterrupt")), \
+        (code, err)
+    return "python"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_at_any_moment_is_one_line_and_its_status(tmp_path, signum):
+    """Signals at 2.5 ms steps from the exec (interpreter start, the entry point's imports,
+    option parsing, the load, the render, the write, the exit): from volrender's first
+    line on, the one interrupted line and 128 + signal, saying what was written; before it,
+    only Python's own start (docs/robustness.md). It printed KeyboardInterrupt tracebacks
+    from volrender's imports (atomic, errors) and, after the command, 'while starting; no
+    output written' though the image was there."""
+    seen = {"line": 0, "done": 0, "python": 0}
+    delays = [i * 0.0025 for i in range(100)]
+    t0 = time.perf_counter()
+    assert volrender("render", "blob:50", "-o", "o.png", *SMALL, cwd=tmp_path).returncode == 0
+    run = time.perf_counter() - t0
+    delays += [run * f for f in (0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0, 1.05, 1.1)]
+    for d in delays:
+        (tmp_path / "o.png").unlink(missing_ok=True)
+        p = subprocess.Popen([PY, "-m", "volrender", "render", "blob:50", "-o", "o.png", *SMALL],
+                             cwd=tmp_path, env=ENV, stderr=subprocess.PIPE, text=True)
+        time.sleep(d)
+        p.send_signal(signum)
+        err = p.communicate(timeout=300)[1]
+        seen[_classify(p.returncode, err, signum, (tmp_path / "o.png").exists())] += 1
+        assert [n for n in os.listdir(tmp_path) if ".tmp" in n] == []
+    assert seen["line"] > 50, seen

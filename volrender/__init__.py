@@ -10,16 +10,27 @@ load_scene takes the command line's option names with underscores as keywords
 GENERATOR:COUNT, a numpy volume or points) with the keywords. Image holds rgba (H x W x 4
 float32, linear), the AOVs, timings and the device name. docs/python.md has the whole API.
 """
-__version__ = "0.1.0"
+import sys as _sys
 
-import sys as _sys  # noqa: E402
-
-# The command line (`volrender ...`, `python -m volrender ...`): a Ctrl-C while the
-# modules below import ends it with one line, not a traceback (cli.main takes over).
+# The command line (`volrender ...`, `python -m volrender ...`): from this line on, a
+# SIGINT, SIGTERM or SIGHUP ends it with one line and 128 + the signal, never a traceback
+# (cli.main takes over). First, before any import: nothing else runs before it.
 if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
                   or list(getattr(_sys, "orig_argv", ()))[1:3] == ["-m", "volrender"]):
-    from .atomic import exit_on_signals_during_startup as _startup
-    _startup()
+    def _starting(signum, frame):
+        import os
+        name = {1: "SIGHUP", 2: "SIGINT", 15: "SIGTERM"}.get(signum, str(signum))
+        os.write(2, f"volrender: interrupted ({name}) while starting; no output written\n".encode())
+        os._exit(128 + signum)
+
+    def _start():
+        import _signal
+        for sig in (1, 2, 15):                       # SIGHUP, SIGINT, SIGTERM (POSIX numbers)
+            if _signal.getsignal(sig) is not _signal.SIG_IGN:   # nohup, a background job
+                _signal.signal(sig, _starting)
+    _start()
+
+__version__ = "0.1.0"
 
 from .errors import UserError  # noqa: E402
 from .lights import PointLight, Sun  # noqa: E402

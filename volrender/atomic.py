@@ -69,19 +69,6 @@ def signals_held():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def exit_on_signals_during_startup():
-    """For the CLI's first moments (imports, before cli.main installs its handlers): a
-    terminating signal ends the process at once with one line and status 128 + signal;
-    nothing has been written yet."""
-    def leave(signum, frame):
-        os.write(2, f"volrender: interrupted ({signal.Signals(signum).name}) while starting; "
-                    "no output written\n".encode())
-        os._exit(128 + signum)
-    for sig in _SIGNALS:
-        if signal.getsignal(sig) is not signal.SIG_IGN:
-            signal.signal(sig, leave)
-
-
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

@@ -569,12 +569,17 @@ def restore_signals(old):
         signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
+def _ignore_signals():
+    import signal
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+
+
 def _interrupted(exc) -> int:
     """One line saying what really happened (after the rename, the output was written)."""
     import signal
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):       # a second signal: no traceback
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    _ignore_signals()                                  # a second signal: no traceback
     signum = getattr(exc, "signum", signal.SIGINT)
     done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
     what = f"{done} was written before that" if done else "no output written"
@@ -682,8 +687,9 @@ _command = None
 def _main(argv) -> int:
     global _command
     _command = None
-    old = handle_signals()
+    old = {}
     try:
+        old = handle_signals()
         parser = build_parser()
         args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
         _command = args.command
@@ -698,7 +704,10 @@ def _main(argv) -> int:
             raise
         return _interrupted(exc)
     finally:
-        restore_signals(old)
+        if argv is not None:                 # called from Python: its handlers back
+            restore_signals(old)
+        else:                                # the command is done, its status stands:
+            _ignore_signals()                # a late signal changes nothing, says nothing
 
 
 _CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
