@@ -225,13 +225,26 @@ def test_random_damage_to_a_laz_file_never_escapes_as_a_traceback(tmp_path):
 
 # ------------------------------------------------------------------ interrupted sequences
 
+# the script pip writes for the `volrender` command ([project.scripts])
+CONSOLE_SCRIPT = """import re
+import sys
+from volrender.cli import main
+if __name__ == '__main__':
+    sys.argv[0] = re.sub(r'(-script\\.pyw|\\.exe)?$', '', sys.argv[0])
+    sys.exit(main())
+"""
+
+
 def _stopped_sequence(tmp_path, workers, signum, group):
     """A sequence of 8 frames, stopped by `signum` once its first frame is on disk: sent
-    to its process group as a terminal's Ctrl-C is (its Dask workers get it too), or to
-    the main process alone as `kill` sends SIGTERM."""
+    to its process group as a terminal's Ctrl-C is (its Dask workers get it too), through
+    the `volrender` command; or to the main process alone as `kill` sends SIGTERM, through
+    `python -m volrender`."""
     out = tmp_path / f"out{workers}{signum}"
     out.mkdir()
-    p = subprocess.Popen([PY, "-m", "volrender", "render", "c_####.npz", "-o",
+    (tmp_path / "volrender").write_text(CONSOLE_SCRIPT)
+    entry = [str(tmp_path / "volrender")] if group else ["-m", "volrender"]
+    p = subprocess.Popen([PY, *entry, "render", "c_####.npz", "-o",
                           f"{out.name}/f_####.png", "--frames", "1-8", "--workers", workers,
                           "--size", "200x150", "--spp", "16", "--no-progress", *CAMERA],
                          cwd=tmp_path, env=ENV, stderr=subprocess.PIPE, text=True,
@@ -248,7 +261,9 @@ def _stopped_sequence(tmp_path, workers, signum, group):
 def test_a_stopped_sequence_says_which_frames_were_written_and_records_them(tmp_path, workers):
     """Ctrl-C (SIGINT to the group) and SIGTERM (to the main process), serial and on Dask:
     one line naming the frames written and those not, as the files on disk are; status
-    128 + signal; the record written, its rows saying the same; no temporary file."""
+    128 + signal; the record written, its rows saying the same; no temporary file. (Dask
+    workers of the `volrender` command took the start-up handler with the command's argv,
+    and each printed 'interrupted ... while starting' as well.)"""
     pytest.importorskip("distributed")
     _frames(tmp_path, 8)
     for signum, group in ((signal.SIGINT, True), (signal.SIGTERM, False)):

@@ -14,9 +14,11 @@ import sys as _sys
 
 # The command line (`volrender ...`, `python -m volrender ...`): from this line on, a
 # SIGINT, SIGTERM or SIGHUP ends it with one line and 128 + the signal, never a traceback
-# (cli.main takes over). First, before any import: nothing else runs before it.
-if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
-                  or list(getattr(_sys, "orig_argv", ()))[1:3] == ["-m", "volrender"]):
+# (cli.main takes over). First, before any import: nothing else runs before it. The
+# process's own argv (orig_argv), not sys.argv: a Dask worker spawned from the command
+# is given the command's sys.argv, and must keep Dask's handlers.
+_argv = list(getattr(_sys, "orig_argv", ()))[1:3]
+if _argv[:1] and _argv[0].rsplit("/", 1)[-1] == "volrender" or _argv == ["-m", "volrender"]:
     def _starting(signum, frame):
         import os
         name = {1: "SIGHUP", 2: "SIGINT", 15: "SIGTERM"}.get(signum, str(signum))
@@ -29,6 +31,7 @@ if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
             if _signal.getsignal(sig) is not _signal.SIG_IGN:   # nohup, a background job
                 _signal.signal(sig, _starting)
     _start()
+del _argv
 
 __version__ = "0.1.0"
 

@@ -781,7 +781,7 @@ def _start_client(workers, scheduler, device):
     if os.environ.get(KILL_HOOK):
         env[KILL_HOOK] = os.environ[KILL_HOOK]
     cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
-                             dashboard_address=None, env=env, silence_logs=logging.ERROR)
+                             dashboard_address=":0", env=env, silence_logs=logging.ERROR)
     client = Client(cluster)
     if gpus:
         client.register_plugin(device_per_worker(gpus))
