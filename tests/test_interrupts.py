@@ -168,8 +168,9 @@ def _las_file(folder, name, n=2000, compress=True):
 
 def test_damaged_las_and_laz_files_are_one_line_naming_the_file_within_bounds(tmp_path):
     """A LAZ cut short (lazrs raised), a header claiming 788 million variable-length records
-    (laspy read them on, growing without end), an uncompressed file shorter than its point
-    count: one line each, status 2, in seconds, under a 2 GB address-space cap."""
+    (laspy read them on, growing without end), a LAZ claiming 50 million points in 13 KB,
+    an uncompressed file shorter than its point count: one line each, status 2, in
+    seconds, under a 2 GB address-space cap."""
     import resource
     import struct
     laz = _las_file(tmp_path, "ok.laz")
@@ -179,7 +180,11 @@ def test_damaged_las_and_laz_files_are_one_line_naming_the_file_within_bounds(tm
     bomb[100:104] = struct.pack("<I", 788_529_153)
     (tmp_path / "vlrs.laz").write_bytes(bytes(bomb))
     (tmp_path / "short.las").write_bytes(las[:-100])
+    many = bytearray(laz)
+    many[107:111] = struct.pack("<I", 50_000_000)
+    (tmp_path / "count.laz").write_bytes(bytes(many))
     expect = {"cut.laz": "not a readable LAZ file (LazrsError",
+              "count.laz": "the header says 50000000 points of 34 bytes, more than 4096 times",
               "vlrs.laz": "788529153 variable-length records, more than the",
               "short.las": "the header says 2000 points of 34 bytes, but the file holds"}
 

@@ -6,9 +6,10 @@ against its size, exactly), the memory the points need is checked against what t
 process can still get before anything is decoded, and whatever the decoder raises on a
 damaged file is one line naming it.
 
-A LAZ file's point count cannot be checked against its size (constant points compress
-about 2800:1); the memory check bounds it, and decoding stops where the compressed bytes
-end (laspy reads every chunk in turn).
+A LAZ file's point count can only be bounded by its size: the records it promises may be
+at most MAX_LAZ_RATIO times its compressed bytes (identical points, the most a LAZ
+compresses, come to about 2800 times; real scans 5 to 15); the memory check bounds the
+rest, and decoding stops where the compressed bytes end.
 """
 from __future__ import annotations
 
@@ -26,11 +27,12 @@ FIX = "check the file, or convert it again (LAZ needs laspy's lazrs backend)"
 # the smallest record of each point data format (LAS 1.4, table 7 and on)
 RECORD_SIZE = {0: 20, 1: 28, 2: 26, 3: 34, 4: 57, 5: 63, 6: 30, 7: 36, 8: 38, 9: 59, 10: 67}
 VLR_HEADER, EVLR_HEADER = 54, 60
-BYTES_PER_POINT = 3 * (3 * 8 + 3 * 4)    # what decoding and the float64 copies hold per point
+BYTES_PER_POINT = 3 * (3 * 8 + 3 * 4)    # the float64 copies and colours held per point
+MAX_LAZ_RATIO = 4096                     # records' bytes per compressed byte, at most
 
 
-def check_header(path, head: bytes, size: int) -> tuple[int, bool]:
-    """(point count, compressed) of a LAS/LAZ file from its first 375 bytes `head` and its
+def check_header(path, head: bytes, size: int) -> tuple[int, bool, int]:
+    """(point count, compressed, record size) of a LAS/LAZ file from its first 375 bytes `head` and its
     size; UserError (naming the file) when the header cannot describe the file."""
     def bad(problem):
         return UserError(problem, path=path, fix=FIX)
@@ -71,7 +73,11 @@ def check_header(path, head: bytes, size: int) -> tuple[int, bool]:
     if not compressed and count * record > end - offset:
         raise bad(f"the header says {count} points of {record} bytes, but the file holds "
                   f"{end - offset} bytes of points (it is cut short)")
-    return count, compressed
+    if compressed and count * record > (end - offset) * MAX_LAZ_RATIO:
+        raise bad(f"the header says {count} points of {record} bytes, more than "
+                  f"{MAX_LAZ_RATIO} times the {end - offset} compressed bytes could hold "
+                  "(the header is damaged)")
+    return count, compressed, record
 
 
 def read_las(path):
@@ -88,8 +94,8 @@ def read_las(path):
             size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise UserError(f"cannot read it ({exc.strerror or exc})", path=path, fix=FIX) from None
-    n, compressed = check_header(path, head, size)
-    check_memory(n * BYTES_PER_POINT, path, f"reading {n} LAS points", _MEMORY_FIX)
+    n, compressed, record = check_header(path, head, size)
+    check_memory(n * (record + BYTES_PER_POINT), path, f"reading {n} LAS points", _MEMORY_FIX)
     quiet = logging.getLogger("laspy")          # it logs each decoding error as well
     level, quiet.level = quiet.level, logging.CRITICAL + 1
     try:
