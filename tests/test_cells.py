@@ -8,7 +8,7 @@ import pytest
 from glass_probe import Probe
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import cells, cli, glass, points, reference
+from volrender import cells, cli, glass, points, reference, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
@@ -25,7 +25,7 @@ LIGHTS = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
 
 def packed(dev, cloud, **kw):
     s = glass.GlassSettings(**{"accel": "grid", **kw})
-    p = glass.pack_scene(cloud, s, device=dev)
+    p = spheres.pack_scene(cloud, s, device=dev)
     assert p.accel == "grid" and p.cells is not None
     return p
 
@@ -247,7 +247,7 @@ def test_coincident_points_are_one_run(cl_device):
 
 def test_camera_inside_glass_glows_with_its_colour(cl_device):
     """An eye deep inside coloured glass sits in a cell that rays skip: its glow tint comes
-    from the host's blend at the eye (glass.eye_color, the kernel's formula in float64),
+    from the host's blend at the eye (spheres.eye_color, the kernel's formula in float64),
     so the image equals the tree walk's up to the skipping criterion, and every ray starts
     in glass."""
     base = points.blob(200, seed=10)
@@ -255,12 +255,12 @@ def test_camera_inside_glass_glows_with_its_colour(cl_device):
     cloud = PointCloud(base.centers, np.full(200, 0.3), cols)
     cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=16, height=16)
     kw = dict(blend=0.15, bounces=2)
-    p = glass.pack_scene(cloud, glass.GlassSettings(**kw), device=cl_device)
+    p = spheres.pack_scene(cloud, glass.GlassSettings(**kw), device=cl_device)
     code, _, _ = p.cells.lookup(p.cells.locate(np.zeros((1, 3)) - p.centre))
     assert code[0] < 0                            # the eye's cell is skipped
     d = np.linalg.norm(cloud.centers, axis=1) - 0.3
     h = np.maximum(1 - (d - d.min()) / 0.15, 0) ** 2
-    np.testing.assert_allclose(glass.eye_color(p, -p.centre)[:3], h @ cols / h.sum(), rtol=1e-5)
+    np.testing.assert_allclose(spheres.eye_color(p, -p.centre)[:3], h @ cols / h.sum(), rtol=1e-5)
     grid = render(cl_device, cloud, cam=cam, **kw)
     tree = render(cl_device, cloud, cam=cam, accel="tree", **kw)
     assert (grid[..., 3] == 1).all()
@@ -284,8 +284,8 @@ def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device):
     cloud = points.blob(400, seed=2)
     cam = glass.default_camera(cloud, 16, 12)
     s = glass.GlassSettings(bounces=1)
-    full = glass.pack_scene(cloud, s, device=cl_device)
-    small = glass.pack_scene(cloud, s, device=cl_device, max_runs=len(full.cells.runs) // 2)
+    full = spheres.pack_scene(cloud, s, device=cl_device)
+    small = spheres.pack_scene(cloud, s, device=cl_device, max_runs=len(full.cells.runs) // 2)
     assert small.accel == "grid" and small.cells.cell >= 1.9 * full.cells.cell
     assert len(small.cells.runs) <= len(full.cells.runs) // 2
     grid = render(cl_device, cloud, cam=cam, bounces=1)

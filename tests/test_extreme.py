@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from volrender import glass, points, reference, tree as tree_mod
+from volrender import glass, points, reference, spheres, tree as tree_mod
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.image import write_image
@@ -480,7 +480,7 @@ def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s, accel):
     big = PointCloud(base.centers * s)
     scaled = dict(kw, blend=0.1 * s, radius=r0 * s)
     got = grender(cl_device, big, glass.GlassSettings(**scaled), scaled_cam(cam, s), sun)
-    unit = glass.material_unit(glass.pack_scene(base, glass.GlassSettings(**kw), device=cl_device),
+    unit = spheres.material_unit(spheres.pack_scene(base, glass.GlassSettings(**kw), device=cl_device),
                                glass.GlassSettings())
     world = grender(cl_device, big, glass.GlassSettings(
         **scaled, material_unit=1.0, absorption=tuple(np.array((0.25, 1.0, 2.7)) / (unit * s)),

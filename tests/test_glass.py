@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from glass_probe import Probe, optics
 
-from volrender import glass, points, reference
+from volrender import glass, points, reference, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
@@ -368,12 +368,12 @@ def test_settings_are_validated():
         with pytest.raises(UserError):
             glass.GlassSettings(**bad)
     with pytest.raises(UserError, match="radius"):
-        glass.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())
+        spheres.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())
     # |x - c|^2 would overflow float32 (the field uses sqrt(dot), not length())
     with pytest.raises(UserError, match="float32"):
-        glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e19, 0, 0]])),
+        spheres.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e19, 0, 0]])),
                          glass.GlassSettings(radius=1.0))
-    glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e17, 0, 0]])), glass.GlassSettings(radius=1.0))
+    spheres.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e17, 0, 0]])), glass.GlassSettings(radius=1.0))
 
 
 # ------------------------------------------------------------------ defaults of scans
@@ -404,9 +404,9 @@ def test_scans_get_melting_defaults(shared_data):
     assert sc.settings.radius == pytest.approx(0.5 * np.median(nn))
     assert sc.settings.blend == pytest.approx(glass.SCAN_BLEND * np.percentile(nn, 90))
     assert any("without radii" in n for n in sc.notes)
-    scene = glass.pack_scene(sc.content.cloud, glass.GlassSettings(radius=sc.settings.radius,
+    scene = spheres.pack_scene(sc.content.cloud, glass.GlassSettings(radius=sc.settings.radius,
                                                                    accel="none"))
-    assert glass.material_unit(scene, sc.settings) == pytest.approx(scene.scale)
-    assert glass.material_unit(scene, glass.GlassSettings(material_unit=1.0)) == 1.0
+    assert spheres.material_unit(scene, sc.settings) == pytest.approx(scene.scale)
+    assert spheres.material_unit(scene, glass.GlassSettings(material_unit=1.0)) == 1.0
     given = load_scene(path, size=(8, 6), radius=0.01, blend=0.02)
     assert (given.settings.radius, given.settings.blend) == (0.01, 0.02)

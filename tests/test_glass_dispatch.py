@@ -3,7 +3,7 @@ colours and soft shadows."""
 import numpy as np
 import pytest
 
-from volrender import features, glass, points
+from volrender import features, glass, points, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
@@ -71,7 +71,7 @@ def test_stats_count_the_field_work(cl_device, accel):
         assert (evals >= 1).all() and nodes.sum() == 0
         np.testing.assert_array_equal(tests, 2 * len(cloud.centers) * evals)
     else:
-        grid = glass.pack_scene(cloud, base, device=cl_device,          # the render's cells
+        grid = spheres.pack_scene(cloud, base, device=cl_device,          # the render's cells
                                 samples=st.shape[0] * st.shape[1] * base.spp).cells
         longest = int((grid.lengths() + grid.lengths(core=True)).max())
         assert (nodes >= evals).all() and nodes.sum() > evals.sum()   # lookups, skips

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
-from volrender import cli, glass, scene, tree as tree_mod
+from volrender import cli, glass, scene, spheres, tree as tree_mod
 from volrender.errors import UserError
 from volrender.points import PointCloud
 
@@ -420,7 +420,7 @@ def test_float32_boxes_contain_the_float32_spheres(pts, leaf_size, data):
     c = np.array(pts, np.float64)
     n = len(c)
     r = np.array(data.draw(st.lists(st.floats(0, 3), min_size=n, max_size=n)))
-    sc = glass.pack_scene(PointCloud(c, r), glass.GlassSettings(leaf_size=leaf_size, blend=0.0))
+    sc = spheres.pack_scene(PointCloud(c, r), glass.GlassSettings(leaf_size=leaf_size, blend=0.0))
     s = sc.spheres.astype(np.float64)
     nodes = sc.nodes
     lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], 1).astype(np.float64)

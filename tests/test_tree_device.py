@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import glass, points, tree, tree_device
+from volrender import glass, points, spheres, tree, tree_device
 from volrender.points import PointCloud, load_points
 from volrender.lights import Sun
 from volrender.render import render
@@ -64,8 +64,8 @@ def test_cells_and_images_from_the_device_tree_are_the_same(cl_device, request, 
         shared = request.getfixturevalue("shared_data")
     cloud, kw = next((c, k) for n, c, k in clouds(shared) if n == name)
     s = glass.GlassSettings(bounces=2, **kw)
-    host = glass.pack_scene(cloud, s, cl_device, tree_on="host")
-    dev = glass.pack_scene(cloud, s, cl_device, tree_on="device")
+    host = spheres.pack_scene(cloud, s, cl_device, tree_on="host")
+    dev = spheres.pack_scene(cloud, s, cl_device, tree_on="device")
     np.testing.assert_array_equal(dev.spheres, host.spheres)
     np.testing.assert_array_equal(dev.nodes, host.nodes)
     for field in ("bricks", "cells", "lists", "runs"):

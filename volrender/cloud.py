@@ -9,7 +9,7 @@ import numpy as np
 from .errors import UserError
 from .files import check_memory
 
-MAX_COORDINATE = 1e18       # |coordinate| accepted from files (glass.MAX_EXTENT: float32 squares)
+MAX_COORDINATE = 1e18       # |coordinate| accepted from files (spheres.MAX_EXTENT: float32 squares)
 
 
 _MEMORY_FIX = "load a smaller or decimated cloud, or free memory"

@@ -486,7 +486,7 @@ def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export
     centers : (N, 3) array
         The sphere centres (world).
     centre : (3,) array
-        The render frame's origin in world space (glass.PackedSpheres.centre).
+        The render frame's origin in world space (spheres.PackedSpheres.centre).
     screenshot, export, show, window_size, point_size
         As in :func:`show_tree`; a ``.vtm`` export holds one block, ``cells``. Beyond
         MAX_CELL_BOXES cells the view draws each cell as a point at its centre (the
@@ -599,7 +599,7 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     volrender.tree.Tree, volrender.cells.Cells or volrender.vdb.Bricks
         What was shown.
     """
-    from .glass import sphere_radii
+    from .spheres import sphere_radii
     from .scene import load_scene
     _check_outputs(screenshot, export, show)      # fail before loading a large file
     scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid,
@@ -612,7 +612,7 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     cloud, settings = scene.content.cloud, scene.content.settings
     if cells:
         import dataclasses
-        from .glass import pack_scene
+        from .spheres import pack_scene
         packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"))
         if packed.cells is None:
             raise UserError(packed.note or "no support cells for this cloud",

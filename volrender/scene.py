@@ -44,11 +44,13 @@ from typing import ClassVar
 
 import numpy as np
 
+from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
 from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
                        knobs, override_key)
+from .spheres import BuildCache, pack_scene, sphere_bounds, sphere_radii
 
 MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
@@ -86,36 +88,28 @@ class GlassContent:
     """A point cloud and its glass settings. The packed spheres, tree and support cells
     are built on the first render on a device and kept (`prepare`): renders with another
     camera, size, spp or lights reuse them; `dataclasses.replace` keeps the store, so
-    settings the acceleration does not read (glass.ACCEL_FIELDS) reuse it too."""
+    settings the acceleration does not read (spheres.ACCEL_FIELDS) reuse it too."""
     cloud: object                     # points.PointCloud
     settings: object                  # glass.GlassSettings
-    store: dict = field(default_factory=dict, compare=False, repr=False)
+    store: BuildCache = field(default_factory=BuildCache, compare=False, repr=False)
     kind: ClassVar[str] = "glass"
 
     def bounds(self):
-        from .glass import sphere_bounds, sphere_radii
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
 
     def prepare(self, device=None, samples=None, max_runs=None, tree_on="auto"):
-        """The glass.PackedSpheres of this cloud and settings on `device`, built once (the
+        """The spheres.PackedSpheres of this cloud and settings on `device`, built once (the
         first call's samples, pixels x spp, set the automatic cell edge's budget, and its
         max_runs caps the cells' list runs: cells.build, and its tree_on where the tree is
-        built: glass.pack_scene); later calls return it."""
-        from . import device as device_mod, glass
+        built: spheres.pack_scene); later calls return it."""
         dev = device_mod.resolve(device)
-        key = (dev.device.int_ptr, *(getattr(self.settings, f) for f in glass.ACCEL_FIELDS))
-        hit = self.store.get(key)
-        if hit is not None and hit[0] is self.cloud:
-            return hit[1]
-        packed = glass.pack_scene(self.cloud, self.settings, dev, samples, max_runs, tree_on)
-        self.store[key] = (self.cloud, packed)
-        self.store["builds"] = self.store.get("builds", 0) + 1
-        return packed
+        return self.store.packed_for(self.cloud, self.settings, dev, lambda: pack_scene(
+            self.cloud, self.settings, dev, samples, max_runs, tree_on))
 
     @property
     def builds(self) -> int:
         """How many times `prepare` built the acceleration."""
-        return self.store.get("builds", 0)
+        return self.store.builds
 
 
 @dataclass(frozen=True, eq=False)
@@ -633,13 +627,13 @@ def _scan_defaults(cloud, settings, store=None):
     (settings, note)."""
     from . import points
     from .glass import SCAN_BLEND, SCAN_PERCENTILE
-    if store is not None and "spacing" in store:      # Scene.replace: the same cloud
-        s, far = store["spacing"]
+    if store is not None and store.spacing is not None:   # Scene.replace: the same cloud
+        s, far = store.spacing
     else:
         nn = points.nn_distances(cloud.centers)
         s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
         if store is not None:
-            store["spacing"] = (s, far)
+            store.spacing = (s, far)
     radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
     blend = settings.blend if settings.blend is not None else \
         (SCAN_BLEND * far if far > 0 else 2.0 * radius)
