@@ -248,8 +248,8 @@ def main(argv=None):
             continue
         cloud = points.load_points(src)
         if cloud.radii is None:
-            from volrender.scene import _scan_defaults
-            settings0, _ = _scan_defaults(cloud, glass.GlassSettings(**opts))
+            from volrender.spheres import scan_defaults
+            settings0, _ = scan_defaults(cloud, glass.GlassSettings(**opts))
             opts = {**opts, "radius": settings0.radius, "blend": settings0.blend}
         cam = glass.default_camera(cloud, sw, sh, radius=opts["radius"])
         ref = None

@@ -386,8 +386,8 @@ def test_default_radius_is_half_the_exact_median_spacing(rng):
     d = np.linalg.norm(c[:, None] - c[None], axis=2)
     np.fill_diagonal(d, np.inf)
     nn = d.min(axis=1)
-    assert points.default_radius(c) == pytest.approx(0.5 * np.median(nn[nn > 0]), rel=1e-12)
-    assert points.default_radius(np.zeros((5, 3))) == 0.5       # no spacing: the fallback
+    assert spheres.default_radius(c) == pytest.approx(0.5 * np.median(nn[nn > 0]), rel=1e-12)
+    assert spheres.default_radius(np.zeros((5, 3))) == 0.5       # no spacing: the fallback
 
 
 def test_scans_get_melting_defaults(shared_data):
@@ -402,7 +402,7 @@ def test_scans_get_melting_defaults(shared_data):
     nn = cKDTree(c).query(c, k=2)[0][:, 1]
     nn = nn[nn > 0]
     assert sc.settings.radius == pytest.approx(0.5 * np.median(nn))
-    assert sc.settings.blend == pytest.approx(glass.SCAN_BLEND * np.percentile(nn, 90))
+    assert sc.settings.blend == pytest.approx(spheres.SCAN_BLEND * np.percentile(nn, 90))
     assert any("without radii" in n for n in sc.notes)
     scene = spheres.pack_scene(sc.content.cloud, glass.GlassSettings(radius=sc.settings.radius,
                                                                    accel="none"))

@@ -26,8 +26,6 @@ from .spheres import (MAX_EXTENT, PackedSpheres, eye_color, material_unit, spher
 PIXELS_PER_LAUNCH = 1 << 14
 NV_MAX_REGISTERS = 40         # per work-item, the glass kernel on NVIDIA (build_options)
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
-SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
-SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
 ACCELS = ("auto", "grid", "tree", "none")
 GLASS_MODELS = ("full", "fast")
 

@@ -48,10 +48,10 @@ def _box(lo, hi) -> str:
 
 def describe_points(path) -> list[str]:
     """Lines describing a point file: count, bounds, radii, colours, the nearest-neighbour
-    spacing, and the radius and blend a render would choose (scene._scan_defaults)."""
+    spacing, and the radius and blend a render would choose (spheres.scan_defaults)."""
     from . import glass
     from .points import load_points
-    from .scene import _scan_defaults
+    from .spheres import scan_defaults
     cloud = load_points(path)
     n = len(cloud.centers)
     lo, hi = cloud.centers.min(axis=0), cloud.centers.max(axis=0)
@@ -62,7 +62,7 @@ def describe_points(path) -> list[str]:
         lines.append(f"  radii {r.min():.4g}..{r.max():.4g} (median {np.median(r):.4g}); "
                      f"a render's blend: {2 * np.median(r):.4g} (twice the median radius)")
     else:
-        settings, note = _scan_defaults(cloud, glass.GlassSettings())
+        settings, note = scan_defaults(cloud, glass.GlassSettings())
         lines.append(f"  no radii: {note}")
     lines.append(f"  colours: {'per point' if cloud.colors is not None else 'none'}")
     return lines

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError
-from .points import default_radius  # noqa: F401  (re-exported for notebooks)
+from .spheres import default_radius
 
 __all__ = ["tree_boxes", "points_mesh", "brick_boxes", "tree_stats", "n_boxes",
            "leaf_of_points", "show_tree", "show_bricks", "inspect_input", "cell_boxes",

@@ -332,17 +332,3 @@ def nn_distances(centers) -> np.ndarray:
     d, _ = cKDTree(centers).query(centers, k=2, workers=-1)
     nn = d[:, 1]
     return nn[np.isfinite(nn) & (nn > 0)]
-
-
-def nn_spacing(centers, percentile=50) -> float:
-    """A percentile (default: the median) of nn_distances, 0 when no two points differ."""
-    nn = nn_distances(centers)
-    return float(np.percentile(nn, percentile)) if nn.size else 0.0
-
-
-def default_radius(centers, fallback: float = 0.5) -> float:
-    """Half the median nearest-neighbour spacing of the points (nn_spacing), or
-    ``fallback`` when no spacing can be measured (a single point, or all points
-    coincident)."""
-    med = nn_spacing(centers)
-    return 0.5 * med if med > 0 else float(fallback)

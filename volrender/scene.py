@@ -50,7 +50,7 @@ from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
 from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
                        knobs, override_key)
-from .spheres import BuildCache, pack_scene, sphere_bounds, sphere_radii
+from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
 MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
@@ -620,29 +620,6 @@ def _lights(given, doc, path=None):
     return None                           # the defaults, turned to the up axis by load()
 
 
-def _scan_defaults(cloud, settings, store=None):
-    """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
-    spacings: radius half the median, blend glass.SCAN_BLEND times the SCAN_PERCENTILE-th
-    percentile (neighbours melt into one surface, also where the scan is sparser). Returns
-    (settings, note)."""
-    from . import points
-    from .glass import SCAN_BLEND, SCAN_PERCENTILE
-    if store is not None and store.spacing is not None:   # Scene.replace: the same cloud
-        s, far = store.spacing
-    else:
-        nn = points.nn_distances(cloud.centers)
-        s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
-        if store is not None:
-            store.spacing = (s, far)
-    radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
-    blend = settings.blend if settings.blend is not None else \
-        (SCAN_BLEND * far if far > 0 else 2.0 * radius)
-    settings = dataclasses.replace(settings, radius=radius, blend=blend)
-    return settings, (f"{len(cloud.centers)} points without radii, nearest-neighbour spacing "
-                      f"{s:.4g} (median), {far:.4g} ({SCAN_PERCENTILE}th percentile): radius "
-                      f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
-
-
 def _fire_defaults(path, settings, given):
     """(settings, note): a Blender Mantaflow cache (vdb.mantaflow_cache, by its grid set)
     with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
@@ -788,7 +765,7 @@ class Request:
             notes += list(cloud.notes)
             if cloud.radii is None and (settings.radius is None or settings.blend is None):
                 t1 = time.perf_counter()
-                settings, note = _scan_defaults(cloud, settings, old.store if old else None)
+                settings, note = scan_defaults(cloud, settings, old.store if old else None)
                 timings["radii"] = time.perf_counter() - t1
                 notes.append(note)
             content = GlassContent(cloud, settings, **({"store": old.store} if old else {}))

@@ -8,6 +8,7 @@ on the host, tree_device.py on GPUs) and the support cells (cells.py).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -15,11 +16,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cells as cells_mod, device as device_mod, layout, tree as tree_mod, tree_device
+from .points import nn_distances
 from .dispatch import is_gpu
 from .errors import UserError
 
 MAX_TREE_DEPTH = layout.MAX_TREE_DEPTH   # deepest tree the host accepts (stacks: depth + 1)
 MAX_EXTENT = 1e18            # render-frame coordinates: |x - c|^2 stays finite in float32
+SCAN_BLEND = 3.0             # default blend of clouds without radii: times the 90th percentile
+SCAN_PERCENTILE = 90         # of the nearest-neighbour spacings (uneven scans melt too)
+FALLBACK_RADIUS = 0.5        # a cloud without radii and without two distinct points
 
 # settings the packed spheres, the tree and the cells depend on (GlassContent.prepare)
 ACCEL_FIELDS = ("radius", "blend", "leaf_size", "accel", "cell_size", "cell_skip", "epsilon",
@@ -68,6 +73,48 @@ class BuildCache:
         self.packed[key] = (cloud, packed)
         self.builds += 1
         return packed
+
+
+def scan_spacing(centers) -> tuple:
+    """(median, SCAN_PERCENTILE-th percentile) of the points' exact nearest-neighbour
+    spacings (points.nn_distances); (0, 0) when no two points differ."""
+    nn = nn_distances(centers)
+    if not nn.size:
+        return 0.0, 0.0
+    s, far = np.percentile(nn, [50, SCAN_PERCENTILE])
+    return float(s), float(far)
+
+
+def scan_radius(median_spacing: float) -> float:
+    """The radius of a cloud without radii: half its median spacing (else FALLBACK_RADIUS)."""
+    return 0.5 * median_spacing if median_spacing > 0 else FALLBACK_RADIUS
+
+
+def default_radius(centers) -> float:
+    """The radius a render gives points without radii (scan_defaults): half the median
+    nearest-neighbour spacing, or FALLBACK_RADIUS when no spacing can be measured."""
+    return scan_radius(scan_spacing(centers)[0])
+
+
+def scan_defaults(cloud, settings, cache: BuildCache | None = None):
+    """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
+    spacings: radius half the median, blend SCAN_BLEND times the SCAN_PERCENTILE-th
+    percentile (neighbours melt into one surface, also where the scan is sparser); the
+    settings' own radius and blend win. cache: the cloud's BuildCache (Scene.replace: the
+    spacing is measured once). Returns (settings, note)."""
+    if cache is not None and cache.spacing is not None:
+        s, far = cache.spacing
+    else:
+        s, far = scan_spacing(cloud.centers)
+        if cache is not None:
+            cache.spacing = (s, far)
+    radius = settings.radius if settings.radius is not None else scan_radius(s)
+    blend = settings.blend if settings.blend is not None else \
+        (SCAN_BLEND * far if far > 0 else 2.0 * radius)
+    settings = dataclasses.replace(settings, radius=radius, blend=blend)
+    return settings, (f"{len(cloud.centers)} points without radii, nearest-neighbour spacing "
+                      f"{s:.4g} (median), {far:.4g} ({SCAN_PERCENTILE}th percentile): radius "
+                      f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
 
 
 def sphere_radii(cloud, settings) -> np.ndarray:
