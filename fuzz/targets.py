@@ -245,10 +245,10 @@ def _in_file(data, name, fn):
 
 @target
 def scene(data):
-    """Scene TOML files (scene.read: tomllib, then the schema: sections, keys, types,
+    """Scene TOML files (scene_file.read: tomllib, then the schema: sections, keys, types,
     lights, paths relative to the file)."""
-    from volrender import scene as scene_mod
-    out = _in_file(data, "scene.toml", scene_mod.read)
+    from volrender import scene_file
+    out = _in_file(data, "scene.toml", scene_file.read)
     if not isinstance(out, dict) or not (("points" in out) ^ ("volume" in out)):
         raise Finding(f"scene without exactly one of [points], [volume]: {out!r}")
 

@@ -94,7 +94,7 @@ _GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
-    from .scene import options
+    from .scene_file import options
     from .glass import GlassSettings
     from .volume import VolumeSettings
     from .camera import View
@@ -123,7 +123,7 @@ def add_camera_options(t):
     """tree: the render's camera options (the image size is --window-size), so the view
     is the render's."""
     from .camera import View
-    from .scene import options
+    from .scene_file import options
     g = t.add_argument_group("camera (as render's: the view is the render's camera)")
     defaults = {f.name: f.default for f in dataclasses.fields(View)}
     for opt in options().values():
@@ -135,7 +135,7 @@ def add_camera_options(t):
 
 def camera_overrides(args) -> dict:
     """The camera options given to `volrender tree`."""
-    from .scene import options
+    from .scene_file import options
     keys = [o.key for o in options().values() if o.owner == "view" and o.field != "size"]
     return {k: getattr(args, k) for k in keys + ["camera"] if getattr(args, k, None) is not None}
 

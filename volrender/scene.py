@@ -13,7 +13,7 @@ file, whose values win over the defaults, which live once, in the settings class
 (VolumeSettings, GlassSettings, camera.View). An option the scene's kind does not read is
 an error naming it (pbrt's unused-parameter rule).
 
-Scene files (TOML) are validated in two steps: `read`/`parse` check each key's type and
+Scene files (TOML) are validated in two steps: `scene_file.read`/`parse` check each key's type and
 reject unknown keys and sections by full path (`[material].iro`); `load_scene` then checks
 ranges and kinds, naming the file and `[section].key`. Paths resolve relative to the file.
 
@@ -35,9 +35,7 @@ ranges and kinds, naming the file and `[section].key`. Paths resolve relative to
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -48,11 +46,10 @@ from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
-from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
-                       knobs, override_key)
+from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value
+from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, finite, options, read
 from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
-MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
 POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy", ".las", ".laz")
 KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
@@ -172,200 +169,6 @@ class Scene:
         return dataclasses.replace(self, content=content)
 
 
-# --------------------------------------------------------------------------- options
-
-@dataclass(frozen=True)
-class Option:
-    key: str                          # override keyword (CLI flag with underscores)
-    field: str                        # settings field it sets
-    owner: str                        # "common", "volume", "glass" or "view"
-    meta: dict
-
-    @property
-    def flag(self) -> str:
-        return "--" + self.key.replace("_", "-")
-
-
-def _options() -> dict[str, Option]:
-    from .glass import GlassSettings
-    from .volume import VolumeSettings
-    out = {}
-    common = {f.name for f, _ in knobs(CommonSettings)}
-    for cls, owner in ((View, "view"), (CommonSettings, "common"), (VolumeSettings, "volume"),
-                       (GlassSettings, "glass")):
-        for f, meta in knobs(cls):
-            if owner != "common" and f.name in common:
-                continue
-            key = override_key(f, meta)
-            out[key] = Option(key, f.name, owner, meta)
-    return out
-
-
-LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
-EXTRA_KEYS = LIGHT_KEYS + ("camera",)     # override keys that are not settings fields
-
-
-@functools.lru_cache(maxsize=None)
-def options() -> dict[str, Option]:
-    """Every override key -> Option (the CLI builds its render options from these)."""
-    return _options()
-
-
-# --------------------------------------------------------------------------- scene files
-
-def _schema() -> dict:
-    """Scene-file sections -> key -> value kind (bool, int, str or settings.NUM ...)."""
-    schema = {"points": {"file": PATH, "generator": str, "count": int, "seed": int},
-              "volume": {"file": PATH}, "material": {}, "camera": {},
-              "lights": {"type": str, "direction": VEC3, "irradiance": NUM, "position": VEC3,
-                         "intensity": NUM, "color": VEC3},
-              "environment": {}, "render": {}}
-    for opt in options().values():
-        if opt.meta["toml"]:
-            section, key = opt.meta["toml"]
-            schema[section][key] = opt.meta["kind"]
-    return schema
-
-
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _check_type(value, kind, where, base: Path):
-    def bad(want):
-        raise UserError(f"{where} must be {want}, got {value!r}")
-    if kind is bool:
-        return value if isinstance(value, bool) else bad("true or false")
-    if kind is int:
-        return value if isinstance(value, int) and not isinstance(value, bool) else bad("an integer")
-    if kind is str:
-        return value if isinstance(value, str) else bad("a string")
-    if kind == NUM:
-        return float(value) if _finite(value) else bad("a finite number")
-    if kind == ENV:              # a uniform R,G,B or a map file
-        return _check_type(value, VEC if isinstance(value, (list, int, float)) else PATH,
-                           where, base)
-    if kind == VEC and _finite(value):
-        value = [value]          # one number = one value (e.g. albedo = 0.9)
-    if kind in (VEC3, VEC):
-        n = (3,) if kind == VEC3 else (1, 2, 3)
-        if not (isinstance(value, list) and len(value) in n and all(map(_finite, value))):
-            bad("a list of 3 finite numbers" if kind == VEC3 else "a list of 1 to 3 finite numbers")
-        return tuple(float(v) for v in value)
-    if kind == SIZE:
-        if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32768
-                           for v in value)):
-            bad("[width, height] with integers 1..32768")
-        return tuple(value)
-    if kind == STRS:
-        if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
-            bad("a list of strings")
-        return tuple(value)
-    if kind == PATH:
-        if not isinstance(value, str) or not value:
-            bad("a file path")
-        try:        # a NUL byte or an over-long name raise ValueError / OSError here
-            path = (base / value).resolve()        # a loop raises RuntimeError on 3.11
-            exists, is_dir = path.exists(), path.is_dir()
-        except (OSError, ValueError, RuntimeError) as exc:
-            reason = getattr(exc, "strerror", None) or str(exc)
-            raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
-                            fix="give the path of an existing file") from None
-        if not exists:
-            raise UserError(f"{where} names {value!r}, which does not exist (paths are relative "
-                            f"to the scene file)")
-        if is_dir:
-            raise UserError(f"{where} names {value!r}, which is a directory",
-                            fix="give the path of a file")
-        from .files import check_input
-        try:
-            check_input(path, "file")
-        except UserError as exc:             # a FIFO, a device, an unreadable file
-            raise UserError(f"{where} names {value!r}: {str(exc).split(': ', 1)[-1]}") from None
-        return path
-    raise AssertionError(kind)
-
-
-def _section(table, name, where, base):
-    if not isinstance(table, dict):
-        raise UserError(f"{where} must be a table")
-    schema = SCHEMA[name]
-    out = {}
-    for key, value in table.items():
-        if key not in schema:
-            close = suggest(key, schema, lambda k: f"{where}.{k}")
-            raise UserError(f"unknown key {where}.{key}" + (f"; {close}" if close else ""),
-                            fix=f"known keys: {', '.join(sorted(schema))}")
-        out[key] = _check_type(value, schema[key], f"{where}.{key}", base)
-    return out
-
-
-def read(path) -> dict:
-    """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
-    resolved relative to the file."""
-    from .files import check_input
-    from .files import read_toml
-    path = check_input(path, "scene file")
-    raw = read_toml(path, "scene file")
-    try:
-        return parse(raw, path.parent)
-    except UserError as exc:
-        raise UserError(str(exc), path=path) from None
-
-
-def parse(raw: dict, base: Path = Path(".")) -> dict:
-    scene = {}
-    for name, table in raw.items():
-        if name not in SCHEMA:
-            close = suggest(name, SCHEMA, lambda k: f"[{k}]")
-            raise UserError(f"unknown section [{name}]" + (f"; {close}" if close else ""),
-                            fix=f"known sections: {', '.join(sorted(SCHEMA))}")
-        if name == "lights":
-            if not isinstance(table, list):
-                raise UserError("lights must be an array of tables: write [[lights]]")
-            scene[name] = [_light(_section(t, name, f"[[lights]] #{i + 1}", base), i)
-                           for i, t in enumerate(table)]
-        else:
-            scene[name] = _section(table, name, f"[{name}]", base)
-    pts, vol = scene.get("points"), scene.get("volume")
-    if pts is None and vol is None:
-        raise UserError("the scene has no [points] or [volume] section",
-                        fix="add [points] with file = ... or generator = ..., or [volume] with file = ...")
-    if pts is not None and vol is not None:
-        raise UserError("the scene has both [points] and [volume]; a scene renders one of them")
-    if vol is not None:
-        if "file" not in vol:
-            raise UserError("[volume] needs file = ...")
-        for section in ("material",):
-            if section in scene:
-                raise UserError(f"[{section}] applies to point clouds (molten glass), not to "
-                                "a [volume]", fix=f"remove [{section}]")
-        return scene
-    if ("file" in pts) == ("generator" in pts):
-        raise UserError("[points] needs exactly one of file = ... or generator = ...")
-    if "generator" in pts and "count" not in pts:
-        raise UserError("[points].generator needs count = N")
-    if "count" in pts and not 1 <= pts["count"] <= MAX_COUNT:
-        raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
-    return scene
-
-
-def _light(d, i):
-    where = f"[[lights]] #{i + 1}"
-    kind = d.get("type")
-    need = {"sun": ("direction",), "point": ("position",)}
-    if kind not in need:
-        raise UserError(f"{where}.type must be \"sun\" or \"point\", got {kind!r}")
-    for key in need[kind]:
-        if key not in d:
-            raise UserError(f"{where} ({kind}) needs {key}")
-    extra = {"sun": {"position", "intensity"}, "point": {"direction", "irradiance"}}[kind] & set(d)
-    if extra:
-        raise UserError(f"{where}: a {kind} light has no {', '.join(sorted(extra))}")
-    return d
-
-
 # --------------------------------------------------------------------------- resolving
 
 def source_kind(source) -> str:
@@ -467,9 +270,9 @@ def _python_value(opt, value, where):
             raise UserError(str(exc)) from None
     if kind == STRS and isinstance(value, str):
         return (value,)
-    if kind == ENV and _finite(value):
+    if kind == ENV and finite(value):
         return (float(value),)               # env=0.5: a grey uniform radiance
-    if kind in (VEC, VEC3) and _finite(value) and check is not None and check((value,)) is None:
+    if kind in (VEC, VEC3) and finite(value) and check is not None and check((value,)) is None:
         return (float(value),)
     return value
 
@@ -480,11 +283,11 @@ def _light_values(key, value, where):
     from .lights import PointLight, Sun
     value = _plain(value) if key != "lights" else value
     if key in ("sun", "point_light"):
-        if isinstance(value, tuple) and value and all(_finite(v) for v in value):
+        if isinstance(value, tuple) and value and all(finite(v) for v in value):
             value = (value,)                 # one light given as one tuple
         what = "DX,DY,DZ,E" if key == "sun" else "X,Y,Z,I"
         if not isinstance(value, tuple) or not all(
-                isinstance(v, tuple) and len(v) == 4 and all(map(_finite, v)) for v in value):
+                isinstance(v, tuple) and len(v) == 4 and all(map(finite, v)) for v in value):
             raise UserError(f"{where} takes 4 finite numbers ({what}) or a list of such "
                             f"tuples, got {value!r}")
         value = tuple(tuple(float(c) for c in v) for v in value)
@@ -858,7 +661,6 @@ def load_scene(source, **overrides) -> Scene:
     return request(source, **overrides).load()
 
 
-SCHEMA = _schema()
 # the flags errors.spell writes as Python keywords: the options, the lights and the
 # keywords of render_sequence and Image.save that the CLI has as flags
 KEYWORDS.update(options(), EXTRA_KEYS, ("frames", "workers", "scheduler", "chunk",
