@@ -20,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.common import device_info, result_path, write_json  # noqa: E402
-from volrender import device, glass, points, spheres  # noqa: E402
+from volrender import device, generators, glass, spheres  # noqa: E402
 
 COUNTS = [1000, 10000, 100000, 1000000]
 
@@ -92,7 +92,7 @@ def main(argv=None):
     path = result_path("build", dev, args.tag)
     rows = []
     for n in counts:
-        row = {"n": n, **measure(points.blob(n, seed=1), dev, width, height, args.repeat)}
+        row = {"n": n, **measure(generators.blob(n, seed=1), dev, width, height, args.repeat)}
         rows.append(row)
         if "cells_ms" in row:
             c = row["cells"]
@@ -108,7 +108,7 @@ def main(argv=None):
     if args.profile:
         import cProfile
         import pstats
-        cloud = points.blob(args.profile, seed=1)
+        cloud = generators.blob(args.profile, seed=1)
         prof = cProfile.Profile()
         prof.enable()
         spheres.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.common import device_info, result_path, shared_data, write_json  # noqa: E402
-from volrender import cells, device, glass, points, spheres  # noqa: E402
+from volrender import cells, device, generators, glass, spheres  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.render import render  # noqa: E402
 from volrender.scene import GlassContent, Scene  # noqa: E402
@@ -42,7 +42,7 @@ def cloud_of(name):
         return sc.content.cloud, sc.content.settings
     gen, n = name.split(":")
     gen = {"gather": "glass_gather"}.get(gen, gen)
-    return points.generate(gen, int(n), 1), glass.GlassSettings()
+    return generators.generate(gen, int(n), 1), glass.GlassSettings()
 
 
 def timed_render(cloud, settings, cam, dev):

@@ -158,7 +158,7 @@ class Probe:
 
 def optics(dev, d, eta):
     """Refracted directions (0 on TIR) and Fresnel reflectance for normal +z."""
-    from volrender.points import PointCloud
+    from volrender.cloud import PointCloud
     key = next((k for k in _PROGRAMS if k[0] == id(dev)), None)
     if key is None:
         Probe(dev, PointCloud(np.zeros((1, 3)), np.ones(1)), glass.GlassSettings(accel="none"))

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from volrender import cli, glass, scene_file, spheres, tree as tree_mod
 from volrender.errors import UserError
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 
 FAST = settings(max_examples=40, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,

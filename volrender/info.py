@@ -71,7 +71,7 @@ def describe_points(path) -> list[str]:
 def describe(path, device=None) -> list[str]:
     """Lines describing every grid of a .vdb (or the grid of a .npz cache), or a point
     file (describe_points)."""
-    from . import vdb
+    from . import vdb, vdb_header
     from .scene import POINT_SUFFIXES
     p = Path(path)
     suffix = p.suffix.lower()
@@ -87,7 +87,7 @@ def describe(path, device=None) -> list[str]:
     else:
         grids = vdb.list_grids(p)
         creator = next((g.creator for g in grids if g.creator), "")
-        axis, why = vdb.up_axis_hint(grids)
+        axis, why = vdb_header.up_axis_hint(grids)
         lines.append(f"{printable(p)}: OpenVDB, {len(grids)} grid(s)"
                      + (f", written by {printable(creator)}" if creator else "")
                      + f"; up axis {axis or 'y'}" + (f" ({why})" if why else " (the default)"))

@@ -2,8 +2,8 @@
 
 Build blocks for a notebook::
 
-    from volrender import inspect, points, tree
-    cloud = points.generate("blob", 2000, seed=0)
+    from volrender import generators, inspect, tree
+    cloud = generators.generate("blob", 2000, seed=0)
     t = tree.build(cloud.centers, cloud.radii)
     boxes = inspect.tree_boxes(t)              # MultiBlock, one block per depth
     inspect.show_tree(t, cloud.centers, screenshot="tree.png")
@@ -204,7 +204,7 @@ def brick_boxes(bricks):
         One box per slot in slot order (8 points, 12 line cells each), with cell
         arrays ``majorant`` (float32, the slot's maximum density) and ``slot``.
     """
-    from .vdb import BRICK
+    from .layout import BRICK
     dims = np.asarray(bricks.dims, np.int64)
     table = np.asarray(bricks.table)
     flat = np.flatnonzero(table >= 0)
@@ -421,7 +421,7 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
 
     Parameters
     ----------
-    bricks : volrender.vdb.Bricks
+    bricks : volrender.bricks.Bricks
     screenshot, export, show, window_size
         As in :func:`show_tree`; a ``.vtm`` export holds one block, ``bricks``.
 
@@ -596,7 +596,7 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
 
     Returns
     -------
-    volrender.tree.Tree, volrender.cells.Cells or volrender.vdb.Bricks
+    volrender.tree.Tree, volrender.cells.Cells or volrender.bricks.Bricks
         What was shown.
     """
     from .spheres import sphere_radii

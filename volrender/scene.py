@@ -61,7 +61,7 @@ KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 class VolumeContent:
     """A volume's bricks and settings. The bricks' arrays are uploaded on the first render
     on a device and kept there (`buffer`): later renders of the scene upload none of them."""
-    bricks: object                    # vdb.Bricks
+    bricks: object                    # bricks.Bricks
     settings: object                  # volume.VolumeSettings
     store: dict = field(default_factory=dict, compare=False, repr=False)
     kind: ClassVar[str] = "volume"
@@ -86,7 +86,7 @@ class GlassContent:
     are built on the first render on a device and kept (`prepare`): renders with another
     camera, size, spp or lights reuse them; `dataclasses.replace` keeps the store, so
     settings the acceleration does not read (spheres.ACCEL_FIELDS) reuse it too."""
-    cloud: object                     # points.PointCloud
+    cloud: object                     # cloud.PointCloud
     settings: object                  # glass.GlassSettings
     store: BuildCache = field(default_factory=BuildCache, compare=False, repr=False)
     kind: ClassVar[str] = "glass"
@@ -173,7 +173,7 @@ class Scene:
 
 def source_kind(source) -> str:
     """'volume', 'points', 'scene' or 'generator' for a render input."""
-    from . import points
+    from . import generators, points
     if isinstance(source, np.ndarray):
         return "array"
     if not isinstance(source, (str, Path)) and not hasattr(source, "__fspath__"):
@@ -187,12 +187,12 @@ def source_kind(source) -> str:
         return "points"
     if suffix == ".toml":
         return "scene"
-    if ":" in text and text.split(":", 1)[0] in points.GENERATORS:
+    if ":" in text and text.split(":", 1)[0] in generators.GENERATORS:
         return "generator"
     raise UserError(f"unsupported input type {suffix or '(none)'!r}", path=text,
                     fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
                         f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
-                        f"with GENERATOR one of {', '.join(points.GENERATORS)}")
+                        f"with GENERATOR one of {', '.join(generators.GENERATORS)}")
 
 
 def check_array(a) -> str:
@@ -211,13 +211,13 @@ def check_array(a) -> str:
 def _array_content(a, kind):
     """Bricks of a dense volume (voxel (i, j, k) at world (i, j, k)) or the PointCloud of
     an (N, 3) / (N, 4) array."""
-    from .cloud import _finish
+    from .cloud import finish_cloud
     label = f"array {'x'.join(map(str, a.shape))}"
     if kind == "volume":
-        from .vdb import Bricks
+        from .bricks import Bricks
         return Bricks.from_dense(np.asarray(a, np.float32))
     a = np.asarray(a, np.float64)
-    return _finish(label, a[:, :3], a[:, 3].copy() if a.shape[1] == 4 else None, None)
+    return finish_cloud(label, a[:, :3], a[:, 3].copy() if a.shape[1] == 4 else None, None)
 
 
 def generated_cloud_count(text: str) -> int:
@@ -235,8 +235,8 @@ def generated_cloud_count(text: str) -> int:
 
 def generated_cloud(text: str, seed: int = 0):
     """PointCloud from GENERATOR:COUNT."""
-    from . import points
-    return points.generate(text.partition(":")[0], generated_cloud_count(text), seed)
+    from . import generators
+    return generators.generate(text.partition(":")[0], generated_cloud_count(text), seed)
 
 
 def _explicit(overrides) -> set:
@@ -424,20 +424,20 @@ def _lights(given, doc, path=None):
 
 
 def _fire_defaults(path, settings, given):
-    """(settings, note): a Blender Mantaflow cache (vdb.mantaflow_cache, by its grid set)
+    """(settings, note): a Blender Mantaflow cache (vdb_header.mantaflow_cache, by its grid set)
     with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
     emission from flame, each voxel's blackbody colour and brightness (the intensity law,
     blackbody.py) at 1000 K per temperature unit, Blender's Principled Volume default (the
     cache stores temperature in units of it; it carries no kelvin of its own).
     --emission-grid none turns it off."""
-    from . import vdb
+    from . import vdb, vdb_header
     if settings.emission_grid in ("", "none"):
         return dataclasses.replace(settings, emission_grid=None), None
     if Path(path).suffix.lower() != ".vdb" or settings.emission_grid is not None \
             or settings.temperature_grid is not None:
         return settings, None
     grids = vdb.list_grids(path)
-    why = vdb.mantaflow_cache(grids)
+    why = vdb_header.mantaflow_cache(grids)
     by = {g.name: g for g in grids}
     if not why or "flame" not in by or "temperature" not in by \
             or by["flame"].value_type != "float" or by["temperature"].value_type != "float" \
@@ -549,7 +549,7 @@ class Request:
             notes += [note] if note else []
             content = VolumeContent(bricks, settings, **({"store": old.store} if old else {}))
         else:
-            from . import points
+            from . import generators, points
             old = self._reusable(reuse, settings)
             if old is not None:
                 cloud = old.cloud
@@ -560,7 +560,7 @@ class Request:
                 if "file" in pts:
                     cloud = points.load_points(pts["file"])
                 else:
-                    cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
+                    cloud = generators.generate(pts["generator"], pts["count"], pts.get("seed", 0))
             elif self.origin == "generator":
                 cloud = generated_cloud(self.source, settings.seed)
             else:
