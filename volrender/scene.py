@@ -173,7 +173,7 @@ class Scene:
 
 def source_kind(source) -> str:
     """'volume', 'points', 'scene' or 'generator' for a render input."""
-    from . import generators, points
+    from . import generators
     if isinstance(source, np.ndarray):
         return "array"
     if not isinstance(source, (str, Path)) and not hasattr(source, "__fspath__"):
@@ -582,11 +582,9 @@ class Request:
         camera = self.view.camera(lo, hi, hint)
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
-            from .lights import FIRE_LIGHT, SKY_SCALE, sky_texels
-            frame = up_frame(self.view.axis(hint))
+            from .lights import FIRE_LIGHT, default_sky
             dim = FIRE_LIGHT if fire and self.lights is None else 1.0
-            environment = Environment(sky_texels((0.0, 1.0, 0.0) if frame is None
-                                                 else tuple(frame[:, 1]), scale=SKY_SCALE * dim),
+            environment = Environment(default_sky(up_frame(self.view.axis(hint)), dim),
                                       "default sky")
             if self.lights is None:
                 notes.append("lights: the default sun and sky" + (f" at {dim:g} (dusk: the fire's "
@@ -595,12 +593,8 @@ class Request:
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             from .camera import up_frame
-            from .lights import DEFAULT_LIGHTS, FIRE_LIGHT, Sun
-            frame = up_frame(self.view.axis(hint))
-            dim = FIRE_LIGHT if fire else 1.0
-            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
-                               else l.direction, l.irradiance * dim, l.color)
-                           for l in DEFAULT_LIGHTS)
+            from .lights import FIRE_LIGHT, default_suns
+            lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
         timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes), timings, request=self)
