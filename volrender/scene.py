@@ -79,6 +79,32 @@ class VolumeContent:
             self.store[key] = upload(device.context, np.asarray(getattr(self.bricks, name), dtype))
         return self.store[key]
 
+    @classmethod
+    def load(cls, req, reuse=None, timings=None):
+        """(content, notes, fire) of a volume Request: the bricks (those of `reuse`, a
+        Scene, when they are what req would read), the fire defaults of a Mantaflow cache
+        and the automatic estimator."""
+        from . import vdb
+        from .volume import auto_estimator
+        settings, notes, fire = req.settings, [], False
+        if req.origin != "array":
+            path = req.doc["volume"]["file"] if req.doc else Path(req.source)
+            settings, note = _fire_defaults(path, settings, req.given)
+            fire = note is not None
+            notes += [note] if note else []
+        old = req._reusable(reuse, settings)
+        if old is not None:
+            bricks = old.bricks
+        elif req.origin == "array":
+            bricks = _array_content(req.array, "volume")
+        else:
+            bricks = vdb.load_volume(path, grid=settings.grid,
+                                     emission_grid=settings.emission_grid,
+                                     temperature_grid=settings.temperature_grid)
+        settings, note = auto_estimator(bricks, settings)
+        notes += [note] if note else []
+        return cls(bricks, settings, **({"store": old.store} if old else {})), notes, fire
+
 
 @dataclass(frozen=True, eq=False)
 class GlassContent:
@@ -107,6 +133,38 @@ class GlassContent:
     def builds(self) -> int:
         """How many times `prepare` built the acceleration."""
         return self.store.builds
+
+    @classmethod
+    def load(cls, req, reuse=None, timings=None):
+        """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
+        when it is what req would read) and, for a cloud without radii, the radius and
+        blend of its spacing (spheres.scan_defaults; its time in timings["radii"])."""
+        import time
+        from . import generators, points
+        settings = req.settings
+        old = req._reusable(reuse, settings)
+        if old is not None:
+            cloud = old.cloud
+        elif req.origin == "array":
+            cloud = _array_content(req.array, "glass")
+        elif req.origin == "scene":
+            pts = req.doc["points"]
+            if "file" in pts:
+                cloud = points.load_points(pts["file"])
+            else:
+                cloud = generators.generate(pts["generator"], pts["count"], pts.get("seed", 0))
+        elif req.origin == "generator":
+            cloud = generated_cloud(req.source, settings.seed)
+        else:
+            cloud = points.load_points(req.source)
+        notes = list(cloud.notes)
+        if cloud.radii is None and (settings.radius is None or settings.blend is None):
+            t1 = time.perf_counter()
+            settings, note = scan_defaults(cloud, settings, old.store if old else None)
+            if timings is not None:
+                timings["radii"] = time.perf_counter() - t1
+            notes.append(note)
+        return cls(cloud, settings, **({"store": old.store} if old else {})), notes, False
 
 
 @dataclass(frozen=True, eq=False)
@@ -525,53 +583,11 @@ class Request:
         t0 = time.perf_counter()
         timings = {}
         notes = []
-        settings = self.settings
         environment = None
-        fire = False
-        if self.kind == "volume":
-            from . import vdb
-            if self.origin != "array":
-                path = self.doc["volume"]["file"] if self.doc else Path(self.source)
-                settings, note = _fire_defaults(path, settings, self.given)
-                fire = note is not None
-                notes += [note] if note else []
-            old = self._reusable(reuse, settings)
-            if old is not None:
-                bricks = old.bricks
-            elif self.origin == "array":
-                bricks = _array_content(self.array, "volume")
-            else:
-                bricks = vdb.load_volume(path, grid=settings.grid,
-                                         emission_grid=settings.emission_grid,
-                                         temperature_grid=settings.temperature_grid)
-            from .volume import auto_estimator
-            settings, note = auto_estimator(bricks, settings)
-            notes += [note] if note else []
-            content = VolumeContent(bricks, settings, **({"store": old.store} if old else {}))
-        else:
-            from . import generators, points
-            old = self._reusable(reuse, settings)
-            if old is not None:
-                cloud = old.cloud
-            elif self.origin == "array":
-                cloud = _array_content(self.array, "glass")
-            elif self.origin == "scene":
-                pts = self.doc["points"]
-                if "file" in pts:
-                    cloud = points.load_points(pts["file"])
-                else:
-                    cloud = generators.generate(pts["generator"], pts["count"], pts.get("seed", 0))
-            elif self.origin == "generator":
-                cloud = generated_cloud(self.source, settings.seed)
-            else:
-                cloud = points.load_points(self.source)
-            notes += list(cloud.notes)
-            if cloud.radii is None and (settings.radius is None or settings.blend is None):
-                t1 = time.perf_counter()
-                settings, note = scan_defaults(cloud, settings, old.store if old else None)
-                timings["radii"] = time.perf_counter() - t1
-                notes.append(note)
-            content = GlassContent(cloud, settings, **({"store": old.store} if old else {}))
+        cls = VolumeContent if self.kind == "volume" else GlassContent
+        content, load_notes, fire = cls.load(self, reuse, timings)
+        notes += load_notes
+        settings = content.settings
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
