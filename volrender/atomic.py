@@ -43,6 +43,8 @@ TEMP_RE = re.compile(r"^\.volrender-(\d+)-[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]{1,8})?$
 STALE_AGE = 24 * 3600              # seconds after which an unlocked temporary file is stale
 WRITTEN: list = []                 # destinations completed by this process, in order
 _SWEPT: set = set()                # directories swept by this process (once each)
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
