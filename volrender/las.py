@@ -19,7 +19,7 @@ import struct
 
 import numpy as np
 
-from .cloud import _MEMORY_FIX
+from .cloud import MEMORY_FIX
 from .errors import UserError
 from .files import check_memory
 
@@ -95,7 +95,7 @@ def read_las(path):
     except OSError as exc:
         raise UserError(f"cannot read it ({exc.strerror or exc})", path=path, fix=FIX) from None
     n, compressed, record = check_header(path, head, size)
-    check_memory(n * (record + BYTES_PER_POINT), path, f"reading {n} LAS points", _MEMORY_FIX)
+    check_memory(n * (record + BYTES_PER_POINT), path, f"reading {n} LAS points", MEMORY_FIX)
     quiet = logging.getLogger("laspy")          # it logs each decoding error as well
     level, quiet.level = quiet.level, logging.CRITICAL + 1
     try:
@@ -108,7 +108,7 @@ def read_las(path):
                if {"red", "green", "blue"} <= names else None)
         fmt = las.point_format.id
     except MemoryError:
-        raise UserError("out of host memory while decoding it", path=path, fix=_MEMORY_FIX) from None
+        raise UserError("out of host memory while decoding it", path=path, fix=MEMORY_FIX) from None
     except Exception as exc:      # noqa: BLE001 (laspy and lazrs raise many kinds on damage)
         first = (str(exc).splitlines() or [type(exc).__name__])[0][:160]
         raise UserError(f"not a readable {'LAZ' if compressed else 'LAS'} file "

@@ -37,6 +37,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import process
 from .errors import UserError, one_line_if_uncaught
 
 _HASHES = re.compile(r"#+")
@@ -264,7 +265,7 @@ def sequence_camera(paths, overrides):
     extra, notes = {}, []
     if req.kind == "glass":
         from . import points
-        from .glass import blend_width, sphere_bounds, sphere_radii
+        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
@@ -564,7 +565,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
             k = chunk or max(1, min(8, len(jobs) // (2 * n_workers) or 1))
             _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records)
     except KeyboardInterrupt as exc:      # Ctrl-C, SIGTERM, SIGHUP: stop, say what is done
-        stopped, handlers = exc, _ignore_signals()
+        stopped, handlers = exc, process.ignore_signals()
     finally:
         if own is not None:
             _stop_client(*own)
@@ -581,38 +582,19 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
     if stopped is not None:
-        _restore_signals(handlers)
+        process.restore_signals(handlers)
         signum = getattr(stopped, "signum", signal.SIGINT)
         raise Interrupted(signum, _stopped_summary(result)) from None
     return result
 
 
-class Interrupted(KeyboardInterrupt):
+class Interrupted(process.Interrupted):
     """A sequence stopped by a signal, after its record was written: `summary` names the
     frames written and those not; `signum` the signal."""
 
     def __init__(self, signum: int, summary: str):
         super().__init__(signum)
-        self.signum, self.summary = signum, summary
-
-
-def _ignore_signals() -> dict:
-    """SIGINT/SIGTERM/SIGHUP ignored while a stopped sequence winds up (its workers stop,
-    its record is written): a second Ctrl-C cannot cut that short. The old handlers."""
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-    old = {}
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        sig = getattr(signal, name, None)
-        if sig is not None:
-            old[sig] = signal.signal(sig, signal.SIG_IGN)
-    return old
-
-
-def _restore_signals(old):
-    for sig, handler in old.items():
-        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        self.summary = summary
 
 
 def _rows_when_stopped(records, jobs, started_ns):
