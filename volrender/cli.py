@@ -183,15 +183,16 @@ def build_parser():
                          "file a glob matches")
     sq.add_argument("--workers", type=_int("--workers"), default=None, metavar="N",
                     help="Dask workers of a LocalCluster on this machine; 0 renders in this "
-                         "process (default: one per GPU, else one per 8 CPU cores)")
+                         "process (default: one per GPU, else one per 8 CPU cores; range 0..1024)")
     sq.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
                     help="submit to an existing Dask cluster (`dask scheduler`, `dask worker`; "
                          "inputs and outputs on a shared filesystem)")
     sq.add_argument("--chunk", type=_int("--chunk"), default=None, metavar="K",
                     help="frames per task (default: enough tasks to keep every worker busy, "
-                         "at most 8 frames each)")
+                         "at most 8 frames each; range 1..1000000)")
     sq.add_argument("--skip-existing", action="store_true",
-                    help="keep frames whose output exists (resume an interrupted run)")
+                    help="keep frames whose output exists and reads whole at this size (resume "
+                         "an interrupted run); one that does not is rendered again and named")
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
