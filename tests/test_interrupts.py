@@ -138,7 +138,8 @@ def test_a_sequence_too_large_for_memory_is_refused_once_before_any_frame_is_rea
 
 def test_nonsense_worker_and_chunk_counts_are_refused_before_any_work(tmp_path):
     """`--workers -1` waited forever for a LocalCluster of -1 workers; every count is now
-    range-checked first: one line, status 2, no output folder made, no cluster started."""
+    range-checked first: one line, status 2, no output folder made, no cluster started;
+    so are `volrender tree`'s own numbers (checked after the tree was built, before)."""
     _frames(tmp_path, 2)
     for opt, value in (("--workers", "-1"), ("--workers", "100000"), ("--chunk", "0"),
                        ("--chunk", "-3")):
@@ -148,6 +149,11 @@ def test_nonsense_worker_and_chunk_counts_are_refused_before_any_work(tmp_path):
         assert f"{opt} must be an integer in [" in err and f"got {value}" in err, err
         assert time.perf_counter() - t0 < 60
         assert not (tmp_path / "out").exists()
+    for opt, value in (("--blend", "-5"), ("--max-depth", "-1"), ("--depth", "-2")):
+        # tree: checked before its input is read (it is not even there)
+        err = _one_error(volrender("tree", "missing.ply", opt, value, "--screenshot", "t.png",
+                                   cwd=tmp_path))
+        assert f"{opt} must be a" in err and f"got {value}" in err, err
     from volrender import render_sequence
     with pytest.raises(ValueError, match=r"workers= must be an integer in \[0, 1024\], got -1"):
         render_sequence(str(tmp_path / "c_####.npz"), str(tmp_path / "o_####.png"), workers=-1)

@@ -430,8 +430,17 @@ def cmd_convert(args):
     return 0
 
 
+# tree's own numbers, checked before the input is read (the others are render's knobs)
+TREE_RANGES = {"blend": (0, 1e18, False), "depth": (0, 2**31, True), "max_depth": (0, 2**31, True)}
+
+
 def cmd_tree(args):
     from . import inspect
+    from .settings import in_range
+    for key, (lo, hi, integer) in TREE_RANGES.items():
+        problem = in_range(lo, hi, integer=integer, allow_none=True)(getattr(args, key))
+        if problem:
+            raise UserError(f"--{key.replace('_', '-')} {problem}, got {getattr(args, key)!r}")
     view = dict(depth=args.depth, leaves=args.leaves, max_depth=args.max_depth,
                 screenshot=args.screenshot, export=args.export, show=args.show,
                 window_size=args.window_size)
