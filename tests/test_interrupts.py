@@ -341,3 +341,25 @@ def test_a_signal_at_any_moment_is_one_line_and_its_status(tmp_path, signum):
         seen[_classify(p.returncode, err, signum, (tmp_path / "o.png").exists())] += 1
         assert [n for n in os.listdir(tmp_path) if ".tmp" in n] == []
     assert seen["line"] > 50, seen
+
+
+def test_a_stopped_sequence_from_python_raises_with_the_summary_after_the_record(tmp_path):
+    """render_sequence under a script's Ctrl-C: the record written, then
+    sequence.Interrupted (a KeyboardInterrupt) whose message names the frames."""
+    _frames(tmp_path, 8)
+    script = ("import volrender\nvolrender.render_sequence('c_####.npz', 'o/f_####.png', "
+              "workers=0, size=(200, 150), spp=16, origin=(0.6, 0.5, 3), "
+              "target=(0.6, 0.5, 0.4))\n")
+    (tmp_path / "o").mkdir()
+    p = subprocess.Popen([PY, "-c", script], cwd=tmp_path, env=ENV, stderr=subprocess.PIPE,
+                         text=True)
+    t0 = time.time()
+    while not list((tmp_path / "o").glob("f_*.png")) and p.poll() is None and time.time() - t0 < 240:
+        time.sleep(0.02)
+    p.send_signal(signal.SIGINT)
+    err = p.communicate(timeout=120)[1]
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("volrender.sequence.Interrupted: frame"), err
+    assert last.endswith("/o/f.sequence.json") and "; record " in last, last
+    rec = json.loads((tmp_path / "o" / "f.sequence.json").read_text())
+    assert "interrupted" in {r["status"] for r in rec["frames"]}

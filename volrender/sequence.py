@@ -594,7 +594,7 @@ class Interrupted(process.Interrupted):
 
     def __init__(self, signum: int, summary: str):
         super().__init__(signum)
-        self.summary = summary
+        self.summary, self.args = summary, (summary,)     # what a traceback shows
 
 
 def _rows_when_stopped(records, jobs, started_ns):
