@@ -381,7 +381,7 @@ def cmd_render(args):
     dev = resolve(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
     try:
-        scene = req.load()
+        scene = req.load(device=dev)
     except MemoryError:
         raise UserError("out of host memory while reading it", path=args.input,
                         fix="render a smaller volume or cloud, or free memory") from None

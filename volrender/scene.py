@@ -654,29 +654,54 @@ def _fire_defaults(path, settings, given):
     with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
     emission from flame, each voxel's blackbody colour and brightness (the intensity law,
     blackbody.py) at 1000 K per temperature unit, Blender's Principled Volume default (the
-    cache stores temperature in units of it; it carries no kelvin of its own).
-    --emission-grid none turns it off."""
+    cache stores temperature in units of it; it carries no kelvin of its own). Naming
+    either grid yourself on such a cache gives the same (issue 33): the other grid and the
+    1000 K are filled in unless given. --emission-grid none turns it off. The exposure
+    and an all-zero flame grid are decided once the grids are read (_fire_loaded)."""
     from . import vdb
     if settings.emission_grid in ("", "none"):
         return dataclasses.replace(settings, emission_grid=None), None
-    if Path(path).suffix.lower() != ".vdb" or settings.emission_grid is not None \
-            or settings.temperature_grid is not None:
+    if Path(path).suffix.lower() != ".vdb":
         return settings, None
     grids = vdb.list_grids(path)
     why = vdb.mantaflow_cache(grids)
     by = {g.name: g for g in grids}
-    if not why or "flame" not in by or "temperature" not in by \
-            or by["flame"].value_type != "float" or by["temperature"].value_type != "float" \
-            or not by["flame"].active_voxels:
+    emission = settings.emission_grid or "flame"
+    temperature = settings.temperature_grid or "temperature"
+    if not why or emission not in by or temperature not in by \
+            or by[emission].value_type != "float" or by[temperature].value_type != "float" \
+            or not by[emission].active_voxels:
         return settings, None
-    changes = {"emission_grid": "flame", "temperature_grid": "temperature"}
+    if settings.emission_grid is not None and settings.temperature_grid is None:
+        return settings, None          # an emission grid named alone: coloured, as asked
+    changes = {"emission_grid": emission, "temperature_grid": temperature}
     if "temperature_scale" not in given:
         changes["temperature_scale"] = 1000.0
     settings = dataclasses.replace(settings, **changes)
-    return settings, (f"fire: {why}; emission from grid 'flame', blackbody colour and "
+    return settings, (f"fire: {why}; emission from grid {emission!r}, blackbody colour and "
                       f"brightness (T^4) of {settings.temperature_offset:g} + "
-                      f"{settings.temperature_scale:g} K x 'temperature'; --emission-grid none "
+                      f"{settings.temperature_scale:g} K x {temperature!r}; --emission-grid none "
                       "turns it off")
+
+
+def _fire_loaded(bricks, settings, given):
+    """(bricks, settings, notes, fire) once the grids are read: an emission grid of zeros
+    is smoke (the emission dropped, the normal sky); else, unless --emission-scale is
+    given, the exposure chosen from the emission's statistics (volrender/fire.py)."""
+    from . import fire
+    if fire.is_empty(bricks):
+        bricks = dataclasses.replace(bricks, emission=None, emission_max=None, temperature=None,
+                                     emission_grid_name=None, temperature_grid_name=None)
+        note = (f"fire: none: grid {settings.emission_grid!r} holds only zeros: rendered as "
+                "smoke under the normal sky")
+        settings = dataclasses.replace(settings, emission_grid=None, temperature_grid=None)
+        return bricks, settings, [note], False
+    if "emission_scale" in given:
+        return bricks, settings, [], True
+    scale, note = fire.exposure(bricks, settings)
+    if scale is None:
+        return bricks, settings, [], True
+    return bricks, dataclasses.replace(settings, emission_scale=scale), [note], True
 
 
 def _environment(path, where):
@@ -744,9 +769,10 @@ class Request:
             out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
-    def load(self, reuse=None) -> Scene:
+    def load(self, reuse=None, device=None) -> Scene:
         """The Scene; `reuse`: a Scene whose bricks or cloud (and device builds) serve this
-        one when they are what it would read (Scene.replace)."""
+        one when they are what it would read (Scene.replace); `device`: the one it will
+        render on, which --estimator auto weighs (None: a CPU)."""
         import time
         t0 = time.perf_counter()
         timings = {}
@@ -770,8 +796,12 @@ class Request:
                 bricks = vdb.load_volume(path, grid=settings.grid,
                                          emission_grid=settings.emission_grid,
                                          temperature_grid=settings.temperature_grid)
+            if fire:
+                bricks, settings, more, fire = _fire_loaded(bricks, settings, self.given)
+                notes = (notes if fire else [n for n in notes if not n.startswith("fire:")]) + more
             from .volume import auto_estimator
-            settings, note = auto_estimator(bricks, settings)
+            w, h = self.view.size
+            settings, note = auto_estimator(bricks, settings, int(w) * int(h), device)
             notes += [note] if note else []
             content = VolumeContent(bricks, settings, **({"store": old.store} if old else {}))
         else:
