@@ -158,7 +158,8 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
+                   dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
+                   launch=launch)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
