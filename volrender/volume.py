@@ -25,9 +25,9 @@ PIXELS_PER_LAUNCH = 1 << 16
 # tracking on per-brick majorants, single scattering (unbiased; step and shadow_step are
 # unused); path: path tracing, the same walks, up to max_depth scattering events.
 ESTIMATORS = ("auto", "march", "track", "path")
-# auto: the march with AUTO_OCTAVES octave bands where multiple scattering matters (a
-# scattered photon scatters again with probability >= AUTO_MS_PROBABILITY, auto_estimator),
-# else single scattering
+# auto (auto_estimator): single scattering where a scattered photon scatters again with
+# probability < AUTO_MS_PROBABILITY; else the path estimator or the march with AUTO_OCTAVES
+# octave bands, by auto_model's predicted error within AUTO_BUDGET_MS
 AUTO_OCTAVES = 4
 AUTO_MS_PROBABILITY = 0.2
 # auto's model of error and cost (auto_model; fitted in docs/error_time.md, "auto", on the
@@ -130,9 +130,11 @@ class VolumeSettings(CommonSettings):
                        check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
     shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
                               check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
-    estimator: str = knob("auto", "auto: the march, with --ms-octaves 4 where albedo and optical "
-                          "depth make multiple scattering matter, else single scattering (the "
-                          "choice is printed); march: ray marching with --step/--shadow-step "
+    estimator: str = knob("auto", "auto: single scattering where albedo and optical depth "
+                          "make multiple scattering small; else the path estimator where a model "
+                          "of error and cost (depth, albedo, pixels, device) predicts it beats "
+                          "the march with --ms-octaves 4 within 3 s, else that march (the "
+                          "choice and its predicted error are printed); march: ray marching with --step/--shadow-step "
                           "(biased by the step, low noise; single scattering, or --ms-octaves); "
                           "track: delta/"
                           "ratio tracking on the brick majorants, single scattering (unbiased, "
