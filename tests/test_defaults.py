@@ -49,12 +49,13 @@ def test_white_furnace_every_octave_count(cl_device, density):
     assert img.info["estimator"] == "march" and img.info["ms_octaves"] == volume.AUTO_OCTAVES
     assert "4 octave bands" in img.info["estimator_note"]
     assert np.all(np.abs(auto - 1) < 0.02)
-    # auto's own choice on this tiny image: the path estimator (auto_model), whose image
-    # mean is L within its noise (at density 100 the path estimator's own furnace is x0.93:
-    # left to its tests)
+    # auto's own choice on this tiny image (auto_model): the bands where the ball is thin,
+    # the path estimator where it is dense, whose image mean is L within its noise (at
+    # density 100 the path estimator's own furnace is x0.93: left to its tests)
     auto, img = furnace(cl_device, density, max_depth=100000)
-    assert img.info["estimator"] == "path" and "estimator auto: path" in img.info["estimator_note"]
-    assert img.info["spp"] >= 64
+    if density > 1.0:
+        assert img.info["estimator"] == "path" and img.info["spp"] >= 64
+        assert "estimator auto: path" in img.info["estimator_note"]
     if density <= 12.0:
         assert abs(auto.mean() - 1) < 0.03, auto.mean()
 
