@@ -738,6 +738,8 @@ def plot(record, path):
     panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
     panels += [("ms", s) for s in record.get("multiple_scattering", [])]
     panels += [("defaults", s) for s in record.get("defaults", [])]
+    if not panels and record.get("command"):
+        return plot_command(record, path)
     if not panels:
         return
     cols = min(2, len(panels))
@@ -797,6 +799,34 @@ def plot(record, path):
         ax.axis("off")
     w, h = record["size"]
     fig.suptitle(f"error against run time, {w}x{h} — {record['device']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_command(record, path):
+    """The command section: relative RMSE on covered pixels and over the whole image, and
+    the wall time, per file."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows = record["command"]
+    names = [r["file"].replace("_", " ") for r in rows]
+    x = np.arange(len(rows))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    a.bar(x - 0.2, [100 * r.get("covered_rel_rmse", 0) for r in rows], 0.4, label="covered pixels")
+    a.bar(x + 0.2, [100 * r["rel_rmse"] for r in rows], 0.4, label="whole image")
+    a.axhline(10, color="C3", ls="--", lw=0.8, label="issue target 10 %")
+    a.set_ylabel("relative RMSE vs path reference, %")
+    b.bar(x, [r["wall_s"] for r in rows], 0.5, color="C2")
+    b.set_ylabel("wall s (the whole command)")
+    for ax in (a, b):
+        ax.set_xticks(x, names, rotation=20, fontsize=7)
+        ax.grid(True, axis="y", alpha=0.3)
+    a.legend(fontsize=7)
+    w, h = rows[0]["size"]
+    fig.suptitle(f"volrender render FILE at {w}x{h} — {record['device']} (load "
+                 f"{record['load_average_start'][0]:.0f})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
