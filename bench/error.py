@@ -76,7 +76,7 @@ from bench.common import (render_points, render_volume, result_path, device_info
                           shared_data, stats, write_json)
 from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings  # noqa: E402
+from volrender.volume import VolumeSettings, octave_scales  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
@@ -441,7 +441,7 @@ def run_ms(dev, args, record):
             img, t = done[i]
             e = errors(img, ref, var)
             row = {"group": group, "label": label, "settings": {**describe_volume(st),
-                   "ms_octaves": st.ms_octaves, "ms_octave_scales": list(st.ms_octave_scales),
+                   "ms_octaves": st.ms_octaves, "ms_octave_scales": list(octave_scales(st, b)),
                    "max_depth": st.max_depth}, **t, **e,
                    "rel_rmse": e["rmse_corrected"] / summ["value_rms"],
                    "mean_ratio": float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30)),

@@ -100,13 +100,13 @@ def with_settings(scene, **kw):
 def gains(scene, ref, var, dev, spp):
     """G0/G1 renders (4 bands), the best gain and the errors at it and at the default."""
     st = scene.content.settings
-    d, g_default, c = st.ms_octave_scales
+    d, g_default, c = volume.octave_scales(st, scene.content.bricks)
     imgs = [render(with_settings(scene, estimator="march", ms_octaves=4,
                                  ms_octave_scales=(d, g, c), spp=spp, seed=9), dev).rgba
             .astype(np.float64) for g in (0.0, 1.0)]
     g = best_gain(imgs[0], imgs[1], ref)
     at = lambda gg: imgs[0] + gg * (imgs[1] - imgs[0])            # noqa: E731
-    return {"best_gain": g, "at_best": compare(at(g), ref, var),
+    return {"best_gain": g, "gain": g_default, "at_best": compare(at(g), ref, var),
             "at_default": compare(at(g_default), ref, var),
             "single": compare(imgs[0], ref, var) if not st.env else None}
 

@@ -10,7 +10,8 @@
   columns (per axis, the medium's absorption ignored), its EXPOSURE_PERCENTILE-th
   percentile over the columns that emit, on the axis where it is least (the thinnest view
   of the fire; other views come out brighter, never darker), is scaled to EXPOSURE_TARGET.
-  It does not depend on the camera, so every frame of a sequence gets the same. The hottest columns then sit in the tone curve's shoulder (a
+  It does not depend on the camera, so every frame of a sequence gets the same. The
+  hottest columns then sit in the tone curve's shoulder (a
   white-yellow core: 3000 K at luminance 4 is (6.8, 3.5, 1.1), filmic (1.0, 1.0, 0.8)),
   cooler ones below it keep their blackbody red (1500 K is 16x dimmer than 3000 K).
 """
@@ -92,5 +93,6 @@ def exposure(bricks, settings):
     scale = EXPOSURE_TARGET / stat
     return scale, (f"fire exposure: emission x{scale:.3g} ({math.log2(scale):+.1f} stops): "
                    f"its brightest columns ({EXPOSURE_PERCENTILE:g}th percentile of the emitted "
-                   f"luminance through the grid, least over the axes, {stat:.3g}) to {EXPOSURE_TARGET:g}; "
+                   f"luminance through the grid, least over the axes, {stat:.3g}) to "
+                   f"{EXPOSURE_TARGET:g}; "
                    "--emission-scale S sets it")

@@ -137,9 +137,10 @@ class VolumeSettings(CommonSettings):
     estimator: str = knob("auto", "auto: single scattering where albedo and optical depth "
                           "make multiple scattering small; else the path estimator where a model "
                           "of error and cost (depth, albedo, pixels, device) predicts it at "
-                          "half the error of the march with --ms-octaves 4 within 3 s, else that march (the "
-                          "choice and its predicted error are printed); march: ray marching with --step/--shadow-step "
-                          "(biased by the step, low noise; single scattering, or --ms-octaves); "
+                          "half the error of the march with --ms-octaves 4 within 3 s, else "
+                          "that march (the choice and its predicted error are printed); march: "
+                          "ray marching with --step/--shadow-step (biased by the step, low "
+                          "noise; single scattering, or --ms-octaves); "
                           "track: delta/"
                           "ratio tracking on the brick majorants, single scattering (unbiased, "
                           "noisier; the march's reference); path: path tracing, multiple "
@@ -305,8 +306,8 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     640x480) on `device` (None: a CPU). Single scattering (the march, one band) where a
     scattered photon scatters again with probability < AUTO_MS_PROBABILITY (it adds < 25 %
     to single scattering's light); else the path estimator where auto_model predicts it
-    at most AUTO_PATH_GAIN x the march's error within AUTO_BUDGET_MS (dense bright clouds, GPUs, small
-    images), at the samples that reach AUTO_TARGET (or --spp if more; its --spp per pass
+    at most AUTO_PATH_GAIN x the march's error within AUTO_BUDGET_MS (dense bright clouds,
+    GPUs, small images), at the samples that reach AUTO_TARGET (or --spp if more; its --spp per pass
     with --noise-target / --time-limit); else the march with AUTO_OCTAVES octave bands
     (their gain G printed). --ms-octaves N given: the march with N bands. Other
     estimators pass unchanged (no note)."""
