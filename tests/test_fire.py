@@ -139,3 +139,20 @@ def test_named_grids_equal_the_automatic_path(shared_data, cl_device):
     kelvin = scene_mod.load_scene(path, size=(16, 12), emission_grid="flame",
                                   temperature_grid="temperature", temperature_scale=1.0)
     assert kelvin.settings.temperature_scale == 1.0          # given: kept
+
+
+def test_a_fire_sequence_gets_one_exposure(shared_data, tmp_path):
+    """A sequence of Mantaflow fire frames: the middle frame's exposure for every frame (no
+    pumping brightness), said in a note; --emission-scale given: none chosen."""
+    from volrender import sequence
+    src = shared_data / "vdb" / "fluid_data_0056.vdb"
+    paths = {}
+    for k in (1, 2, 3):
+        (tmp_path / f"fire_{k:04d}.vdb").symlink_to(src)
+        paths[k] = str(tmp_path / f"fire_{k:04d}.vdb")
+    _, bad, extra, notes = sequence.sequence_camera(paths, {"size": (16, 12)})
+    want = scene_mod.load_scene(src, size=(16, 12)).settings.emission_scale
+    assert not bad and extra["emission_scale"] == pytest.approx(want)
+    assert any("for every frame (from frame 2" in n for n in notes)
+    _, _, extra, notes = sequence.sequence_camera(paths, {"size": (16, 12), "emission_scale": 3.0})
+    assert "emission_scale" not in extra and not notes

@@ -282,6 +282,7 @@ def sequence_camera(paths, overrides):
     else:
         def bounds(path):
             return vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
+        extra, notes = _fire_exposure(paths, overrides)
     lo, hi, hint, bad = np.full(3, np.inf), np.full(3, -np.inf), None, {}
     for frame, path in paths.items():
         try:
@@ -294,6 +295,27 @@ def sequence_camera(paths, overrides):
     if not bad.keys() < paths.keys():
         raise UserError(f"no frame of the sequence can be read (frame {min(bad)}: {bad[min(bad)]})")
     return req.view.camera(lo, hi, hint), bad, extra, notes
+
+
+def _fire_exposure(paths, overrides):
+    """({"emission_scale": s}, notes) when the sequence's middle frame is a fire exposed
+    from its statistics (volrender/fire.py): one exposure for every frame, so the
+    brightness does not pump from frame to frame; ({}, []) otherwise (or when
+    --emission-scale is given)."""
+    from .scene import request
+    if "emission_scale" in overrides:
+        return {}, []
+    frames = list(paths.items())
+    frame, mid = frames[len(frames) // 2]
+    try:
+        scene = request(mid, **overrides).load()
+    except UserError:
+        return {}, []
+    if not any(n.startswith("fire exposure:") for n in scene.notes):
+        return {}, []
+    scale = scene.content.settings.emission_scale
+    return {"emission_scale": scale}, [f"fire exposure x{scale:.3g} for every frame (from frame "
+                                       f"{frame}, the middle one); set --emission-scale"]
 
 
 def camera_overrides(camera) -> dict:
