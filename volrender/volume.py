@@ -309,8 +309,9 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     at most AUTO_PATH_GAIN x the march's error within AUTO_BUDGET_MS (dense bright clouds,
     GPUs, small images), at the samples that reach AUTO_TARGET (or --spp if more; its --spp per pass
     with --noise-target / --time-limit); else the march with AUTO_OCTAVES octave bands
-    (their gain G printed). --ms-octaves N given: the march with N bands. Other
-    estimators pass unchanged (no note)."""
+    (their gain G printed; also whenever --step or --shadow-step are not the defaults: the
+    march was tuned). --ms-octaves N given: the march with N bands. Other estimators pass
+    unchanged (no note)."""
     from dataclasses import replace
     if settings.estimator != "auto":
         return settings, None
@@ -333,7 +334,10 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     gain = octave_gain(settings, m["tau"])
     march = (f"march with {AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted error "
              f"{m['march_error']:.0%}")
-    if m["path_error"] <= AUTO_PATH_GAIN * m["march_error"]:
+    fields = VolumeSettings.__dataclass_fields__
+    tuned = (settings.step, settings.shadow_step) != (fields["step"].default,
+                                                      fields["shadow_step"].default)
+    if m["path_error"] <= AUTO_PATH_GAIN * m["march_error"] and not tuned:
         spp = settings.spp if adaptive(settings) else max(settings.spp, m["path_spp"])
         return (replace(settings, estimator="path", spp=spp),
                 f"estimator auto: path, {spp} spp: predicted error {m['path_error']:.0%} on "
