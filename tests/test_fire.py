@@ -155,4 +155,21 @@ def test_a_fire_sequence_gets_one_exposure(shared_data, tmp_path):
     assert not bad and extra["emission_scale"] == pytest.approx(want)
     assert any("for every frame (from frame 2" in n for n in notes)
     _, _, extra, notes = sequence.sequence_camera(paths, {"size": (16, 12), "emission_scale": 3.0})
-    assert "emission_scale" not in extra and not notes
+    assert "emission_scale" not in extra and not any("fire exposure" in n for n in notes)
+
+
+def test_a_sequence_gets_one_estimator(shared_data, tmp_path):
+    """auto's choice from the middle frame for every frame (it could flip between the march
+    and the path estimator as the medium changes), said; --estimator given: kept."""
+    from volrender import sequence
+    src = shared_data / "vdb" / "wdas_cloud_sixteenth.vdb"
+    paths = {}
+    for k in (1, 2):
+        (tmp_path / f"c_{k:04d}.vdb").symlink_to(src)
+        paths[k] = str(tmp_path / f"c_{k:04d}.vdb")
+    for size, want in (((640, 480), ("march", "ms_octaves")), ((32, 24), ("path", "spp"))):
+        _, _, extra, notes = sequence.sequence_camera(paths, {"size": size})
+        assert extra["estimator"] == want[0] and want[1] in extra, extra
+        assert any(n.startswith(f"estimator auto for every frame: {want[0]}") for n in notes)
+    _, _, extra, notes = sequence.sequence_camera(paths, {"size": (32, 24), "estimator": "march"})
+    assert "estimator" not in extra and not notes
