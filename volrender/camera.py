@@ -135,6 +135,16 @@ def describe(camera) -> str:
             f"fov {camera.fov:g} distance {d:g} size {camera.width}x{camera.height}")
 
 
+def _size(v):
+    import numbers
+    ok = isinstance(v, tuple) and len(v) == 2 and all(
+        isinstance(c, numbers.Integral) and not isinstance(c, bool) and 1 <= c <= 32768 for c in v)
+    return None if ok else "must be WxH with integers 1..32768"
+
+
+_size.range = "1..32768 per side"
+
+
 def _vec3_or_none(v):
     return None if v is None else rgb(-1e30, 1e30)(v)
 
@@ -168,7 +178,7 @@ class View:
     """The camera a user asks for; `camera(lo, hi)` resolves it against the scene's bounds
     (defaults, ranges and CLI/scene names: settings.knob)."""
     size: tuple = knob((640, 480), "image size", metavar="WxH", parse=pair("--size"),
-                       toml=("render", "size"), kind=SIZE)
+                       toml=("render", "size"), kind=SIZE, check=_size)
     origin: tuple | None = knob(None, "camera position (default: frame the bounds: look at their "
                                 "centre from --azimuth/--elevation at the distance where their "
                                 "bounding sphere fills --fov)", metavar="X,Y,Z",
