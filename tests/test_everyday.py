@@ -82,3 +82,110 @@ def test_a_scene_file_takes_integral_floats(tmp_path):
                     'size = [16.0, 8]\n')
     scene = volrender.load_scene(toml)
     assert scene.settings.spp == 3 and (scene.camera.width, scene.camera.height) == (16, 8)
+
+
+# ------------------------------------------------------------------ framing that fills
+
+def alpha_footprint(img, threshold=0.02):
+    """The larger side of the box of pixels with alpha above `threshold`, over the image's
+    smaller side."""
+    a = img.rgba[..., 3] > threshold
+    rows, cols = np.nonzero(a.any(axis=1))[0], np.nonzero(a.any(axis=0))[0]
+    return max(rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1) / min(a.shape)
+
+
+def ball(n=40, radius=15):
+    g = np.zeros((n, n, n), np.float32)
+    i = np.indices(g.shape) - (n - 1) / 2
+    g[(i ** 2).sum(0) < radius ** 2] = 1.0
+    return g
+
+
+@pytest.mark.parametrize("source, kw", [(ball(), dict(density_scale=2.0)),
+                                        ("glass_gather:300", dict(bounces=1))],
+                         ids=["volume", "points"])
+@pytest.mark.parametrize("size", [(80, 60), (48, 64)])
+def test_fill_is_the_contents_share_of_the_smaller_side(source, kw, size):
+    for fill in (0.9, 0.5):
+        img = volrender.render(source, size=size, fill=fill, **kw)
+        assert fill - 0.05 <= alpha_footprint(img) <= fill + 0.05, (fill, alpha_footprint(img))
+    # the default framing fills 0.9 too, at 40 degrees
+    assert 0.85 <= alpha_footprint(volrender.render(source, size=size, **kw)) <= 0.95
+
+
+def test_real_data_fills_the_frame(shared_data):
+    for path, kw in ((shared_data / "points" / "bun_zipper.ply", dict(bounces=1)),
+                     (shared_data / "vdb" / "wdas_cloud_sixteenth.vdb", {})):
+        img = volrender.render(path, size=(64, 48), **kw)
+        assert 0.85 <= alpha_footprint(img) <= 0.95, (path.name, alpha_footprint(img))
+
+
+# ------------------------------------------------------------------ LAS is Z-up
+
+@pytest.fixture(scope="module")
+def terrain(tmp_path_factory):
+    """A 200 m x 100 m terrain patch with gentle hills at survey coordinates (UTM-like
+    offsets), written with laspy."""
+    laspy = pytest.importorskip("laspy")
+    x, y = np.meshgrid(np.linspace(0, 200, 41), np.linspace(0, 100, 21))
+    z = 120.0 + 3.0 * np.sin(x / 30.0) * np.cos(y / 25.0)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets = [500000.0, 4100000.0, 0.0]
+    header.scales = [0.01, 0.01, 0.01]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (500012.5 + x).ravel(), (4100000.25 + y).ravel(), z.ravel()
+    path = tmp_path_factory.mktemp("las") / "terrain.las"
+    las.write(path)
+    return path
+
+
+def test_a_las_terrain_is_seen_from_above(terrain):
+    scene = volrender.load_scene(terrain, size=(64, 48), bounces=1, blend=3.0)
+    assert any("up axis z: ASPRS LAS is Z-up" in n and "--up-axis y" in n for n in scene.notes)
+    cam = scene.camera
+    assert tuple(cam.up) == (0.0, 0.0, 1.0)
+    assert cam.origin[2] > 125.0 > cam.target[2]          # above the hills, looking down
+    img = volrender.render(scene)
+    sky, ground = img.rgba[:4, :, :3].mean(axis=(0, 1)), img.rgba[-4:, :, :3].mean(axis=(0, 1))
+    assert sky[2] > 1.1 * sky[0] and ground[0] > ground[2]      # the sky turned with it
+    a = img.rgba[..., 3] > 0.5
+    rows, cols = np.nonzero(a.any(axis=1))[0], np.nonzero(a.any(axis=0))[0]
+    # seen obliquely from 18.7 degrees above: 200 m wide, about 100 sin(18.7) + relief deep
+    assert (rows[-1] - rows[0] + 1) / (cols[-1] - cols[0] + 1) < 0.3
+    side = volrender.render(terrain, size=(64, 48), bounces=1, blend=3.0, up_axis="y")  # a wall
+    a = side.rgba[..., 3] > 0.5
+    rows, cols = np.nonzero(a.any(axis=1))[0], np.nonzero(a.any(axis=0))[0]
+    assert (rows[-1] - rows[0] + 1) / (cols[-1] - cols[0] + 1) > 0.4
+
+
+def test_survey_coordinates_keep_their_digits(terrain, tmp_path, capsys):
+    from volrender import cli
+    assert cli.main(["info", str(terrain)]) == 0
+    out = capsys.readouterr().out
+    assert "(500012.5, 4100000.25, " in out and "offset 500000, 4100000, 0" in out, out
+    assert cli.main(["render", str(terrain), "-o", str(tmp_path / "t.png"), "--size", "16x12",
+                     "--bounces", "1", "--no-progress", "-v"]) == 0
+    err = capsys.readouterr().err
+    line = next(ln for ln in err.splitlines() if "camera origin" in ln)
+    target = line.split(" target ")[1].split(" ")[0].split(",")
+    assert float(target[0]) == pytest.approx(500112.5, abs=10)
+    assert len(target[0].replace(".", "")) > 6             # more than %g's 6 digits
+    assert "volrender: up axis z: ASPRS LAS is Z-up" in err
+
+
+@pytest.mark.filterwarnings("ignore::volrender.errors.ImageWarning")
+def test_the_turned_glass_sky_is_the_kernels_sky(cl_device):
+    """lights.glass_sky_texels in the y-up frame against cl/glass.h's procedural sky, seen
+    past a tiny cloud: the same radiance within the map's bilinear error (the checker's
+    edges excepted: the median)."""
+    from volrender.environment import Environment
+    from volrender.lights import glass_sky_texels
+    scene = volrender.load_scene("blob:20", size=(48, 36), bounces=1, fov=90.0,
+                                 elevation=-10.0, distance=1e3)
+    procedural = volrender.render(scene, cl_device).rgba
+    mapped = volrender.render(scene.replace(environment=Environment(glass_sky_texels(np.eye(3)))),
+                              cl_device).rgba
+    clear = (procedural[..., 3] == 0)
+    diff = np.abs(procedural - mapped)[..., :3][clear]
+    assert clear.sum() > 1000 and np.median(diff) < 2e-3 and diff.mean() < 0.02, \
+        (np.median(diff), diff.mean())

@@ -278,7 +278,7 @@ def sequence_camera(paths, overrides):
 
         def bounds(path):
             cloud = scene0.content.cloud if path == first else points.load_points(path)
-            return (*sphere_bounds(cloud, sphere_radii(cloud, settings)), None)
+            return (*sphere_bounds(cloud, sphere_radii(cloud, settings)), cloud.up_axis)
     else:
         def bounds(path):
             return vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
