@@ -189,3 +189,58 @@ def test_the_turned_glass_sky_is_the_kernels_sky(cl_device):
     diff = np.abs(procedural - mapped)[..., :3][clear]
     assert clear.sum() > 1000 and np.median(diff) < 2e-3 and diff.mean() < 0.02, \
         (np.median(diff), diff.mean())
+
+
+# ------------------------------------------------------------------ view transforms
+
+def srgb_encode(v):
+    """IEC 61966-2-1's encoding, written out (the oracle for 'standard')."""
+    v = np.asarray(v, np.float64)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.abs(v) ** (1 / 2.4) - 0.055)
+
+
+RAMP = np.array([0.0, 0.001, 0.0031308, 0.01, 0.05, 0.18, 0.5, 0.9, 1.0, 2.0, 16.0])
+
+
+def test_standard_is_the_srgb_encoding_clipped():
+    from volrender.image import to_srgb
+    rgb = np.stack([RAMP, RAMP * 0.5, RAMP * 0.25], axis=-1)
+    want = np.floor(srgb_encode(np.minimum(rgb, 1.0)) * 65535 + 0.5)
+    got = to_srgb(rgb, tonemap="standard", bits=16).astype(float)
+    assert np.abs(got - want).max() <= 2, np.abs(got - want).max()    # 3e-5 of the range
+    # published code values (8 bits): 0.18 -> 118, 0.5 -> 188, 0.0031308 -> 10
+    assert to_srgb(np.array([[0.18] * 3, [0.5] * 3, [0.0031308] * 3]), tonemap="standard")[:, 0] \
+        .tolist() == [118, 188, 10]
+
+
+def test_aces_meets_the_documented_curve_at_its_anchors():
+    """ACES 1.0 SDR video (RRT + sRGB ODT, dim surround) on greys: the RRT's spline puts
+    0.18 at 4.8 nits and the ODT's 48-nit spline maps 0.18 * 2^-6.5 .. 0.18 * 2^6.5 onto
+    0.02 .. 48 nits (aces-dev's SegmentedSplineParams); code values are linear
+    (Y - 0.02) / (48 - 0.02), raised to the dim-surround 0.9811, sRGB-encoded."""
+    from volrender.image import to_srgb
+    mid = srgb_encode(((4.8 - 0.02) / (48.0 - 0.02)) ** 0.9811)        # 0.35597
+    grey = np.array([[v] * 3 for v in (0.18 * 2 ** -6.5, 0.18, 0.18 * 2 ** 6.5)])
+    got = to_srgb(grey, tonemap="aces", bits=16)[:, 0] / 65535.0
+    assert got[1] == pytest.approx(float(mid), abs=1e-3)
+    assert got[0] == pytest.approx(0.0, abs=1e-3) and got[2] == pytest.approx(1.0, abs=1e-3)
+    ramp = to_srgb(np.repeat(RAMP[:, None], 3, axis=1), tonemap="aces", bits=16)[:, 0]
+    assert np.all(np.diff(ramp.astype(int)) >= 0) and ramp[-1] > 65000
+
+
+def test_filmic_is_its_documented_shoulder():
+    """volrender's filmic: identity to 0.5, then 0.5 + 0.5 (1 - exp(-(x - 0.5) / 0.5))."""
+    from volrender.image import to_srgb
+    x = RAMP
+    curve = np.where(x <= 0.5, x, 0.5 + 0.5 * (1.0 - np.exp(-(x - 0.5) / 0.5)))
+    got = to_srgb(x, tonemap="filmic", bits=16).astype(float)
+    assert np.abs(got - np.floor(srgb_encode(curve) * 65535 + 0.5)).max() <= 1
+
+
+def test_agx_says_where_to_find_it(monkeypatch):
+    from volrender.image import _PROCESSORS, to_srgb
+    monkeypatch.delenv("OCIO", raising=False)
+    _PROCESSORS.pop("agx", None)
+    with pytest.raises(UserError, match=r"'agx' is in none of OpenColorIO's built-in configs; "
+                                        r"point \$OCIO at"):
+        to_srgb(np.zeros((1, 3)), tonemap="agx")

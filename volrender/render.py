@@ -52,12 +52,14 @@ class Image:
     def height(self) -> int:
         return self.rgba.shape[0]
 
-    def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic",
-             png_bits: int = 8, transparent: bool | None = None) -> Path:
-        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB: opaque,
-        or with transparent (default: the scene's --transparent) straight alpha:
+    def save(self, path, *, exposure: float = 0.0, view: str | None = None,
+             tonemap: str = "filmic", png_bits: int = 8, transparent: bool | None = None) -> Path:
+        """Write .exr (linear RGBA plus the AOVs), .npy or .png (sRGB through the view
+        transform `view`, image.VIEWS; `tonemap` is its older name: opaque, or with
+        transparent (default: the scene's --transparent) straight alpha:
         image.png_pixels), atomically."""
         from .image import write_image
+        tonemap = view or tonemap
         if transparent is None:
             transparent = bool(self.info.get("transparent", False))
         return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
@@ -84,11 +86,12 @@ class Image:
         out = self.rgba if dtype is None else self.rgba.astype(dtype, copy=False)
         return out.copy() if copy else out
 
-    def to_pil(self, *, exposure: float = 0.0, tonemap: str = "filmic"):
+    def to_pil(self, *, exposure: float = 0.0, view: str | None = None, tonemap: str = "filmic"):
         """A PIL.Image (RGBA, 8-bit sRGB): what `save` writes to a .png (opaque unless the
         scene is transparent)."""
         from PIL import Image as PILImage
         from .image import png_pixels
+        tonemap = view or tonemap
         alpha = "straight" if self.info.get("transparent") else "opaque"
         codes = png_pixels(self.rgba, exposure, tonemap, background=self.info.get("background"),
                            alpha=alpha)
