@@ -244,3 +244,22 @@ def test_agx_says_where_to_find_it(monkeypatch):
     with pytest.raises(UserError, match=r"'agx' is in none of OpenColorIO's built-in configs; "
                                         r"point \$OCIO at"):
         to_srgb(np.zeros((1, 3)), tonemap="agx")
+
+
+# ------------------------------------------------------------------ a quiet terminal
+
+def test_tree_prints_no_vtk_warnings_nor_colour_codes(tmp_path):
+    """`volrender tree` off-screen: VTK's logger at errors only, no ANSI codes into a pipe
+    (without a display VTK warned 'bad X server connection' in colour on every call)."""
+    import os
+    import subprocess
+    import sys
+    pytest.importorskip("pyvista")
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    env["TERM"] = "xterm-256color"
+    run = subprocess.run([sys.executable, "-m", "volrender", "tree", "blob:50", "--screenshot",
+                          str(tmp_path / "t.png"), "--window-size", "48x36"],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "\x1b[" not in run.stderr and "WARN" not in run.stderr, run.stderr
+    assert run.stderr.strip().splitlines() == [f"wrote {tmp_path / 't.png'} (tree)"]
