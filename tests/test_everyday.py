@@ -263,3 +263,43 @@ def test_tree_prints_no_vtk_warnings_nor_colour_codes(tmp_path):
     assert run.returncode == 0, run.stderr
     assert "\x1b[" not in run.stderr and "WARN" not in run.stderr, run.stderr
     assert run.stderr.strip().splitlines() == [f"wrote {tmp_path / 't.png'} (tree)"]
+
+
+# ------------------------------------------------------------------ VFX frame syntax
+
+@pytest.mark.parametrize("text, frame, path", [
+    ("a/smoke_@@@@.vdb", 7, "a/smoke_0007.vdb"), ("smoke.@.vdb", 12, "smoke.12.vdb"),
+    ("smoke_$F4.vdb", 7, "smoke_0007.vdb"), ("smoke_$F.vdb", 7, "smoke_7.vdb"),
+    ("smoke_$F3.vdb", 1234, "smoke_1234.vdb")])
+def test_houdini_and_nuke_padding(text, frame, path):
+    from volrender import sequence
+    assert sequence.is_pattern(text)
+    assert str(sequence.parse_pattern(text).path(frame)) == path
+
+
+def test_a_file_with_at_in_its_name_is_one_file(tmp_path):
+    from volrender import sequence
+    f = tmp_path / "scan@2x.xyz"
+    f.write_text("0 0 0\n")
+    assert not sequence.is_pattern(str(f)) and sequence.is_pattern(str(tmp_path / "s_@@.xyz"))
+    with pytest.raises(UserError, match="2 frame numbers"):
+        sequence.parse_pattern("s_@@_$F4.vdb")
+
+
+@pytest.mark.parametrize("text, frames", [
+    ("1-240x2", list(range(1, 241, 2))), ("1-10x3", [1, 4, 7, 10]), ("1-10:3", [1, 4, 7, 10]),
+    ("1-10y3", [2, 3, 5, 6, 8, 9]), ("1-3,20-24x2", [1, 2, 3, 20, 22, 24])])
+def test_vfx_frame_ranges(text, frames):
+    from volrender import sequence
+    assert sequence.parse_frames(text) == frames
+
+
+def test_a_vfx_pattern_renders_a_sequence(tmp_path, capsys):
+    from volrender import cli
+    for f in (1, 3, 5):
+        np.savetxt(tmp_path / f"p_{f:03d}.xyz", np.random.default_rng(f).normal(size=(20, 3)))
+    code = cli.main(["render", str(tmp_path / "p_$F3.xyz"), "-o", str(tmp_path / "o_@@@.npy"),
+                     "--frames", "1-5x2", "--size", "8x6", "--workers", "0", "--bounces", "1",
+                     "--no-progress"])
+    assert code == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.glob("o_*.npy")) == ["o_001.npy", "o_003.npy", "o_005.npy"]
