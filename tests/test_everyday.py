@@ -303,3 +303,47 @@ def test_a_vfx_pattern_renders_a_sequence(tmp_path, capsys):
                      "--no-progress"])
     assert code == 0, capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.glob("o_*.npy")) == ["o_001.npy", "o_003.npy", "o_005.npy"]
+
+
+# ------------------------------------------------------------------ peers' spellings
+
+@pytest.mark.parametrize("word, want", [
+    ("res", "size= (vdb_render's -res)"), ("samples", "spp= (vdb_render's -samples)"),
+    ("lookat", "target= (vdb_render's -lookat)"), ("translate", "origin= (vdb_render's -translate)"),
+    ("pixelsamples", "spp= (pbrt's pixelsamples)"), ("sample_count", "spp= (Mitsuba's sample_count)")])
+def test_peers_spellings_in_python(word, want):
+    with pytest.raises(UserError, match=f"unknown option '{word}'; did you mean "
+                                        + want.replace("(", r"\(").replace(")", r"\)") + r"\?"):
+        volrender.load_scene("blob:20", **{word: 1})
+
+
+def test_peers_spellings_in_scene_files(tmp_path):
+    toml = tmp_path / "s.toml"
+    toml.write_text('[points]\ngenerator = "blob"\ncount = 20\n[render]\nsamples = 4\n')
+    with pytest.raises(UserError, match=r"did you mean \[render\]\.spp \(vdb_render's -samples\)\?"):
+        volrender.load_scene(toml)
+
+
+# ------------------------------------------------------------------ outputs
+
+def test_a_single_image_creates_its_folder(tmp_path, box_image):
+    out = box_image.save(tmp_path / "new" / "deeper" / "b.png")
+    assert out.is_file() and out.parent.name == "deeper"
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UserError, match="does not exist"):       # a file in the way
+        box_image.save(tmp_path / "file" / "b.png")
+
+
+def test_a_nearly_invisible_transparent_png_warns(tmp_path):
+    from volrender.errors import ImageWarning
+    from volrender.image import write_image
+    rgba = np.zeros((4, 4, 4), np.float32)
+    rgba[1:3, 1:3] = (2.0, 0.8, 0.1, 0.003)             # fire: light, almost no opacity
+    with pytest.warns(ImageWarning, match=r"alpha is at most 0.003 .*drop --transparent"):
+        write_image(tmp_path / "f.png", rgba, png_alpha="straight")
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_image(tmp_path / "o.png", rgba)                           # opaque: fine
+        rgba[1, 1, 3] = 0.5                                              # some opacity
+        write_image(tmp_path / "s.png", rgba, png_alpha="straight")

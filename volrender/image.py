@@ -65,12 +65,12 @@ def _aov_channel(name: str) -> str:
     return AOV_CHANNELS.get(name, name)
 
 
-def check_output(path, aovs=()) -> Path:
+def check_output(path, aovs=(), create: bool = False) -> Path:
     """Validate an output path before a render starts; return the file a write replaces
     (absolute, symlinks followed: see ``atomic.destination``).
 
     Checks that the suffix is one of ``SUFFIXES``, that the parent directory exists and
-    is writable, that ``path`` is no directory, FIFO, device, symlink loop or read-only
+    is writable (with ``create``: that the folders missing above it can be made there), that ``path`` is no directory, FIFO, device, symlink loop or read-only
     file, and that AOVs (extra layers such as ``'depth'``, ``'transmittance'``; names or a
     dict keyed by name) are only asked of ``.exr`` and map to distinct channels other
     than R, G, B, A. Raises ``UserError``.
@@ -82,9 +82,11 @@ def check_output(path, aovs=()) -> Path:
                         fix=f"use one of {', '.join(SUFFIXES)}")
     out = atomic.destination(path)
     parent = out.parent
+    if create and not parent.exists():       # made by the write: check where it would go
+        parent = next(p for p in parent.parents if p.exists())
     if not parent.is_dir():
-        raise UserError(f"output directory {str(parent)!r} does not exist", path=out,
-                        fix=f"create it first (mkdir -p {parent})")
+        raise UserError(f"output directory {str(out.parent)!r} does not exist", path=out,
+                        fix=f"create it first (mkdir -p {out.parent})")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"output directory {str(parent)!r} is not writable", path=out,
                         fix="choose another directory or fix its permissions")
@@ -365,7 +367,7 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
     temporary file remains (``volrender.atomic``).
     """
     aovs = dict(aovs or {})
-    out = check_output(path, aovs)
+    out = check_output(path, aovs, create=True)
     _check_tonemap(tonemap)
     if png_bits not in PNG_BITS:
         raise UserError(f"PNG bit depth {png_bits!r} is not supported", fix="use 8 or 16")
@@ -385,9 +387,33 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
         channels[_aov_channel(name)] = data
     options = dict(exposure=exposure, tonemap=tonemap, camera=camera, png_bits=png_bits,
                    background=background, png_alpha=png_alpha)
+    if not out.parent.exists():                  # as sequences do: -o new/x.png
+        try:
+            out.parent.mkdir(parents=True)
+        except OSError as exc:
+            raise UserError(f"cannot create the output folder ({exc.strerror or exc})",
+                            path=out.parent, fix="write somewhere you can") from None
+    if png_alpha == 'straight' and out.suffix.lower() == '.png':
+        _warn_if_invisible(rgba, png_bits)
     with atomic.replace(out, "image") as f:
         _WRITERS[out.suffix.lower()](f, rgba, channels, options)
     return out
+
+
+def _warn_if_invisible(rgba, bits):
+    """A straight-alpha PNG whose alpha rounds to at most 2 codes where light was rendered
+    (fire, whose emission has almost no opacity): viewers show it (nearly) invisible."""
+    from .errors import ImageWarning
+    a = np.asarray(rgba[..., 3], np.float64)
+    lit = np.nan_to_num(np.asarray(rgba[..., :3], np.float64)).max(axis=-1) > 1e-3
+    top = (1 << bits) - 1
+    if lit.any():
+        most = float(np.nanmax(np.clip(a[lit], 0.0, 1.0)))
+        if np.floor(most * top + 0.5) <= 2 * (top // 255):
+            warnings.warn(f"the transparent PNG's alpha is at most {most:.2g} where the image "
+                          "has light (emission with almost no opacity, as fire): viewers will "
+                          "show it (nearly) invisible; drop --transparent for the opaque picture, "
+                          "or write .exr", ImageWarning, stacklevel=3)
 
 
 # ---------------------------------------------------------------------------- readers
