@@ -347,3 +347,46 @@ def test_a_nearly_invisible_transparent_png_warns(tmp_path):
         write_image(tmp_path / "o.png", rgba)                           # opaque: fine
         rgba[1, 1, 3] = 0.5                                              # some opacity
         write_image(tmp_path / "s.png", rgba, png_alpha="straight")
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["rendr", "x.vdb"], "unknown command 'rendr'; did you mean render?"),
+    (["render", "blob:20", "-o", "o.png", "-res", "32x24"], "unknown option -res; did you mean --size (vdb_render's -res)?"),
+    (["render", "blob:20", "-o", "o.png", "--res", "32x24"], "unknown option --res; did you mean --size (vdb_render's -res)?"),
+    (["render", "blob:20", "-o", "o.png", "-samples", "4"], "did you mean --spp (vdb_render's -samples)?"),
+    (["render", "blob:20", "-o", "o.png", "-lookat", "0,0,0"], "did you mean --target (vdb_render's -lookat)?"),
+    (["render", "blob:20", "-o", "o.png", "-translate", "0,0,5"], "did you mean --origin (vdb_render's -translate)?"),
+    (["render", "blob:20", "-o", "o.png", "--pixelsamples", "4"], "did you mean --spp (pbrt's pixelsamples)?"),
+    (["render", "blob:20", "-o", "o.png", "--dispatch", "fragmnt"], "did you mean fragment?")])
+def test_peers_spellings_on_the_command_line(capsys, tmp_path, argv, words):
+    from volrender import cli
+    with pytest.raises(SystemExit) as exc:
+        cli.main([str(tmp_path / a) if a == "o.png" else a for a in argv])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and words in err and len(err.splitlines()) == 1, err
+
+
+def test_view_on_the_command_line(tmp_path, capsys):
+    from volrender import cli
+    from volrender.image import read_image
+    base = ["render", "blob:30", "--size", "16x12", "--bounces", "1", "--no-progress"]
+    for view in ("filmic", "standard", "aces"):
+        assert cli.main([*base, "-o", str(tmp_path / f"{view}.png"), "--view", view]) == 0
+    assert cli.main([*base, "-o", str(tmp_path / "old.png"), "--tonemap", "clamp"]) == 0
+    px = {v: read_image(tmp_path / f"{v}.png")[..., :3].astype(int) for v in
+          ("filmic", "standard", "aces", "old")}
+    assert np.abs(px["standard"] - px["old"]).max() <= 1          # clamp: standard's old name
+    assert px["aces"].mean() < px["standard"].mean() - 5            # ACES darkens mid-tones
+    capsys.readouterr()
+    assert cli.main([*base, "-o", str(tmp_path / "new" / "sub" / "one.png")]) == 0   # folders made
+    assert (tmp_path / "new" / "sub" / "one.png").is_file()
+
+
+def test_fire_with_transparent_warns_on_the_command_line(shared_data, tmp_path, capsys):
+    from volrender import cli
+    code = cli.main(["render", str(shared_data / "vdb" / "fluid_data_0190.vdb"), "-o",
+                     str(tmp_path / "f.png"), "--size", "16x12", "--no-progress", "--transparent",
+                     "--emission-grid", "density", "--density-scale", "1e-4",
+                     "--emission-scale", "50"])
+    err = capsys.readouterr().err
+    assert code == 0 and "volrender: warning: the transparent PNG's alpha is at most" in err, err
