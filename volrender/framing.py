@@ -122,7 +122,13 @@ def _solve(x, y, z, rad, want, near, centred, distance):
     return (distance, *centre_at(distance))
 
 
-def blend_growth(centres, radii, k) -> float:
+# where blend_growth looks: the axes and the cube's diagonals
+GROWTH_DIRECTIONS = tuple([np.eye(3)[i] * s for i in range(3) for s in (1.0, -1.0)]
+                          + [np.array([x, y, z]) / math.sqrt(3.0) for x in (1, -1)
+                             for y in (1, -1) for z in (1, -1)])
+
+
+def blend_growth(centres, radii, k, directions=None) -> float:
     """How far the smooth union of the spheres (blend width k: F = m - (k/2) ln S, see
     reference.smooth_union) reaches beyond them where the content is outermost: along each
     of 14 directions (the axes and the cube's diagonals), from the sphere that reaches
@@ -132,15 +138,29 @@ def blend_growth(centres, radii, k) -> float:
     r = np.broadcast_to(np.asarray(radii, np.float64), (len(c),))
     if k <= 0 or len(c) < 2:
         return 0.0
-    dirs = [np.eye(3)[i] * s for i in range(3) for s in (1.0, -1.0)]
-    dirs += [np.array([x, y, z]) / math.sqrt(3.0) for x in (1, -1) for y in (1, -1) for z in (1, -1)]
+    dirs = np.array(directions if directions is not None else GROWTH_DIRECTIONS)
+    reach = float(r.max()) + k + 0.5 * k * math.log(len(c))
+    # two passes over the cloud in chunks: each direction's outermost sphere, then the
+    # spheres in a slab of `reach` below it (a necessary condition for being within reach)
+    step = 1 << 18
+    best = np.full(len(dirs), -np.inf)
+    arg = np.zeros(len(dirs), np.int64)
+    for s0 in range(0, len(c), step):
+        out = c[s0:s0 + step] @ dirs.T + r[s0:s0 + step, None]
+        j = out.argmax(axis=0)
+        better = out[j, np.arange(len(dirs))] > best
+        best[better] = out[j, np.arange(len(dirs))][better]
+        arg[better] = j[better] + s0
+    slabs = [[] for _ in dirs]
+    for s0 in range(0, len(c), step):
+        out = c[s0:s0 + step] @ dirs.T + r[s0:s0 + step, None]
+        for n, rows in enumerate((out >= best - reach).T):
+            slabs[n].append(np.nonzero(rows)[0] + s0)
     grow = 0.0
-    for d in dirs:
-        out = c @ d + r
-        i = int(np.argmax(out))
+    for n, d in enumerate(dirs):
+        i = int(arg[n])
         start = c[i] + r[i] * d
-        reach = float(r.max()) + k + 0.5 * k * math.log(len(c))
-        slab = np.nonzero(out >= out[i] - reach)[0]       # a necessary condition, cheap
+        slab = np.concatenate(slabs[n])
         near = slab[np.linalg.norm(c[slab] - start, axis=1) - r[slab] < reach]
         cn, rn = c[near], r[near]
         top = 0.5 * k * math.log(max(len(cn), 2))
