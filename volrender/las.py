@@ -81,7 +81,7 @@ def check_header(path, head: bytes, size: int) -> tuple[int, bool, int]:
 
 
 def read_las(path):
-    """(centres, radii, colours, notes) of a LAS/LAZ file: the header checked (check_header)
+    """(centres, radii, colours, notes, up axis, why) of a LAS/LAZ file: the header checked (check_header)
     and the memory checked before laspy decodes it."""
     try:
         import laspy
@@ -101,6 +101,7 @@ def read_las(path):
     try:
         with laspy.open(path) as reader:
             las = reader.read()
+            offset = ", ".join(f"{v:.10g}" for v in reader.header.offsets)
         xyz = [np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
                np.asarray(las.z, np.float64)]
         names = set(las.point_format.dimension_names)
@@ -121,4 +122,5 @@ def read_las(path):
     colors = None
     if rgb is not None and rgb.max() > 0:
         colors = (rgb / (65535.0 if rgb.max() > 255 else 255.0)).astype(np.float32)
-    return np.column_stack(xyz), None, colors, (f"{path}: {n} LAS points (format {fmt})",)
+    notes = (f"{path}: {n} LAS points (format {fmt}, offset {offset})",)
+    return np.column_stack(xyz), None, colors, notes, "z", "ASPRS LAS is Z-up"
