@@ -27,6 +27,7 @@ written beside the outputs.
 """
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import glob as globmod
 import logging
@@ -622,7 +623,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
                "error": err, "seconds": 0.0} for f, err in bad.items()]
     t0, started = time.perf_counter(), time.time_ns()
-    own, records, n_workers, stopped, handlers = None, [], 0, None, {}
+    own, records, n_workers, stopped, handlers, levels = None, [], 0, None, {}, {}
     try:
         if client is None and (workers == 0 and scheduler is None):
             _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records)
@@ -634,7 +635,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
             k = chunk or max(1, min(8, len(jobs) // (2 * n_workers) or 1))
             _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records)
     except KeyboardInterrupt as exc:      # Ctrl-C, SIGTERM, SIGHUP: stop, say what is done
-        stopped, handlers = exc, process.ignore_signals()
+        stopped, handlers, levels = exc, process.ignore_signals(), _quiet_dask()
     finally:
         if own is not None:
             _stop_client(*own)
@@ -652,6 +653,8 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     result.record_path = _write_record(dst, result, pattern, output, settings, skip_existing)
     if stopped is not None:
         process.restore_signals(handlers)
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
         signum = getattr(stopped, "signum", signal.SIGINT)
         raise Interrupted(signum, _stopped_summary(result)) from None
     return result
@@ -664,6 +667,17 @@ class Interrupted(process.Interrupted):
     def __init__(self, signum: int, summary: str):
         super().__init__(signum)
         self.summary, self.args = summary, (summary,)     # what a traceback shows
+
+
+def _quiet_dask() -> dict:
+    """Dask's loggers silenced while a stopped run stops its cluster (its nannies log the
+    tasks cancelled on the way as errors, with tracebacks); their levels before."""
+    names = ("distributed", "distributed.scheduler", "distributed.nanny", "distributed.core",
+             "distributed.utils", "distributed.worker", "distributed.client")
+    levels = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+    return levels
 
 
 def _rows_when_stopped(records, jobs, started_ns):
@@ -831,12 +845,37 @@ def _start_client(workers, scheduler, device):
         env["POCL_MAX_PTHREAD_COUNT"] = str(max(1, (os.cpu_count() or 1) // n))
     if os.environ.get(KILL_HOOK):
         env[KILL_HOOK] = os.environ[KILL_HOOK]
-    cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
-                             dashboard_address=":0", env=env, silence_logs=logging.ERROR)
-    client = Client(cluster)
+    # SIGINT is held back while the workers start, so they start with it blocked and keep
+    # it so: a terminal's Ctrl-C reaches the whole process group, and this process stops
+    # them (they printed tracebacks of their own); here it is delivered right after
+    cluster = None
+    try:
+        with _sigint_held():
+            cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
+                                     dashboard_address=":0", env=env, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    except KeyboardInterrupt:
+        if cluster is not None:
+            cluster.close()
+        raise
     if gpus:
         client.register_plugin(device_per_worker(gpus))
     return client, cluster
+
+
+@contextlib.contextmanager
+def _sigint_held():
+    """SIGINT blocked in this thread for the block (threads and processes started in it
+    keep it blocked); delivered after it."""
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    except (AttributeError, ValueError, OSError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _stop_client(client, cluster):
