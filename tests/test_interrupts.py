@@ -315,6 +315,8 @@ def _classify(code, err, signum, wrote):
             assert "volrender/" not in head, head
     if code == 0 and err.startswith("wrote ") and err.count("\n") == 1 and wrote:
         return "done"
+    if code == 128 + signum and err.startswith("wrote ") and err.count("\n") == 2:
+        err = err.split("\n", 1)[1]         # a signal Python swallowed, said after the command
     if code == 128 + signum and err.count("\n") == 1 and \
             err.startswith(f"volrender: interrupted ({name})"):
         said = "o.png was written before that" in err

@@ -593,11 +593,20 @@ def _main(argv, written_from) -> tuple:
         with warnings.catch_warnings():
             if not args.debug:
                 warnings.showwarning = process.warn_one_line
-            return _run(args, written_from), command
+            code = _run(args, written_from)
+        lost = process.lost_signal()         # a signal Python swallowed on the way
+        if lost is not None:
+            return process.interrupted(lost, atomic.WRITTEN[written_from:]), command
+        return code, command
     except KeyboardInterrupt as exc:        # start-up, option parsing, or --debug
         if argv is not None and "--debug" in argv:
             raise
         return process.interrupted(exc, atomic.WRITTEN[written_from:]), command
+    except Exception as exc:                # a signal inside a C extension's import
+        signal_in = process.interrupt_within(exc)
+        if signal_in is None:
+            raise
+        return process.interrupted(signal_in, atomic.WRITTEN[written_from:]), command
     finally:
         if argv is not None:                 # called from Python: its handlers back
             process.restore_signals(old)
@@ -633,6 +642,9 @@ def _run(args, written_from) -> int:
         print("volrender: error: out of host memory; render a smaller image or volume", file=sys.stderr)
         return 2
     except Exception as exc:
+        signal_in = process.interrupt_within(exc)
+        if signal_in is not None:            # a signal inside a C extension's import
+            return process.interrupted(signal_in, atomic.WRITTEN[written_from:])
         message = opencl_message(exc)
         if message is None or args.debug:
             raise

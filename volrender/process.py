@@ -50,18 +50,32 @@ def handle_signals():
     A signal ignored when the process started (nohup, a background job's SIGINT) stays
     ignored, and so does a call from a thread other than the main one. Returns the
     previous handlers (for restore_signals)."""
+    global RECEIVED
     if threading.current_thread() is not threading.main_thread():
         return {}
+    RECEIVED = None
 
     def interrupted(signum, frame):
-        raise Interrupted(signum)
+        global RECEIVED
+        RECEIVED = signum                  # in case Python swallows the raise (lost_signal)
+        raise KeyboardInterrupt if signum == signal.SIGINT else Interrupted(signum)
     old = {}
-    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
+    for name, handler in (("SIGINT", interrupted), ("SIGTERM", interrupted),
                           ("SIGHUP", interrupted)):
         sig = getattr(signal, name, None)
         if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
             old[sig] = signal.signal(sig, handler)
     return old
+
+
+RECEIVED = None         # the last signal handle_signals' handlers took, until it is reported
+
+
+def lost_signal():
+    """A signal whose KeyboardInterrupt Python swallowed (raised inside a weakref callback,
+    such as importlib's module-lock one, it is printed as 'Exception ignored' and the
+    command goes on): as Interrupted, to report once the command is done; else None."""
+    return Interrupted(RECEIVED) if RECEIVED is not None else None
 
 
 def restore_signals(old):
@@ -83,13 +97,28 @@ def interrupted(exc, written=()) -> int:
     `written`, the outputs this command completed (atomic.WRITTEN's new entries), or the
     exception's `summary` (a stopped sequence's frames). Returns the exit status, 128 +
     the signal."""
+    global RECEIVED
     ignore_signals()                                   # a second signal: no traceback
+    RECEIVED = None
     signum = getattr(exc, "signum", signal.SIGINT)
     done = ", ".join(printable(p) for p in dict.fromkeys(map(str, written)))
     what = f"{done} was written before that" if done else "no output written"
     what = getattr(exc, "summary", None) or what       # a sequence says which frames
     print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
     return 128 + signum
+
+
+def interrupt_within(exc):
+    """The KeyboardInterrupt (or Interrupted) that `exc` was raised from, if any: a signal
+    while a C extension initialises (pybind11's OpenEXR importing numpy) comes out as
+    `ImportError: initialization failed` caused by it."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def warn_one_line(message, category, filename, lineno, file=None, line=None):
