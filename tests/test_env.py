@@ -4,7 +4,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import reference
+import reference
 from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError

@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from volrender import generators, glass, reference, spheres, tree as tree_mod
+import reference
+from volrender import generators, glass, spheres, tree as tree_mod
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.image import write_image
