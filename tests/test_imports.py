@@ -124,3 +124,26 @@ def test_the_private_import_finder_finds_both_forms(tmp_path):
     (tmp_path / "d.py").write_text("from . import a as m\nprint(m._x, m.y, m.__all__)\n")
     (tmp_path / "e.py").write_text("from . import a\nprint(a.y)\n")
     assert private_imports(tmp_path) == ["b: _x", "c: _x", "d: m._x"]
+
+
+LONG = 500          # lines; a module above it says why at its top ("Long file: ...")
+
+
+def long_files(pkg=PKG) -> list:
+    """'module (lines)' for each module of the package above LONG lines whose docstring
+    gives no reason."""
+    out = []
+    for p in sorted(pkg.glob("*.py")):
+        text = p.read_text()
+        n = text.count("\n")
+        doc = ast.get_docstring(ast.parse(text, str(p))) or ""
+        if n > LONG and "Long file:" not in doc:
+            out.append(f"{p.stem} ({n})")
+    return out
+
+
+def test_long_modules_say_why(tmp_path):
+    assert long_files() == [], "split the module, or write 'Long file: why' in its docstring"
+    (tmp_path / "a.py").write_text('"""A."""\n' + "x = 1\n" * (LONG + 1))
+    (tmp_path / "b.py").write_text('"""B.\n\nLong file: one idea."""\n' + "x = 1\n" * LONG)
+    assert long_files(tmp_path) == [f"a ({LONG + 2})"]

@@ -14,6 +14,9 @@ The build runs on the render device (cl/build_cells.cl), walking the partition t
 left unclassified from their parent's list, down to cells; each level's lists are counted,
 prefix-summed here and written by a second pass. tests/reference.py's `host_lists` is the
 numpy alternative (vectorised tree queries; x10 slower per cell, measured in docs/DESIGN.md).
+
+Long file: one idea, the device builder (_Builder's named steps) with the Cells record and
+the edge heuristics that size it; the numpy oracles live in tests/reference.py.
 """
 from __future__ import annotations
 
