@@ -3,7 +3,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import reference
+import reference
 
 SRC = """
 #include "common.h"

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from volrender import reference, volume as volume_mod
+import reference
+from volrender import volume as volume_mod
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings

@@ -10,7 +10,8 @@ the seeds are fixed, so a pass or a failure is reproducible.
 import numpy as np
 import pytest
 
-from volrender import cli, reference
+import reference
+from volrender import cli
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
