@@ -18,14 +18,21 @@ from volrender.scene import Environment, GlassContent, Scene, VolumeContent
 from volrender.bricks import Bricks
 
 Z = 5.0
+VOX = 0.1            # the voxel size of the synthetic volumes
+ENV = (0.6, 0.8, 1.0)    # a uniform bluish environment (test_path, test_defaults)
 
 
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    """index -> world: voxel size vox, voxel (0, 0, 0) at `offset`."""
+def scaled(vox, offset=(0.0, 0.0, 0.0), rot=None):
+    """index -> world: voxel size vox, voxel (0, 0, 0) at `offset`, axes turned by `rot`."""
     m = np.eye(4)
-    m[:3, :3] *= vox
+    m[:3, :3] = (np.eye(3) if rot is None else rot) * vox
     m[:3, 3] = offset
     return m
+
+
+def top_camera(n=16, fov=6.0):
+    """n x n pixels looking down -z from (0, 0, 5) at the origin."""
+    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), fov, n, n)
 
 
 def centred_bricks(values, vox, **kw):
@@ -215,3 +222,46 @@ def render_volume(bricks, camera, lights, settings, device, progress=None, launc
         settings = dataclasses.replace(settings, estimator="march")
     scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
     return render(scene, device, progress=progress, launch=launch).as_dict()
+
+
+def lumpy_ball(n=20, seed=4):
+    """A lumpy ball: smooth noise inside a sphere of radius n/2 - 1 voxels."""
+    rng = np.random.default_rng(seed)
+    v = rng.random((n, n, n))
+    for ax in range(3):
+        for _ in range(2):
+            v = (np.roll(v, 1, ax) + v + np.roll(v, -1, ax)) / 3
+    i = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt((i ** 2).sum(0))
+    v = np.where(r < n / 2 - 1.5, 0.4 + (v - v.mean()) / v.std() * 0.15, 0.0)
+    return Bricks.from_dense(np.clip(v, 0, None).astype(np.float32),
+                             scaled(VOX, (-(n - 1) / 2 * VOX,) * 3))
+
+
+def glowing_ball(n=20):
+    """A ball of density falling linearly from 1 at the centre, emitting half of it."""
+    i = np.indices((n, n, n)).astype(np.float64) - (n - 1) / 2
+    v = np.clip(1.0 - np.sqrt((i ** 2).sum(0)) / 8.0, 0.0, None).astype(np.float32)
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    m[:3, 3] = -(n - 1) / 2 * 0.1
+    return Bricks.from_dense(v, m, emission=v * 0.5)
+
+
+def sky(h=16, w=32, seed=3):
+    """A map with a bright sun-like spot, a blue sky and a dark ground."""
+    rng = np.random.default_rng(seed)
+    t = np.zeros((h, w, 3), np.float32)
+    t[: h // 2] = (0.3, 0.45, 0.8)
+    t[h // 2:] = (0.05, 0.04, 0.03)
+    t[3, 20] = (60.0, 55.0, 50.0)
+    t *= rng.uniform(0.8, 1.2, size=(h, w, 1)).astype(np.float32)
+    return t
+
+
+def chi2_sf(x, k):
+    """P(chi-square with k degrees of freedom > x), Wilson-Hilferty (error < 1e-3 in p
+    at these k)."""
+    from math import erfc, sqrt
+    z = ((x / k) ** (1 / 3) - (1 - 2 / (9 * k))) / sqrt(2 / (9 * k))
+    return 0.5 * erfc(z / sqrt(2))

@@ -29,17 +29,9 @@ from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings, occupied_bricks, volume_params
 from volrender.bricks import Bricks
 from volrender.dispatch import Launch
-from helpers import render_volume
+from helpers import VOX, render_volume, scaled
 
-VOX = 0.1
 LIGHTS = [Sun((-1.0, -0.5, -0.3), 2.0), PointLight((0.3, 4.0, 0.2), 40.0)]
-
-
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
 
 
 def local_origin(b, cam):

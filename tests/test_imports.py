@@ -147,3 +147,17 @@ def test_long_modules_say_why(tmp_path):
     (tmp_path / "a.py").write_text('"""A."""\n' + "x = 1\n" * (LONG + 1))
     (tmp_path / "b.py").write_text('"""B.\n\nLong file: one idea."""\n' + "x = 1\n" * LONG)
     assert long_files(tmp_path) == [f"a ({LONG + 2})"]
+
+
+def test_no_test_module_imports_another():
+    """Shared test code lives in tests/helpers.py, tests/reference.py and conftest.py
+    fixtures; a test module that imports another runs that module's fixtures and globals."""
+    tests = Path(__file__).resolve().parent
+    names = {p.stem for p in tests.glob("test_*.py")}
+    found = []
+    for p in sorted(tests.glob("test_*.py")):
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            mods = [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else \
+                [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            found += [f"{p.stem}: {m}" for m in mods if m in names]
+    assert found == []

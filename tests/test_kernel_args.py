@@ -7,7 +7,7 @@ import pytest
 from volrender import generators, glass, volume
 from volrender.lights import PointLight, Sun
 from volrender.scene import GlassContent, Scene, VolumeContent
-from test_launch import soft_ball
+from helpers import glowing_ball
 
 
 def kernel_names(dev, plan):
@@ -22,7 +22,7 @@ def kernel_names(dev, plan):
 
 def plans(dev):
     lights = (Sun((0.2, -1.0, -0.4), 2.0), PointLight((0.5, 0.5, 0.5), 1.0))
-    ball = soft_ball()
+    ball = glowing_ball()
     from volrender.camera import Camera
     cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8)
     for est in ("march", "track"):
