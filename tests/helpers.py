@@ -1,6 +1,7 @@
 """Shared helpers of the tests: renders through the public path (`render.render` of a
 `Scene.of(...)`) as an Image (volume_image, render_glass) or as Image.as_dict()
-(render_points, render_volume: 'rgba', each AOV by name, the timings and the info), and,
+(render_points, render_volume: 'rgba', each AOV by name, the timings and the info; the
+wrapper is bench/common.py's, shared with the benchmarks), and,
 for the closed-form tests (test_optics, test_depth, test_env_sampling), grids with a known
 world transform, cameras and reference formulas.
 
@@ -10,7 +11,11 @@ are Z = 5 standard errors: a false alarm has probability ~6e-7 per check for a n
 mean, and seeds are fixed, so a pass or a failure is reproducible."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+from bench import common
+from bench.common import render_points  # noqa: F401  (the one render wrapper, shared)
 
 from volrender.camera import Camera
 from volrender.render import render
@@ -207,21 +212,13 @@ def unprivileged_uid():
     return pwd.getpwnam("nobody").pw_uid
 
 
-def render_points(cloud, camera, lights, settings, device, progress=None, variant=None,
-                  launch=None):
-    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, progress=progress, variant=variant, launch=launch).as_dict()
-
-
 def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
     """Settings left at --estimator auto render as `march` here: these tests check the
     marcher's estimand (single scattering, or the octaves asked for); auto's choice has
     its own tests (test_defaults.py), through load_scene as the CLI renders."""
     if settings.estimator == "auto":
-        import dataclasses
         settings = dataclasses.replace(settings, estimator="march")
-    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
-    return render(scene, device, progress=progress, launch=launch).as_dict()
+    return common.render_volume(bricks, camera, lights, settings, device, progress, launch)
 
 
 def lumpy_ball(n=20, seed=4):
