@@ -137,16 +137,7 @@ BUNNY = "bunny-look-good-320x240"
 BUILD = "build_gpu-nvidiah200-lazy.json"
 SEQ_FULL = "sequence_gpu-nvidiah200-points-full.json"
 SEQ_FAST = "sequence_gpu-nvidiah200-points-fast.json"
-ERROR = "error_pocl-defaults.json"
-
-
-def _cloud(path):
-    """PATH in the 320×240 WDAS cloud entry of the defaults sweep."""
-    def read(data):
-        entry = [d for d in data["defaults"]
-                 if d["scene"] == "wdas_cloud_sixteenth" and d["size"] == [320, 240]]
-        return get(entry[0], path)
-    return read
+COMMAND = "error_pocl-command640.json"
 
 
 # name: (result file(s), a path for get() or a function of the loaded file(s), format)
@@ -173,9 +164,14 @@ FIGURES = {
     "whole_bunny_fast_tree": ("whole_pocl.json", _whole(BUNNY, "fast-tree") + ".wall_s", one),
     "edge_geomean": ("edge_pocl-calib.json", "fit.regret_geomean", two),
     "edge_worst": ("edge_pocl-calib.json", "fit.regret_worst", two),
-    "cloud_time": (ERROR, _cloud("rows[group=default].time_vs_single"), two),
-    "cloud_mean": (ERROR, _cloud("rows[group=default].mean_ratio"), three),
-    "cloud_rmse": (ERROR, _cloud("rows[group=default].rel_rmse_box2"), pct),
+    **{f"cmd_{short}_{key}": (COMMAND, f"command[file={name}].{field}", fmt)
+       for short, name in (("wdas", "wdas_cloud_sixteenth"), ("smoke", "smoke"),
+                           ("0190", "fluid_data_0190"))
+       for key, field, fmt in (("mean", "covered_mean_ratio", three),
+                               ("rmse", "covered_rel_rmse", pct),
+                               ("whole_mean", "mean_ratio", three),
+                               ("whole_rmse", "rel_rmse", pct))},
+    "cmd_size": (COMMAND, lambda d: "×".join(map(str, get(d, "command[file=smoke].size"))), str),
     "volume_fps_1": ("sequence_gpu-nvidiah200.json", "rows[workers=1].fps", one),
     "volume_fps_4": ("sequence_gpu-nvidiah200.json", "rows[workers=4].fps", one),
 }
@@ -209,9 +205,13 @@ with the fast model. The automatic choice between cells (and their edge) and the
 rule fitted on 8 clouds from 80×60 to 1920×1080: its whole time is ×{edge_geomean} of the best
 choice in the geometric mean, ×{edge_worst} at worst (`edge_pocl-calib.json`).
 
-Volumes: the WDAS cloud at defaults (320×240, PoCL) takes ×{cloud_time} single
-scattering's time, its mean is ×{cloud_mean} of the path-traced reference, {cloud_rmse}
-relative RMSE (2×2) (`{ERROR}`); the path estimator agrees with Mitsuba 3 `volpath`
+Volumes, errors on the pixels the cloud covers (reference alpha > 0.05) beside the whole
+image: the WDAS cloud at defaults ({cmd_size}, PoCL, the octave bands with the fitted gain) is
+×{cmd_wdas_mean} of the path-traced reference and {cmd_wdas_rmse} relative RMSE (whole image
+×{cmd_wdas_whole_mean}, {cmd_wdas_whole_rmse}); smoke ×{cmd_smoke_mean}, {cmd_smoke_rmse}
+(×{cmd_smoke_whole_mean}, {cmd_smoke_whole_rmse}); 0190 ×{cmd_0190_mean}, {cmd_0190_rmse}
+(×{cmd_0190_whole_mean}, {cmd_0190_whole_rmse}) (`{COMMAND}`; on a GPU `auto` takes the path
+estimator instead); the path estimator agrees with Mitsuba 3 `volpath`
 (`peers_pocl-path.json`); volume sequences on the H200 at 1080p: {volume_fps_1} frames/s
 with one worker, {volume_fps_4} with four (`sequence_gpu-nvidiah200.json`).
 
@@ -231,7 +231,7 @@ def _load(name):
 
 def values() -> dict[str, str]:
     """Every figure, printed."""
-    out = {"BUILD": BUILD, "ERROR": ERROR}
+    out = {"BUILD": BUILD, "COMMAND": COMMAND}
     for name, (files, what, fmt) in FIGURES.items():
         loaded = [_load(f) for f in ((files,) if isinstance(files, str) else files)]
         value = get(loaded[0], what) if isinstance(what, str) else what(*loaded)

@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import UserError, option_name, suggest
 from .lights import PointLight, Sun
-from .settings import ENV, MAX_VALUE, SIZE, STRS, VEC, VEC3, check_value, pair
+from .settings import ENV, MAX_VALUE, SIZE, STRS, VEC, VEC3, check_value, coerce, pair
 from .scene_file import EXTRA_KEYS, finite, options
 
 KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
@@ -140,6 +140,7 @@ def field_values(given, owners):
             continue
         opt = options()[key]
         if opt.owner in owners:
+            value = coerce(opt.meta, value)
             check_value(opt.meta, value, where)
             out[opt.field] = value
     return out
