@@ -340,7 +340,7 @@ def time_breakdown(scene, img, write_s) -> str:
     """Where a render's time went (-v): load, radii (clouds without radii), tree and cells
     (glass: the scene's acceleration, 0 when reused), the program set-up, the kernels, the
     rest of the launches and the write."""
-    parts = [("load", scene.timings.get("load", 0.0)), ("radii", scene.timings.get("radii"))]
+    parts = [("load", scene.timings.load), ("radii", scene.timings.radii)]
     if scene.kind == "glass":
         parts += [("tree", img.info.get("tree_ms", 0.0) / 1e3),
                   ("cells", img.info.get("cells_ms", 0.0) / 1e3)]

@@ -164,7 +164,7 @@ class GlassContent:
     def load(cls, req, reuse=None, timings=None, device=None):
         """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
         when it is what req would read) and, for a cloud without radii, the radius and
-        blend of its spacing (spheres.scan_defaults; its time in timings["radii"])."""
+        blend of its spacing (spheres.scan_defaults; its time in timings.radii)."""
         import time
         from . import generators, points
         settings = req.settings
@@ -188,9 +188,17 @@ class GlassContent:
             t1 = time.perf_counter()
             settings, note = scan_defaults(cloud, settings, old.store if old else None)
             if timings is not None:
-                timings["radii"] = time.perf_counter() - t1
+                timings.radii = time.perf_counter() - t1
             notes.append(note)
         return cls(cloud, settings, **({"store": old.store} if old else {})), notes, False
+
+
+@dataclass
+class Timings:
+    """Seconds load_scene took: reading the content and the rest of resolving (load), and
+    measuring the spacing of a cloud without radii (radii; None when not measured)."""
+    load: float = 0.0
+    radii: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,7 +210,7 @@ class Scene:
     source: str = ""
     inputs: tuple = ()                # every file the scene reads (resolved paths)
     notes: tuple = ()                 # choices made while resolving (the CLI prints them)
-    timings: dict = field(default_factory=dict, compare=False)  # seconds: load, radii
+    timings: Timings = field(default_factory=lambda: Timings(), compare=False)
     request: object = field(default=None, compare=False, repr=False)   # what load_scene read
 
     @property
@@ -449,7 +457,7 @@ class Request:
         render on, which --estimator auto weighs (None: a CPU)."""
         import time
         t0 = time.perf_counter()
-        timings = {}
+        timings = Timings()
         notes = []
         environment = None
         cls = VolumeContent if self.kind == "volume" else GlassContent
@@ -484,7 +492,7 @@ class Request:
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_suns
             lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
-        timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
+        timings.load = time.perf_counter() - t0 - (timings.radii or 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes), timings, request=self)
 
