@@ -43,6 +43,7 @@ class Image:
     flags: dict
     camera: object = None
     info: dict = field(default_factory=dict)
+    noisy: np.ndarray | None = None  # the beauty before denoising (denoise="on"), else None
 
     @property
     def width(self) -> int:
@@ -58,9 +59,15 @@ class Image:
         or with transparent (default: the scene's --transparent) straight alpha:
         image.png_pixels), atomically."""
         from .image import write_image
+        from .image import GUIDE_LAYERS
         if transparent is None:
             transparent = bool(self.info.get("transparent", False))
-        return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
+        layers = dict(self.aovs)
+        if Path(path).suffix.lower() != ".exr":     # guides and the noisy image: EXR only
+            layers = {k: v for k, v in layers.items() if k not in GUIDE_LAYERS}
+        elif self.noisy is not None:
+            layers["noisy"] = self.noisy
+        return write_image(path, self.rgba, layers or None, exposure=exposure, tonemap=tonemap,
                            camera=self.camera, png_bits=png_bits,
                            background=self.info.get("background"),
                            png_alpha="straight" if transparent else "opaque")
@@ -134,14 +141,51 @@ def image_problems(img, kind) -> list[str]:
 
 
 def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> Image:
-    """render() of a Scene, without the image warnings (adaptive passes call it per pass)."""
-    import pyopencl as cl
-
+    """render() of a Scene, without the image warnings (adaptive passes call it per pass),
+    denoised when the scene's denoise is "on"."""
     if variant not in VARIANTS:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = device_mod.resolve(device)
     if scene.kind == "volume" and volume.adaptive(scene.settings):     # passes (issue #22)
-        return render_passes(scene, dev, progress=progress, launch=launch)
+        img = render_passes(scene, dev, progress=progress, launch=launch)
+    else:
+        img = _beauty(scene, dev, progress=progress, variant=variant, launch=launch)
+    if getattr(scene.settings, "denoise", "off") == "on":
+        img = denoised(scene, dev, img)
+    return img
+
+
+def denoised(scene, dev, img) -> Image:
+    """`img` denoised by OIDN (volrender.denoise) with the scene's albedo and normal guides
+    (volrender.guides), which join its AOVs; the noisy beauty stays as Image.noisy. Without
+    pyoidn: `img` unchanged, a one-line warning, and info['denoise_note'] saying why."""
+    import dataclasses
+    import warnings
+    from . import denoise as denoise_mod, guides
+    why = denoise_mod.unavailable()
+    if why:
+        warnings.warn(f"not denoised: {why}", ImageWarning, stacklevel=3)
+        return dataclasses.replace(img, info={**img.info, "denoised": False, "denoise_note": why})
+    base = scene
+    if scene.kind == "volume":          # one plan of one pass (the guides ignore the samples)
+        base = scene.replace(content=dataclasses.replace(
+            scene.content, settings=dataclasses.replace(
+                scene.content.settings, noise_target=None, time_limit=None, denoise="off")))
+    t0 = time.perf_counter()
+    plan = PLANNERS[scene.kind](base, dev, None, None)
+    g = guides.render_guides(base, dev, plan)
+    t1 = time.perf_counter()
+    rgba = denoise_mod.denoise(img.rgba, g["albedo"], g["normal"])
+    t2 = time.perf_counter()
+    return dataclasses.replace(
+        img, rgba=rgba, noisy=img.rgba, aovs={**img.aovs, **g},
+        info={**img.info, "denoised": True, "guides_ms": 1e3 * (t1 - t0),
+              "denoise_ms": 1e3 * (t2 - t1)})
+
+
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None) -> Image:
+    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples."""
+    import pyopencl as cl
     cam = scene.camera
     t_plan = time.perf_counter()
     if scene.kind == "glass" and scene.content.builds == 0 and len(scene.content.cloud) >= BUILD_NOTE:
@@ -222,7 +266,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     import dataclasses
     import time
     s = scene.content.settings
-    base = dataclasses.replace(s, noise_target=None, time_limit=None)
+    base = dataclasses.replace(s, noise_target=None, time_limit=None, denoise="off")
     target, limit = s.noise_target, s.time_limit
     t0 = time.perf_counter()
     batch = max(1, s.spp)
