@@ -45,20 +45,20 @@ def plan(scene, main: Plan, spp: int = GUIDE_SPP) -> Plan:
                 build_options=main.build_options)
 
 
-def render_guides(scene, device, main: Plan, launch=None) -> dict:
+def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
     """{'albedo': H x W x 3, 'normal': H x W x 3} float32 of the scene (see the module
-    docstring), rendered on `device` beside the Plan `main`."""
+    docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
+    centre)."""
     import pyopencl as cl
     from .dispatch import upload
-    p = plan(scene, main)
+    p = plan(scene, main, spp)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
     ctx = device.context
     args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in p.inputs]
     outs = {name: cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * int(np.prod(shape)))
             for name, shape in p.outputs}
     run_rows(device, kernel, args + list(outs.values()), scene.camera.width,
-             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=GUIDE_SPP,
-             launch=launch)
+             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=spp)
     host = {}
     for name, shape in p.outputs:
         host[name] = np.empty(shape, np.float32)
