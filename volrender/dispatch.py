@@ -46,6 +46,11 @@ GROW = 4                       # a launch is at most GROW x the pixel-samples of
 CHEAP = 16                     # a launch under target / CHEAP does not grow the next
 
 
+class PastDeadline(Exception):
+    """run_rows reached its deadline before the image was done (render.render_passes drops
+    that pass)."""
+
+
 @dataclass
 class Stats:
     """What run_rows did: kernel ms (profiling events), launches, and each launch's
@@ -181,13 +186,15 @@ def row_bands(width: int, height: int, pixels: int, unit: int = 1):
 
 
 def run_rows(device, kernel, args, width, height, pixels, progress=None,
-             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None) -> Stats:
+             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None,
+             deadline: float | None = None) -> Stats:
     """Launch `kernel(*args, y0, s0, s1)` over the image, band by band and sample range by
     sample range (see the module docstring); returns Stats. `pixels`: pixel-samples of the
     first launch on CPUs (unless launch.first), at most one tile row of one sample; later
     launches grow (at most x GROW, and only after one that was not cheap) or shrink
     towards the target (launch.target_s, else TARGET_S or GPU_TARGET_S) at the slowest
-    rate seen; launch.fixed: (rows, samples) per launch."""
+    rate seen; launch.fixed: (rows, samples) per launch. deadline: a time.perf_counter()
+    after which no launch starts (PastDeadline is raised instead)."""
     launch = launch or Launch()
     fixed = launch.fixed
     if launch.first is not None:
@@ -224,6 +231,8 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 chunk = max(1, work // (width * rows))
                 chunk = -(-(spp - s0) // -(-(spp - s0) // chunk))    # even chunks, no stub
                 s1 = min(spp, s0 + chunk)
+                if deadline is not None and time.perf_counter() >= deadline:
+                    raise PastDeadline()
                 kernel.set_args(*args, np.int32(y0), np.int32(s0), np.int32(s1))
                 if driver:
                     ns, took = _enqueue(device, kernel, (width, rows), None)

@@ -183,8 +183,9 @@ def denoised(scene, dev, img) -> Image:
               "denoise_ms": 1e3 * (t2 - t1)})
 
 
-def _beauty(scene, dev, *, progress=None, variant=None, launch=None) -> Image:
-    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples."""
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None) -> Image:
+    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
+    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
     import pyopencl as cl
     cam = scene.camera
     t_plan = time.perf_counter()
@@ -202,7 +203,8 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None) -> Image:
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
+                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch,
+                   deadline=deadline)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -221,6 +223,8 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None) -> Image:
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
                        **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                       "spp": scene.settings.spp,
+                       "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                        "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 
 
@@ -255,30 +259,44 @@ def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
 
 
 def render_passes(scene, device=None, *, progress=None, launch=None):
-    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) of
-    settings.spp samples and more, until the estimated relative noise (noise_estimate) is
-    at most settings.noise_target (after volume.ADAPTIVE_MIN_PASSES passes) or
-    settings.time_limit seconds have passed (the pass that would overrun it is sized to
-    fit, from the measured seconds per sample). Each pass after the first minimum set is
-    sized to reach the target from the noise so far (noise ~ 1/sqrt(N)), at most doubling
-    the samples. The image is the sample-weighted mean of the passes; info['noise'] its
-    relative noise estimate, info['noise_map'] the per-pixel standard error (H, W)."""
+    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) until the
+    estimated relative error of the covered pixels (volume.noise_estimate) is at most
+    settings.noise_target (after volume.ADAPTIVE_MIN_PASSES passes), settings.max_spp
+    samples per pixel are taken (with a target), or settings.time_limit seconds have
+    passed. With a time limit the first pass is one sample per pixel (the least an image
+    needs; said when even that overran the limit) and later passes are sized to fit from the
+    measured seconds per sample; a pass still running at the limit is dropped (its launches
+    stop, dispatch.PastDeadline). Without one, passes of settings.spp samples. After the
+    minimum passes each is sized to reach the target from the noise so far (noise ~
+    1/sqrt(N)), at most doubling the samples. The image is the sample-weighted mean of the
+    passes; info: 'spp' (the samples taken, also counted launch by launch in
+    'samples_taken'), 'noise' (the covered pixels' estimate), 'noise_whole' (the whole
+    image's, for comparison), 'history' ((spp, noise, noise_whole) after each pass),
+    'noise_map' (the per-pixel standard error, H x W), 'stopped' (why)."""
     import dataclasses
     import time
+    from .dispatch import PastDeadline
     s = scene.content.settings
     base = dataclasses.replace(s, noise_target=None, time_limit=None, denoise="off")
     target, limit = s.noise_target, s.time_limit
+    cap = min(s.max_spp, volume.ADAPTIVE_MAX_SPP) if target is not None else volume.ADAPTIVE_MAX_SPP
     t0 = time.perf_counter()
-    batch = max(1, s.spp)
+    deadline = None if limit is None else t0 + limit
+    batch = 1 if limit is not None else max(1, min(s.spp, cap))
     mean = m2 = None
     aovs = {}
-    n = passes = 0
+    n = passes = taken = 0
     kernel_ms = cpu_ms = 0.0
-    noise, why, last = math.inf, "", None
+    noise, whole, why, last, history = math.inf, math.inf, "", None, []
     while True:
         st = dataclasses.replace(base, spp=batch, seed=s.seed + passes)
         content = dataclasses.replace(scene.content, settings=st)
-        img = _render(scene.replace(content=content), device, progress=progress, launch=launch)
+        try:
+            img = _beauty(scene.replace(content=content), device, progress=progress,
+                          launch=launch, deadline=deadline if passes else None)
+        except PastDeadline:
+            why = f"time limit {limit:g} s (the pass under way then, {batch} spp, dropped)"
+            break
         x = img.rgba.astype(np.float64)
         if mean is None:
             mean, m2 = x, np.zeros_like(x)
@@ -290,6 +308,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         for k, v in img.aovs.items():
             aovs[k] = v if k not in aovs else aovs[k] + (v - aovs[k]) * (batch / (n + batch))
         n += batch
+        taken += img.info["samples_taken"]
         passes += 1
         kernel_ms += img.kernel_ms
         cpu_ms += img.cpu_ms
@@ -297,30 +316,41 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         elapsed = time.perf_counter() - t0
         if passes >= 2:
             _, noise = volume.noise_estimate(mean, m2, passes, n)
+            _, whole = volume.noise_estimate(mean, m2, passes, n, np.ones(mean.shape[:2], bool))
+            history.append((n, noise, whole))
         if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and noise <= target:
             why = f"noise {noise:.3g} <= target {target:g}"
             break
         per_spp = elapsed / n
         left = math.inf if limit is None else limit - elapsed
-        if left < per_spp * 1:
+        if passes == 1 and left <= 0:
+            why = (f"time limit {limit:g} s: one sample per pixel took {elapsed:.2f} s, the "
+                   "least an image needs")
+            break
+        if left < per_spp:
             why = f"time limit {limit:g} s"
             break
-        if n >= volume.ADAPTIVE_MAX_SPP:
-            why = f"{volume.ADAPTIVE_MAX_SPP} spp"
+        if n >= cap:
+            why = (f"the cap of {cap} spp (--max-spp)" if target is not None and cap == s.max_spp
+                   else f"{cap} spp")
             break
-        want = batch
+        want = max(1, min(s.spp, cap))
         if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and math.isfinite(noise):
             want = int(math.ceil(n * ((noise / target) ** 2 - 1.0) * 1.05))
         elif passes >= volume.ADAPTIVE_MIN_PASSES:
             want = n                      # a time limit alone: doubling passes
-        batch = int(max(1, min(want, n if passes >= volume.ADAPTIVE_MIN_PASSES else batch,
-                               left / per_spp if math.isfinite(left) else math.inf,
-                               volume.ADAPTIVE_MAX_SPP - n)))
-    se, noise = volume.noise_estimate(mean, m2, passes, n) if passes >= 2 else (None, math.inf)
+        elif limit is not None:           # the minimum passes share what time is left
+            want = min(want, int(left / per_spp / (volume.ADAPTIVE_MIN_PASSES - passes + 1)))
+        batch = int(max(1, min(want, n if passes >= volume.ADAPTIVE_MIN_PASSES else want,
+                               left / per_spp if math.isfinite(left) else math.inf, cap - n)))
+    se = volume.noise_estimate(mean, m2, passes, n)[0] if passes >= 2 else None
+    if target is not None and noise > target and math.isfinite(noise):
+        why += f" before the target {target:g}"
     info = dict(last.info)
-    info.update(spp=n, passes=passes, noise=noise, stopped=why,
+    info.update(spp=n, samples_taken=taken, passes=passes, noise=noise, noise_whole=whole,
+                history=history, stopped=why,
                 adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
-                         f"stopped at {why}; estimated noise "
+                         f"stopped at {why}; estimated error of the covered pixels "
                          + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"))
     if se is not None:
         info["noise_map"] = np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)
