@@ -183,7 +183,8 @@ def denoised(scene, dev, img) -> Image:
               "denoise_ms": 1e3 * (t2 - t1)})
 
 
-def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None) -> Image:
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
+            profile=None) -> Image:
     """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
     (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
     import pyopencl as cl
@@ -204,7 +205,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
                    dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch,
-                   deadline=deadline)
+                   deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -223,7 +224,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
                        **plan.info, "setup_ms": setup_ms, "launches": run.launches,
-                       "spp": scene.settings.spp,
+                       "spp": scene.settings.spp, "row_cost": run.profile,
                        "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                        "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 
@@ -293,7 +294,8 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         content = dataclasses.replace(scene.content, settings=st)
         try:
             img = _beauty(scene.replace(content=content), device, progress=progress,
-                          launch=launch, deadline=deadline if passes else None)
+                          launch=launch, deadline=deadline if passes else None,
+                          profile=last.info["row_cost"] if last is not None else None)
         except PastDeadline:
             why = f"time limit {limit:g} s (the pass under way then, {batch} spp, dropped)"
             break
