@@ -577,13 +577,17 @@ def denoise_scenes(args, gpu):
     out = []
     w, h = args.denoise_size
     for stem in ("wdas_cloud_sixteenth", "smoke"):
+        if stem.split("_")[0] not in args.denoise_scenes:
+            continue
         p = _find(stem)
         if p is None:
             print(f"bench/error.py: {stem} not found; skipping it", flush=True)
             continue
         out.append((stem, scene_mod.load_scene(p, size=(w, h), estimator="path")))
     bunny = shared_data() / "points" / "bun_zipper.ply"
-    if bunny.is_file():
+    if "bunny" not in args.denoise_scenes:
+        pass
+    elif bunny.is_file():
         gw, gh = (w, h) if gpu else args.denoise_glass_size
         out.append(("bunny (glass)", scene_mod.load_scene(bunny, size=(gw, gh))))
     else:
@@ -603,7 +607,8 @@ def run_denoise(dev, args, record):
     batches = 8
     for name, scene in denoise_scenes(args, is_gpu(dev)):
         t0 = time.perf_counter()
-        spps = [n for n in DENOISE_SPPS if n <= args.denoise_max_spp]
+        top = args.denoise_max_spp if scene.kind == "volume" else args.denoise_glass_max_spp
+        spps = [n for n in DENOISE_SPPS if n <= top]
         ref_spp = args.denoise_ref_spp if scene.kind == "volume" else args.denoise_glass_ref_spp
         imgs, ref_ms = [], 0.0
         for k in range(batches):
@@ -860,6 +865,10 @@ def main(argv=None):
                     help="denoising section: the bunny's reference spp (8 batches)")
     ap.add_argument("--denoise-max-spp", type=int, default=256,
                     help="denoising section: the curve's largest spp (powers of two from 1)")
+    ap.add_argument("--denoise-glass-max-spp", type=int, default=32,
+                    help="denoising section: the bunny's largest spp")
+    ap.add_argument("--denoise-scenes", default="wdas,smoke,bunny",
+                    help="denoising section: which of wdas, smoke, bunny")
     ap.add_argument("--tag", default=None, help="added to the results' name: error_<device>-<tag>.json")
     args = ap.parse_args(argv)
     if args.quick and args.size == ap.get_default("size"):
