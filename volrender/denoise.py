@@ -50,8 +50,8 @@ def decide(mode: str, suffix: str | None) -> tuple[bool, str | None]:
         why = unavailable()
         if why:
             return False, f"denoise auto: the PNG is not denoised: {why}"
-        return True, ("denoise auto: the PNG is denoised (Open Image Denoise, albedo and "
-                      "normal guides); --denoise off writes it as rendered")
+        return True, ("denoise auto: the PNG is denoised (Open Image Denoise with the "
+                      "render's guides); --denoise off writes it as rendered")
     why = unavailable()
     if why:
         return False, f"--denoise on: not denoised: {why}"

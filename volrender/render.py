@@ -156,8 +156,8 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
 
 
 def denoised(scene, dev, img) -> Image:
-    """`img` denoised by OIDN (volrender.denoise) with the scene's albedo and normal guides
-    (volrender.guides), which join its AOVs; the noisy beauty stays as Image.noisy. Without
+    """`img` denoised by OIDN (volrender.denoise) with the scene's guides (volrender.guides:
+    albedo, and normal for glass), which join its AOVs; the noisy beauty stays as Image.noisy. Without
     pyoidn: `img` unchanged, a one-line warning, and info['denoise_note'] saying why."""
     import dataclasses
     import warnings

@@ -262,8 +262,8 @@ class CommonSettings:
                              "of the opaque picture (default: opaque, as the render looks; EXR "
                              "is always premultiplied RGBA)", check=boolean,
                              toml=("render", "transparent"))
-    denoise: str = knob("auto", "Open Image Denoise with albedo and normal guides (the "
-                        "`denoise` extra): auto denoises PNG outputs and writes EXR/NPY as "
+    denoise: str = knob("auto", "Open Image Denoise guided by the render's albedo (and "
+                        "normals, for glass; the `denoise` extra): auto denoises PNG outputs and writes EXR/NPY as "
                         "rendered (an EXR denoised with on keeps the noisy image and the guides "
                         "as layers); from Python auto is off", check=one_of(("auto", "on", "off")),
                         choices=("auto", "on", "off"), toml=("render", "denoise"))
