@@ -378,9 +378,7 @@ def cmd_render(args):
     from .denoise import decide
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
-    on, note = decide(req.settings.denoise, Path(args.output).suffix)
-    if note:
-        print(f"volrender: {note}", file=sys.stderr)
+    on, denoise_note = decide(req.settings.denoise, Path(args.output).suffix)
     if req.settings.denoise != ("on" if on else "off"):     # auto resolved by the output
         overrides["denoise"] = "on" if on else "off"
         req = request(args.input, **overrides)
@@ -394,7 +392,7 @@ def cmd_render(args):
     except MemoryError:
         raise UserError("out of host memory while reading it", path=args.input,
                         fix="render a smaller volume or cloud, or free memory") from None
-    for note in scene.notes:
+    for note in [*scene.notes, *([denoise_note] if denoise_note else [])]:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
         from .camera import describe as describe_camera

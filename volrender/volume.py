@@ -154,7 +154,7 @@ class VolumeSettings(CommonSettings):
     noise_target: float | None = knob(None, "render passes until the estimated relative "
                                       "error of the pixels the volume covers (alpha > "
                                       f"{COVERED_ALPHA:g}), the RMS of their standard errors "
-                                      "over their RMS value, is below this (e.g. 0.05 = 5%; "
+                                      "over their RMS value, is below this (e.g. 0.05: 5 per cent; "
                                       "from the spread of independent passes, at least "
                                       f"{ADAPTIVE_MIN_PASSES}), or --max-spp or --time-limit "
                                       "is reached; best with --estimator path",
