@@ -13,7 +13,7 @@ from volrender import denoise, glass, guides, volume
 from volrender.camera import Camera
 from volrender.image import read_exr_channels
 from volrender.lights import Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from volrender.render import PLANNERS, render
 from volrender.scene import GlassContent, Scene, VolumeContent
 from helpers import centred_bricks, look_at, ray_sphere

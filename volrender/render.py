@@ -209,8 +209,8 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch,
-                   deadline=deadline, profile=profile)
+                   dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
+                   launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -229,7 +229,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
                        **plan.info, "setup_ms": setup_ms, "launches": run.launches,
-                       "spp": scene.settings.spp, "row_cost": run.profile,
+                       "spp": plan.info.get("spp", scene.settings.spp), "row_cost": run.profile,
                        "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                        "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 

@@ -246,10 +246,12 @@ def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
 
 # --------------------------------------------------------------------------- one camera
 
-def sequence_camera(paths, overrides):
+def sequence_camera(paths, overrides, device=None):
     """(camera, {frame: error}, options for every frame, notes): the options' camera
     framed on the union of every frame's bounds, so nothing jumps from frame to frame.
-    Volumes: bounds from the files' metadata (no voxels loaded). Point clouds: each frame
+    Volumes: bounds from the files' metadata; the middle frame is loaded once for the
+    options every frame shares (_frame_defaults: the fire's exposure, auto's estimator).
+    `device`: a device.Device auto weighs (else a CPU's model). Point clouds: each frame
     is read once for its bounds, and the radius and blend are one for the whole sequence,
     given or chosen from the first frame (said in the notes). Frames whose bounds cannot
     be read are left out of the union and returned as failed."""
@@ -264,7 +266,7 @@ def sequence_camera(paths, overrides):
     extra, notes = {}, []
     if req.kind == "glass":
         from . import points
-        from .glass import blend_width, sphere_bounds, sphere_radii
+        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
@@ -282,6 +284,7 @@ def sequence_camera(paths, overrides):
     else:
         def bounds(path):
             return vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
+        extra, notes = _frame_defaults(paths, overrides, device)
     lo, hi, hint, bad = np.full(3, np.inf), np.full(3, -np.inf), None, {}
     for frame, path in paths.items():
         try:
@@ -294,6 +297,43 @@ def sequence_camera(paths, overrides):
     if not bad.keys() < paths.keys():
         raise UserError(f"no frame of the sequence can be read (frame {min(bad)}: {bad[min(bad)]})")
     return req.view.camera(lo, hi, hint), bad, extra, notes
+
+
+def _frame_defaults(paths, overrides, device=None):
+    """(options for every frame, notes) from the sequence's middle frame, loaded once: the
+    fire's exposure (volrender/fire.py) unless --emission-scale is given, and auto's
+    estimator (with its octave bands or samples) unless --estimator is given, so that
+    neither the brightness nor the estimator changes from frame to frame; ({}, [])
+    when neither applies or the frame cannot be read."""
+    from .scene import request
+    fire = "emission_scale" not in overrides
+    auto = overrides.get("estimator", "auto") == "auto"
+    if not (fire or auto):
+        return {}, []
+    frames = list(paths.items())
+    frame, mid = frames[len(frames) // 2]
+    try:          # a device spec is not opened here (workers open their own): a CPU's model
+        scene = request(mid, **overrides).load(
+            device=device if hasattr(device, "device") else None)
+    except UserError:
+        return {}, []
+    st, extra, notes = scene.content.settings, {}, []
+    where = f"(from frame {frame}, the middle one)"
+    if fire and any(n.startswith("fire exposure:") for n in scene.notes):
+        extra["emission_scale"] = st.emission_scale
+        notes.append(f"fire exposure x{st.emission_scale:.3g} for every frame {where}; set "
+                     "--emission-scale")
+    if auto:
+        extra["estimator"] = st.estimator
+        what = st.estimator
+        if st.estimator == "path":
+            extra["spp"] = st.spp
+            what += f", {st.spp} spp"
+        else:
+            extra["ms_octaves"] = st.octaves
+            what += f", {st.octaves} octave band{'s' if st.octaves > 1 else ''}"
+        notes.append(f"estimator auto for every frame: {what} {where}; set --estimator")
+    return extra, notes
 
 
 def camera_overrides(camera) -> dict:
@@ -526,7 +566,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     if clash:
         raise UserError(f"an output frame is also an input: {sorted(clash)[0]}",
                         fix="write the frames somewhere else")
-    camera, bad, extra, notes = sequence_camera(paths, overrides)
+    camera, bad, extra, notes = sequence_camera(paths, overrides, device)
     for note in notes if say else ():
         say(note)
     if verbose and say:
