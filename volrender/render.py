@@ -282,6 +282,9 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     import dataclasses
     import time
     from .dispatch import PastDeadline
+    # auto resolved once, with the passes' settings: per pass it would plan its own samples
+    # (volume.auto_estimator) and the passes would take more than they count
+    scene, note = volume.resolved(scene, device)
     s = scene.content.settings
     base = dataclasses.replace(s, noise_target=None, time_limit=None, denoise="off")
     target, limit = s.noise_target, s.time_limit
@@ -353,7 +356,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     se = volume.noise_estimate(mean, m2, passes, n)[0] if passes >= 2 else None
     if target is not None and noise > target and math.isfinite(noise):
         why += f" before the target {target:g}"
-    info = dict(last.info)
+    info = dict(last.info, **({"estimator_note": note} if note else {}))
     info.update(spp=n, samples_taken=taken, passes=passes, noise=noise, noise_whole=whole,
                 history=history, stopped=why,
                 adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
