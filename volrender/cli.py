@@ -332,14 +332,19 @@ def time_breakdown(scene, img, write_s) -> str:
 
 
 def cmd_sequence(args):
+    from .denoise import decide
     from .sequence import render_sequence
+    overrides = render_overrides(args)
+    on, note = decide(overrides.get("denoise", "auto"), Path(args.output).suffix)
+    if note:
+        print(f"volrender: {note}", file=sys.stderr)
+    overrides["denoise"] = "on" if on else "off"          # auto resolved by the output
     r = render_sequence(args.input, args.output, args.frames, workers=args.workers,
                         scheduler=args.scheduler, chunk=args.chunk,
                         skip_existing=args.skip_existing, device=args.device,
                         progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
                         say=lambda note: print(f"volrender: {note}", file=sys.stderr),
-                        camera_out=args.camera_out, verbose=args.verbose,
-                        **render_overrides(args))
+                        camera_out=args.camera_out, verbose=args.verbose, **overrides)
     for rec in r.failed:
         print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
               file=sys.stderr)
