@@ -27,6 +27,14 @@ relative RMSE per pixel and after a 2x2 box (the reference's noise removed), ima
 ratio; time: CPU ms / cores (median of --repeat). WDAS also at 320x240 for the issue's
 target (mean within 10%, 2x2 relative RMSE <= 15%, <= 3x single scattering's time).
 
+Denoising (issue 34; --denoise, or --denoise-only): WDAS and smoke as `volrender render FILE
+--estimator path` loads them, at --denoise-size, and the bunny as glass (bun_zipper.ply, at
+--denoise-glass-size on CPUs), against path at --denoise-ref-spp (glass:
+--denoise-glass-ref-spp) in 8 batches: the path estimator at 1..256 spp as rendered, denoised
+(render(..., denoise="on"): the guides and OIDN) and denoised from the colour alone; relative
+RMSE on the covered pixels (reference alpha > 0.05), the reference's noise removed; the time
+to 5 % with and without the denoiser (the issue's target: x8).
+
 Volumes (scenes/demo_cloud.vdb with the `run.sh demo` look, and smoke.vdb from
 ../shared/data/vdb when present): marching step (2, 1, 0.5, 0.25 voxels), shadow step
 (4, 2, 1, 0.5), samples per pixel (1, 4, 16), a small grid of combinations, and the
