@@ -46,7 +46,7 @@ from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
-from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value
+from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value, coerce
 from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, finite, options, read
 from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
@@ -68,6 +68,11 @@ class VolumeContent:
 
     def bounds(self):
         return self.bricks.world_bounds()
+
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the corners of the boxes
+        of its non-zero voxels (bricks.Bricks.occupied_corners)."""
+        return self.bricks.occupied_corners(), 0.0
 
     def buffer(self, device, name):
         """The device copy of bricks.<name> ("table", "data", "emission" or
@@ -124,6 +129,16 @@ class GlassContent:
 
     def bounds(self):
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
+
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the spheres, each grown by
+        how far the smooth union's surface reaches beyond them (framing.blend_growth)."""
+        from .framing import blend_growth
+        from .spheres import blend_width
+        centres = np.asarray(self.cloud.centers, np.float64)
+        radii = sphere_radii(self.cloud, self.settings)
+        k = blend_width(radii, self.settings) if len(radii) else 0.0
+        return centres, radii + blend_growth(centres, radii, k)
 
     def prepare(self, device=None, samples=None, max_runs=None, tree_on="auto"):
         """The spheres.PackedSpheres of this cloud and settings on `device`, built once (the
@@ -429,6 +444,7 @@ def _field_values(given, owners):
             continue
         opt = options()[key]
         if opt.owner in owners:
+            value = coerce(opt.meta, value)
             check_value(opt.meta, value, where)
             out[opt.field] = value
     return out
@@ -622,11 +638,11 @@ class Request:
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
-        hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
-            if self.kind == "volume" else (None, "")
+        held = content.bricks if self.kind == "volume" else content.cloud
+        hint, why = getattr(held, "up_axis", None), getattr(held, "up_axis_reason", "")
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
-        camera = self.view.camera(lo, hi, hint)
+        camera = self.view.camera(lo, hi, hint, extent=content.extent())
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_sky
@@ -637,6 +653,11 @@ class Request:
                 notes.append("lights: the default sun and sky" + (f" at {dim:g} (dusk: the fire's "
                              "own light dominates)" if dim != 1.0 else "") + " (--env 0 for no "
                              "sky, --sun or --no-lights for other lights)")
+        if environment is None and self.kind == "glass" and self.view.axis(hint) != "y":
+            from .camera import up_frame     # glass's procedural sky, turned to the up axis
+            from .lights import glass_sky_texels
+            environment = Environment(glass_sky_texels(up_frame(self.view.axis(hint))),
+                                      "default sky (z up)")
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             from .camera import up_frame
