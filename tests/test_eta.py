@@ -1,7 +1,7 @@
 """The progress bar's time left counts cost (issue 34): the rows of a cloud differ x5 and
 more in cost, so a time left from the samples done is wrong by as much; volrender shows
 'ETA ?' until every row still to render has a measured cost. The kernel's time is faked
-(test_cadence.fake_cost): no timing asserts."""
+(helpers.fake_cost): no timing asserts."""
 import dataclasses
 
 import numpy as np
@@ -11,7 +11,7 @@ from volrender import dispatch
 from volrender.progress import Eta, clock
 from volrender.render import render
 from volrender.volume import VolumeSettings
-from test_cadence import H, fake_cost, log, scene  # noqa: F401  (log: a fixture)
+from helpers import CADENCE_H as H, cadence_scene as scene, fake_cost
 
 
 def five_then_one(y):
