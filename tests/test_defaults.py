@@ -16,15 +16,14 @@ from volrender.render import render
 from volrender.scene import Scene, VolumeContent
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
-from helpers import render_volume
-from test_path import ENV, soft_ball
+from helpers import ENV, lumpy_ball, render_volume
 
 CAM = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
 
 
 def furnace(cl_device, density, **kw):
     s = VolumeSettings(density_scale=density, albedo=1.0, env=ENV, phase=(0.5, -0.3, 0.7), **kw)
-    img = render(Scene.of(CAM, [], VolumeContent(soft_ball(), s)), cl_device)
+    img = render(Scene.of(CAM, [], VolumeContent(lumpy_ball(), s)), cl_device)
     rgba = img.rgba.astype(np.float64)
     hit = rgba[..., 3] > 0
     return rgba[..., :3][hit] / np.asarray(ENV), img
@@ -226,6 +225,10 @@ def test_auto_weighs_error_per_second(monkeypatch):
     assert s.estimator == "path" and s.spp == want
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2, noise_target=0.05), 64 * 48, None)
     assert (s.estimator, s.spp) == ("path", 2)            # passes keep their own samples
+    s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2), 64 * 48, None)
+    assert s.spp == 2                                     # a count the user chose is kept
+    m2 = volume.auto_model(dense, VolumeSettings(spp=2), 64 * 48)
+    assert m2["path_error"] == pytest.approx(volume.AUTO_PATH_NOISE / math.sqrt(2))
     # the model's shape: path error 1/sqrt(spp), cost linear in pixels, more on a CPU
     m1, m4 = (volume.auto_model(dense, VolumeSettings(), n) for n in (1000, 4000))
     assert m4["path_sample_ms"] == pytest.approx(4 * m1["path_sample_ms"])
