@@ -498,28 +498,3 @@ def read_image(path) -> np.ndarray:
         raise UserError(f"expected an H x W x 4 image, got shape {arr.shape}", path=path,
                         fix="re-render it")
     return arr.astype(np.float32, copy=False)
-
-
-_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"      # a PNG's last chunk: empty, fixed CRC
-
-
-def unusable(path, size) -> str | None:
-    """Why an existing output cannot stand for a render of `size` (width, height), or None
-    when it can (--skip-existing): it reads whole in its suffix's format (a PNG ends with
-    its IEND chunk, an EXR or .npy decodes) and has that size."""
-    path = Path(path)
-    try:
-        if path.suffix.lower() == ".png":
-            with open(path, "rb") as f:
-                f.seek(max(os.fstat(f.fileno()).st_size - len(_PNG_END), 0))
-                if f.read() != _PNG_END:
-                    return "it is cut short (no IEND chunk at its end)"
-        arr = read_image(path)
-    except UserError as exc:
-        return str(exc).removeprefix(f"{path}: ")
-    except (OSError, MemoryError) as exc:
-        return f"it cannot be read ({getattr(exc, 'strerror', None) or type(exc).__name__})"
-    w, h = size or arr.shape[1::-1]
-    if arr.shape[:2] != (h, w):
-        return f"it is {arr.shape[1]}x{arr.shape[0]}, not {w}x{h}"
-    return None

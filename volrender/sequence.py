@@ -405,6 +405,32 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
     return sorted(records, key=lambda r: r["frame"])
 
 
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"      # a PNG's last chunk: empty, fixed CRC
+
+
+def unusable(path, size) -> str | None:
+    """Why an existing output cannot stand for a render of `size` (width, height), or None
+    when it can (--skip-existing): it reads whole in its suffix's format (a PNG ends with
+    its IEND chunk, an EXR or .npy decodes) and has that size."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".png":
+            with open(path, "rb") as f:
+                f.seek(max(os.fstat(f.fileno()).st_size - len(_PNG_END), 0))
+                if f.read() != _PNG_END:
+                    return "it is cut short (no IEND chunk at its end)"
+        from .image import read_image
+        arr = read_image(path)
+    except UserError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    except (OSError, MemoryError) as exc:
+        return f"it cannot be read ({getattr(exc, 'strerror', None) or type(exc).__name__})"
+    w, h = size or arr.shape[1::-1]
+    if arr.shape[:2] != (h, w):
+        return f"it is {arr.shape[1]}x{arr.shape[0]}, not {w}x{h}"
+    return None
+
+
 def _found(out):
     """The identity of an existing output file (None when there is none), to tell whether
     another run replaced it."""
@@ -449,7 +475,6 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
-    from .image import unusable
     from .render import render
     from .scene import load_scene
     frame, src, out = job
