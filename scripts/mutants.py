@@ -537,7 +537,7 @@ MUTANTS = [
       (f"{GEN} -k support_cells",)),
     M("cells: the cell of a point rounded, not floored", "cl/cells.h",
       "float3 g = floor((x - sc->grid_lo) * sc->inv_cell);",
-      "float3 g = round((x - sc->grid_lo) * sc->inv_cell);", (f"{GEN} -k support_cells",)),
+      "float3 g = round((x - sc->grid_lo) * sc->inv_cell);", (f"{GEN} -k own_cells_list",)),
 ]
 
 
