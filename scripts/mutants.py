@@ -19,7 +19,8 @@ The working tree itself is never touched. Results:
 
 Before the mutants, the named tests run once on the unmutated copy (a baseline): a test
 that fails there would "kill" every mutant, so the run stops (--no-baseline skips it).
---write puts the table into docs/testing.md between its mutants markers. Not part of CI:
+--write puts the table into docs/testing.md between its mutants markers; after a partial run
+(-k, --from) the rows of the mutants not run are kept from the table there. Not part of CI:
 a full run takes about 20 minutes on 2 cores (each mutant recompiles its kernels).
 """
 from __future__ import annotations
@@ -617,21 +618,44 @@ def run_mutant(copy: Path, m: Mutant, timeout: float) -> dict:
         path.write_text(text)
 
 
-def table(rows) -> str:
+def table(rows, kept=None) -> str:
+    """The markdown table of `rows`; with `kept` (name -> (where, result, detail) of a
+    table written before), every mutant of the list in order, those not run now from it."""
+    if kept is not None:
+        ran = {r["mutant"].name: r for r in rows}
+        rows = [ran.get(m.name) or {"mutant": m, "kept": kept.get(m.name)} for m in MUTANTS]
     counts = {}
-    for r in rows:
-        counts[r["status"]] = counts.get(r["status"], 0) + 1
     lines = ["| # | mutant | where | result | killed by / why |", "|---|---|---|---|---|"]
     for i, r in enumerate(rows, 1):
         m = r["mutant"]
-        loc = f"`{m.file}:{r['line']}`" if r["line"] else f"`{m.file}`"
-        detail = r["detail"].replace("|", "\\|")
-        if r["status"] == "killed":
-            detail = f"`{detail}`"
-        lines.append(f"| {i} | {m.name} | {loc} | {r['status']} | {detail} |")
+        if "kept" in r:
+            if r["kept"] is None:
+                raise SystemExit(f"{m.name!r} was never run: run it (-k) before --write")
+            loc, status, detail = r["kept"]
+        else:
+            status = r["status"]
+            loc = f"`{m.file}:{r['line']}`" if r["line"] else f"`{m.file}`"
+            detail = r["detail"].replace("|", "\\|")
+            if status == "killed":
+                detail = f"`{detail}`"
+        counts[status] = counts.get(status, 0) + 1
+        lines.append(f"| {i} | {m.name} | {loc} | {status} | {detail} |")
     summary = ", ".join(f"{counts[k]} {k}" for k in
                         ("killed", "survived", "stale", "ambiguous", "broken", "error") if k in counts)
     return "\n".join(lines) + f"\n\n{len(rows)} mutants: {summary}.\n"
+
+
+def doc_rows() -> dict:
+    """name -> (where, result, detail) of the table in docs/testing.md."""
+    doc = DOC.read_text()
+    if BEGIN not in doc:
+        return {}
+    out = {}
+    for line in doc.split(BEGIN, 1)[1].split(END, 1)[0].splitlines():
+        cells = re.split(r"(?<!\\) \| ", line.strip().strip("|").strip())
+        if len(cells) == 5 and cells[0].isdigit():
+            out[cells[1]] = (cells[2], cells[3], cells[4])
+    return out
 
 
 def write_doc(text: str):
@@ -679,7 +703,8 @@ def main(argv=None):
             rows.append(row)
             print(f"{i:3d}/{len(mutants)} {row['status']:9s} {row['seconds']:6.1f} s  {m.name}"
                   f"  [{row['detail']}]", flush=True)
-    text = table(rows)
+    subset = len(rows) < len(MUTANTS)
+    text = table(rows, doc_rows() if subset and args.write else None)
     print("\n" + text)
     if args.write:
         write_doc(text)
