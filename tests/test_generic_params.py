@@ -7,12 +7,12 @@ against (docs/testing.md lists the run)."""
 import numpy as np
 import pytest
 
-from volrender import blackbody, glass, reference, volume as volume_mod
+from volrender import blackbody, glass, reference, spheres, volume as volume_mod
 from volrender.camera import Camera
 from volrender.image import to_srgb
 from volrender.lights import Sun
-from volrender.points import PointCloud
-from volrender.vdb import Bricks
+from volrender.cloud import PointCloud
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 from helpers import assert_unbiased, env_lookup, render_glass, render_volume, texel_dirs, volume_image
 
@@ -343,7 +343,7 @@ def _threshold_cloud(dev, k, cell):
     s = glass.GlassSettings(blend=k, cell_size=cell, accel="grid", cell_skip=False)
     # as many spheres as the final cloud: the clip box grows with the blend's bulge ~ ln N
     base = PointCloud(np.vstack([anchors, np.zeros((5, 3))]), np.full(13, 0.12))
-    p = glass.pack_scene(base, s, device=dev)
+    p = spheres.pack_scene(base, s, device=dev)
     g = p.cells
     q = g.locate((np.array([[0.031, -0.047, 0.052]]) - p.centre))[0]
     lo, hi = (v[0] for v in g.box(q[None]))
@@ -364,7 +364,7 @@ def _threshold_cloud(dev, k, cell):
     c = np.array([pc for pc, _ in placed]) + p.centre
     r = np.array([pr for _, pr in placed])
     cloud = PointCloud(np.vstack([anchors, c]), np.concatenate([np.full(8, 0.12), r]))
-    check = glass.pack_scene(cloud, s, device=dev)
+    check = spheres.pack_scene(cloud, s, device=dev)
     np.testing.assert_array_equal(check.cells.lo, g.lo)            # the grid did not move
     np.testing.assert_allclose(check.centre, p.centre)
     return cloud, s, q, u, cells
@@ -435,7 +435,7 @@ def test_a_point_reads_its_own_cells_list(cl_device):
     k, cell = 0.11, 0.1
     anchors = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     s = glass.GlassSettings(blend=k, cell_size=cell, accel="grid", cell_skip=False)
-    probe_base = glass.pack_scene(PointCloud(np.vstack([anchors, np.zeros((2, 3))]),
+    probe_base = spheres.pack_scene(PointCloud(np.vstack([anchors, np.zeros((2, 3))]),
                                              np.full(10, 0.12)), s, device=cl_device)
     g = probe_base.cells
     q = g.locate(np.array([[-0.75, 0.02, -0.04]]) - probe_base.centre)[0]
