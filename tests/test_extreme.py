@@ -151,10 +151,13 @@ def lit_ball(cl_device, bricks, phase, shadows=False, cam=None):
 
 @pytest.mark.parametrize("g", [G_MAX, -G_MAX])
 def test_g_at_the_clamp_follows_hg_and_equals_g_one(cl_device, ball_bricks, g):
-    """|g| = 0.999 (no warning): the unshadowed closed form L = albedo HG(mu; g) E alpha
-    holds; |g| = 1 is clamped to exactly that image."""
+    """|g| = 0.999 (no clamp warning): the unshadowed closed form L = albedo HG(mu; g) E
+    alpha holds; |g| = 1 is clamped to exactly that image. Only the clamp's warning is an
+    error here: NVIDIA's compiler prints build notes, which pyopencl reports as a
+    CompilerWarning on a kernel's first (uncached) build, so erroring on every warning
+    failed on the H200 whenever this test built the kernel (issue 39)."""
     with warnings.catch_warnings():
-        warnings.simplefilter("error")
+        warnings.filterwarnings("error", message=".*clamped")
         r, cam, sun = lit_ball(cl_device, ball_bricks, (g, 0.0, 1.0))
     finite(r)
     mu = -cam.pixel_dirs() @ np.array(sun.direction)
