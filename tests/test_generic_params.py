@@ -7,7 +7,8 @@ against (docs/testing.md lists the run)."""
 import numpy as np
 import pytest
 
-from volrender import blackbody, glass, reference, spheres, volume as volume_mod
+import reference
+from volrender import blackbody, glass, spheres, volume as volume_mod
 from volrender.camera import Camera
 from volrender.image import to_srgb
 from volrender.lights import Sun
@@ -337,8 +338,7 @@ def _threshold_cloud(dev, k, cell):
     frame box [lo, hi]) a sphere A whose hi_A is U; B with lo_B = (U + k)(1 - 1e-4) (on the
     list); B' with lo = (U + k)(1 + 1e-4) + 2 pad (off it, rounding pad included); C with
     lo_C = U - 1e-4 |U| (on the core); D centred 1e-4 cells past Q's +y face (in the
-    neighbour: both cells list it). Returns (cloud, settings, Q, the placed indices)."""
-    from volrender import cells
+    neighbour: both cells list it). Returns (cloud, settings, Q, U)."""
     anchors = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     s = glass.GlassSettings(blend=k, cell_size=cell, accel="grid", cell_skip=False)
     # as many spheres as the final cloud: the clip box grows with the blend's bulge ~ ln N
@@ -367,7 +367,7 @@ def _threshold_cloud(dev, k, cell):
     check = spheres.pack_scene(cloud, s, device=dev)
     np.testing.assert_array_equal(check.cells.lo, g.lo)            # the grid did not move
     np.testing.assert_allclose(check.centre, p.centre)
-    return cloud, s, q, u, cells
+    return cloud, s, q, u
 
 
 @pytest.mark.parametrize("k", [0.03, 0.11])
@@ -381,15 +381,15 @@ def test_support_cells_at_their_inclusion_thresholds(cl_device, k):
     'cells: U from lo_i (the nearest distance, not the farthest)'."""
     from glass_probe import Probe
     cell = 0.1
-    cloud, s, q, u, cells = _threshold_cloud(cl_device, k, cell)
+    cloud, s, q, u = _threshold_cloud(cl_device, k, cell)
     pr = Probe(cl_device, cloud, s)
     g, sp = pr.scene.cells, pr.scene.spheres.astype(np.float64)
     qs = (q[None] + np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1)
                               for c in (-1, 0, 1)])).reshape(-1, 3)
     lo, hi = g.box(qs)
-    member, _, _ = cells.oracle(sp[:, :3], sp[:, 3], k, lo, hi)
-    wide, _, _ = cells.oracle(sp[:, :3], sp[:, 3], k + 2 * g.pad, lo, hi)
-    dlo, dhi = cells.box_distances(sp[:, :3], sp[:, 3], lo, hi)
+    member, _, _ = reference.oracle(sp[:, :3], sp[:, 3], k, lo, hi)
+    wide, _, _ = reference.oracle(sp[:, :3], sp[:, 3], k + 2 * g.pad, lo, hi)
+    dlo, dhi = reference.box_distances(sp[:, :3], sp[:, 3], lo, hi)
     core_need = dlo <= dhi.min(axis=1, keepdims=True)
     code, _, lists = g.lookup(qs)
     assert (code >= 0).all()
