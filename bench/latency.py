@@ -9,7 +9,8 @@ the kernel, and what PNG encoding costs at 1080p.
    matplotlib were imported at all).
 2. Command: `volrender render scenes/demo_cloud.vdb --size 192x108 --spp 1 -o x.png -v`
    as a process, wall time split by its `-v` time line (load, setup, kernel, launch
-   overhead, write) and the program build it logs; "outside" is the rest (interpreter,
+   overhead, write), its CPU time (user + system, the OpenVDB reader process's included)
+   and the program build it logs; "outside" is the rest (interpreter,
    imports, OpenCL context, option checks, exit). With --baseline DIR (another checkout,
    e.g. `git worktree add DIR COMMIT`) the same command runs from there too, interleaved,
    so before and after come from one run on one (noisy) machine.
@@ -26,6 +27,7 @@ import argparse
 import io
 import os
 import re
+import resource
 import statistics
 import subprocess
 import sys
@@ -52,10 +54,17 @@ def env_for(root: Path) -> dict:
         [str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
 
 
-def wall(argv, env) -> tuple[float, str]:
+def wall(argv, env, cpu=None) -> tuple[float, str]:
+    """(wall seconds, stderr) of a process; `cpu` (a list) gets its CPU seconds, user +
+    system, its own children's (the OpenVDB reader) included: on a shared machine it
+    moves far less with the load than wall time."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     p = subprocess.run(argv, capture_output=True, text=True, env=env)
     took = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if cpu is not None:
+        cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     if p.returncode:
         raise SystemExit(f"{' '.join(map(str, argv))}: {p.stderr.strip()[-500:]}")
     return took, p.stderr
@@ -74,13 +83,14 @@ def import_times(root: Path, out: Path) -> dict:
 
 
 def command_run(root: Path, out: Path) -> dict:
+    cpu = []
     took, err = wall([sys.executable, "-m", "volrender", "render", str(SCENE), *COMMAND,
-                      "-o", str(out)], env_for(root))
+                      "-o", str(out)], env_for(root), cpu)
     line = next(ln for ln in err.splitlines() if ln.startswith("volrender: time: "))
     parts = {k: float(v) for k, v in re.findall(r"([a-z ]+?) ([0-9.]+) s", line[17:])}
     parts = {k.strip(" ,"): v for k, v in parts.items()}
     build = [float(v) / 1e3 for v in re.findall(r"built cl/\S+ .* in (\d+) ms", err)]
-    row = {"wall_s": took, **{k: parts.get(k, 0.0) for k in STAGES}, "build_s": sum(build)}
+    row = {"wall_s": took, "cpu_s": cpu[0], **{k: parts.get(k, 0.0) for k in STAGES}, "build_s": sum(build)}
     row["outside_s"] = took - sum(row[k] for k in STAGES)
     return row
 
@@ -204,7 +214,9 @@ def main(argv=None):
     if args.baseline:
         m = {k: v["median"] for k, v in payload["command"].items()}
         payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
-        print(f"wall this/baseline {payload['ratio_wall_this_to_baseline']:.3f}")
+        payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
+        print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
+              f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
     payload["png"] = png_levels(frame(args.frame), args.repeat)
     print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
           f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
