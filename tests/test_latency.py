@@ -77,21 +77,3 @@ def test_a_vdb_render_to_png_imports_only_what_it_uses(tmp_path):
     assert (tmp_path / "o.png").is_file() and "PIL" in mods and "pyopencl" in mods
     assert sorted(m for m in mods if m.split(".")[0] in UNUSED) == []
 
-
-def test_the_openvdb_reader_process_imports_no_renderer(tmp_path):
-    """The reader process (vdb._ReaderProcess) runs `from volrender import vdb`: the
-    renderer's modules (render, glass, scene, sequence) stay out of its start-up, the
-    package's names still import on first use there."""
-    code = ("import sys, json; from volrender import vdb; "
-            "a = sorted(m for m in sys.modules if m.startswith('volrender.')); "
-            "import volrender; f = volrender.render; "
-            "print(json.dumps([a, f.__module__, callable(f)]))")
-    env = {**os.environ, "VOLRENDER_VDB_READER": "1",
-           "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
-    assert p.returncode == 0, p.stderr
-    first, module, called = json.loads(p.stdout)
-    assert "volrender.vdb" in first and "volrender.bricks" in first
-    assert [m for m in first if m.split(".")[1] in ("render", "glass", "scene", "sequence",
-                                                   "lights", "spheres", "volume")] == []
-    assert (module, called) == ("volrender.render", True)

@@ -12,7 +12,6 @@ float32, linear), the AOVs, timings and the device name. docs/python.md has the 
 """
 __version__ = "0.1.0"
 
-import os as _os  # noqa: E402
 import sys as _sys  # noqa: E402
 
 # The command line (`volrender ...`, `python -m volrender ...`): a Ctrl-C while the
@@ -23,26 +22,10 @@ if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
     _startup()
 
 from .errors import UserError  # noqa: E402
-
-# OpenVDB's reader process (vdb.py sets this variable for it) runs `from volrender import
-# vdb` only: without the API below it starts 0.1-0.3 s sooner, and the render waits on it.
-# There (or wherever the variable is "1") the names import on first use instead.
-_LAZY = {"PointLight": "lights", "Sun": "lights", "Image": "render", "render": "render",
-         "Scene": "scene", "load_scene": "scene", "render_sequence": "sequence"}
-if _os.environ.get("VOLRENDER_VDB_READER") != "1":
-    from .lights import PointLight, Sun  # noqa: E402
-    from .render import Image, render  # noqa: E402
-    from .scene import Scene, load_scene  # noqa: E402
-    from .sequence import render_sequence  # noqa: E402
-
-
-def __getattr__(name):
-    if name not in _LAZY:
-        raise AttributeError(f"module 'volrender' has no attribute {name!r}")
-    import importlib
-    value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-    globals()[name] = value
-    return value
+from .lights import PointLight, Sun  # noqa: E402
+from .render import Image, render  # noqa: E402
+from .scene import Scene, load_scene  # noqa: E402
+from .sequence import render_sequence  # noqa: E402
 
 __all__ = ["load_scene", "render", "render_sequence", "Scene", "Image", "Sun", "PointLight",
            "UserError", "__version__"]
