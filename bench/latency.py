@@ -6,7 +6,9 @@ the kernel, and what PNG encoding costs at 1080p.
 1. Start: the bare interpreter (`python -c pass`), `import volrender.cli`, and
    `python -X importtime` of a render command: each top-level package's cumulative import
    time (numpy, pyopencl, OpenEXR, PIL, OpenVDB, volrender, and whether dask, scipy or
-   matplotlib were imported at all).
+   matplotlib were imported at all); the OpenCL device's choice and context; and
+   vdb.load_bricks of the demo cloud: its wall time and the CPU time of the renderer's own
+   process (OpenVDB reads in a reader process).
 2. Command: `volrender render scenes/demo_cloud.vdb --size 192x108 --spp 1 -o x.png -v`
    as a process, wall time split by its `-v` time line (load, setup, kernel, launch
    overhead, write), its CPU time (user + system, the OpenVDB reader process's included)
@@ -104,10 +106,16 @@ def startup(root: Path, repeat: int) -> dict:
              "device.Device(p, d); t3 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2)")
     cl = [subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          env=env).stdout.split() for _ in range(repeat)]
+    load = ("import time; from volrender import vdb; c, t = time.process_time(), "
+            f"time.perf_counter(); vdb.load_bricks({str(SCENE)!r}); "
+            "print(time.process_time() - c, time.perf_counter() - t)")
+    ld = [subprocess.run([sys.executable, "-c", load], capture_output=True, text=True,
+                         env=env).stdout.split() for _ in range(repeat)]
     med = lambda xs: statistics.median(float(x) for x in xs)  # noqa: E731
     return {"interpreter_s": med(bare), "import_cli_s": med(cli),
             "import_device_s": med(c[0] for c in cl), "choose_device_s": med(c[1] for c in cl),
-            "context_s": med(c[2] for c in cl)}
+            "context_s": med(c[2] for c in cl),
+            "vdb_load_own_cpu_s": med(x[0] for x in ld), "vdb_load_wall_s": med(x[1] for x in ld)}
 
 
 def frame(path: Path) -> np.ndarray:
