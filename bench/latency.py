@@ -56,26 +56,27 @@ def env_for(root: Path) -> dict:
         [str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
 
 
-def wall(argv, env, cpu=None) -> tuple[float, str]:
-    """(wall seconds, stderr) of a process; `cpu` (a list) gets its CPU seconds, user +
-    system, its own children's (the OpenVDB reader) included: on a shared machine it
+def wall(argv, root: Path, cpu=None, out=False) -> tuple[float, str]:
+    """(wall seconds, stderr) of a process run from checkout `root` (its folder is the
+    working directory: `python -c` and `-m` put that first on the path); `cpu` (a list) gets its CPU seconds, user +
+    system, its own children's (the OpenVDB reader) included; out: stdout instead: on a shared machine it
     moves far less with the load than wall time."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    p = subprocess.run(argv, capture_output=True, text=True, env=env)
+    p = subprocess.run(argv, capture_output=True, text=True, env=env_for(root), cwd=root)
     took = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if cpu is not None:
         cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     if p.returncode:
         raise SystemExit(f"{' '.join(map(str, argv))}: {p.stderr.strip()[-500:]}")
-    return took, p.stderr
+    return took, p.stdout if out else p.stderr
 
 
 def import_times(root: Path, out: Path) -> dict:
     """{top-level package: cumulative import ms} of one render command (-X importtime)."""
     _, err = wall([sys.executable, "-X", "importtime", "-m", "volrender", "render", str(SCENE),
-                   *COMMAND, "-o", str(out)], env_for(root))
+                   *COMMAND, "-o", str(out)], root)
     found = {}
     for line in err.splitlines():
         m = re.match(r"import time:\s+\d+ \|\s+(\d+) \| \s*(\S+)$", line)
@@ -87,7 +88,7 @@ def import_times(root: Path, out: Path) -> dict:
 def command_run(root: Path, out: Path) -> dict:
     cpu = []
     took, err = wall([sys.executable, "-m", "volrender", "render", str(SCENE), *COMMAND,
-                      "-o", str(out)], env_for(root), cpu)
+                      "-o", str(out)], root, cpu)
     line = next(ln for ln in err.splitlines() if ln.startswith("volrender: time: "))
     parts = {k: float(v) for k, v in re.findall(r"([a-z ]+?) ([0-9.]+) s", line[17:])}
     parts = {k.strip(" ,"): v for k, v in parts.items()}
@@ -98,19 +99,16 @@ def command_run(root: Path, out: Path) -> dict:
 
 
 def startup(root: Path, repeat: int) -> dict:
-    env = env_for(root)
-    bare = [wall([sys.executable, "-c", "pass"], env)[0] for _ in range(repeat)]
-    cli = [wall([sys.executable, "-c", "import volrender.cli"], env)[0] for _ in range(repeat)]
+    bare = [wall([sys.executable, "-c", "pass"], root)[0] for _ in range(repeat)]
+    cli = [wall([sys.executable, "-c", "import volrender.cli"], root)[0] for _ in range(repeat)]
     probe = ("import time; t = time.perf_counter(); from volrender import device; "
              "t1 = time.perf_counter(); p, d = device.choose(None); t2 = time.perf_counter(); "
              "device.Device(p, d); t3 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2)")
-    cl = [subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         env=env).stdout.split() for _ in range(repeat)]
+    cl = [wall([sys.executable, "-c", probe], root, out=True)[1].split() for _ in range(repeat)]
     load = ("import time; from volrender import vdb; c, t = time.process_time(), "
             f"time.perf_counter(); vdb.load_bricks({str(SCENE)!r}); "
             "print(time.process_time() - c, time.perf_counter() - t)")
-    ld = [subprocess.run([sys.executable, "-c", load], capture_output=True, text=True,
-                         env=env).stdout.split() for _ in range(repeat)]
+    ld = [wall([sys.executable, "-c", load], root, out=True)[1].split() for _ in range(repeat)]
     med = lambda xs: statistics.median(float(x) for x in xs)  # noqa: E731
     return {"interpreter_s": med(bare), "import_cli_s": med(cli),
             "import_device_s": med(c[0] for c in cl), "choose_device_s": med(c[1] for c in cl),
@@ -123,7 +121,7 @@ def frame(path: Path) -> np.ndarray:
         print(f"rendering {path} (1920x1080, 1 spp, once)", flush=True)
         path.parent.mkdir(parents=True, exist_ok=True)
         wall([sys.executable, "-m", "volrender", "render", str(SCENE), "--size", "1920x1080",
-              "--spp", "1", "--no-progress", "-o", str(path)], env_for(ROOT))
+              "--spp", "1", "--no-progress", "-o", str(path)], ROOT)
     return np.load(path)
 
 
