@@ -92,3 +92,12 @@ def client():
     yield c
     c.close()
     cluster.close()
+
+
+@pytest.fixture
+def log(monkeypatch):
+    """The kernel launches' arguments and faked times (helpers.fake_cost)."""
+    from helpers import spy_args
+    d = {"launches": [], "clock": 0.0, "args": ()}
+    spy_args(monkeypatch, d)
+    return d

@@ -17,10 +17,12 @@ import numpy as np
 from bench import common
 from bench.common import render_points  # noqa: F401  (the one render wrapper, shared)
 
+from volrender import dispatch
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Environment, GlassContent, Scene, VolumeContent
 from volrender.bricks import Bricks
+from volrender.volume import VolumeSettings
 
 Z = 5.0
 VOX = 0.1            # the voxel size of the synthetic volumes
@@ -262,3 +264,45 @@ def chi2_sf(x, k):
     from math import erfc, sqrt
     z = ((x / k) ** (1 / 3) - (1 - 2 / (9 * k))) / sqrt(2 / (9 * k))
     return 0.5 * erfc(z / sqrt(2))
+
+
+# ---- a faked kernel clock (test_cadence, test_eta): each launch 'takes' a cost by row
+
+CADENCE_W, CADENCE_H, CADENCE_SPP = 32, 240, 8   # the fake-clock scene (test_cadence, test_eta)
+
+
+def cadence_scene():
+    v = np.zeros((8, 8, 8), np.float32)
+    v[2:6, 2:6, 2:6] = 1.0
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    camera = Camera((0.4, 0.4, 3.0), (0.4, 0.4, 0.4), (0.0, 1.0, 0.0), 40.0, CADENCE_W, CADENCE_H)
+    return Scene(camera, (),
+                 VolumeContent(Bricks.from_dense(v, m), VolumeSettings(spp=CADENCE_SPP)))
+
+
+def fake_cost(monkeypatch, per_sample, log):
+    """Each launch 'takes' the sum of per_sample(row) over its rows x its samples x width."""
+    real = dispatch._enqueue
+
+    def enqueue(device, kernel, global_size, local_size):
+        ns, _ = real(device, kernel, global_size, local_size)
+        y0, s0, s1 = log["args"][-3:]
+        rows = min(global_size[1], CADENCE_H - int(y0))
+        took = CADENCE_W * int(s1 - s0) * sum(
+            per_sample(y) for y in range(int(y0), int(y0) + rows))
+        log["launches"].append((int(y0), rows, int(s1 - s0), took))
+        log["clock"] += took
+        return ns, took
+    monkeypatch.setattr(dispatch, "_enqueue", enqueue)
+
+
+def spy_args(monkeypatch, log):
+    """Record the last set_args of each kernel run (y0, s0, s1 are its last three)."""
+    import pyopencl as cl
+    real = cl.Kernel.set_args
+
+    def set_args(self, *a):
+        log["args"] = a
+        return real(self, *a)
+    monkeypatch.setattr(cl.Kernel, "set_args", set_args)
