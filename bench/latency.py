@@ -19,7 +19,7 @@ the kernel, and what PNG encoding costs at 1080p.
 3. PNG at 1080p: a 1920x1080 render of the demo cloud (bench/data/latency_frame_1080p.npy,
    rendered once when absent): tone mapping (image.png_pixels), then Pillow's encoding
    at every zlib level (time, size, and whether it decodes to the same pixels), and the
-   whole write_image at volrender's level (image.PNG_LEVEL).
+   whole write_image at volrender's level (1, volrender/image.py).
 
 Medians of --repeat runs. Writes bench/results/latency_<device>[-TAG].json and .png.
 """
@@ -154,7 +154,7 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
             image.write_image(Path(d) / "f.png", rgba)
             whole.append(time.perf_counter() - t)
     return {"size": list(rgba.shape[1::-1]), "tone_map_s": statistics.median(tone),
-            "tone_runs_s": tone, "levels": rows, "volrender_level": image.PNG_LEVEL,
+            "tone_runs_s": tone, "levels": rows, "volrender_level": 1,
             "write_image_s": statistics.median(whole), "write_runs_s": whole}
 
 

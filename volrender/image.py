@@ -7,7 +7,7 @@ Formats (see DESIGN.md, "Outputs"):
   (``depth`` -> ``Z``, the name OpenEXR tools use for depth; ``transmittance`` -> ``T``);
   any other AOV name is used as the channel name unchanged.
 - ``.npy``: linear float32 ``H x W x 4``.
-- ``.png``: tone-mapped sRGB, 8 bits per channel (Pillow) or 16 on request
+- ``.png``: tone-mapped sRGB, 8 bits per channel (Pillow, zlib level 1: docs/benchmarks.md) or 16 on request
   (``png_bits=16``, pypng: Pillow writes no 16-bit colour PNGs). Opaque by default
   (``png_alpha='opaque'``: the picture as rendered, background, sky and environment
   included, alpha 1, as Blender's film is unless made transparent); ``'straight'``
@@ -47,9 +47,6 @@ OCIO_VIEWS = {'standard': 'Un-tone-mapped', 'aces': 'ACES 1.0 - SDR Video'}
 OCIO_LARGEST = 65504.0            # inputs are clipped here (half float's largest; ACES's too)
 PNG_BITS = (8, 16)
 PNG_ALPHAS = ('opaque', 'straight')
-# zlib level of 8-bit PNGs: 1 encodes a 1080p render 3-4x faster than 6 (Pillow's default)
-# for files ~25% larger, lossless either way (bench/latency.py, docs/benchmarks.md)
-PNG_LEVEL = 1
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
 # Layers of several channels (H x W x C): Blender's Denoising Data passes and its noisy
 # beauty, as Cycles writes them to a multilayer EXR (without the view-layer prefix), so its
@@ -354,8 +351,7 @@ def _write_png(f, rgba, channels: dict, options: dict) -> None:
         from PIL import PngImagePlugin
         info = PngImagePlugin.PngInfo()
         info.add(b'sRGB', b'\x00')                  # sRGB, perceptual intent
-        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info,
-                                              compress_level=PNG_LEVEL)
+        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=1)
     else:
         import png                                  # pypng: 16-bit colour PNGs
         png.Writer(w, h, greyscale=False, alpha=True, bitdepth=16, compression=6).write(
