@@ -530,7 +530,8 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "launch": "launch granularity: adaptive launch overhead, time to stop on signals",
               "build": "acceleration build time (tree, support cells) against sphere count",
               "edge": "support-cell edge against build and render time: the automatic edge's fit",
-              "whole": "the whole command a user waits for, default against the alternatives"}
+              "whole": "the whole command a user waits for, default against the alternatives",
+              "latency": "a single command's time outside the kernel: start, imports, PNG"}
 
 
 def bench_dir() -> Path:

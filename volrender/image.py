@@ -7,7 +7,7 @@ Formats (see DESIGN.md, "Outputs"):
   (``depth`` -> ``Z``, the name OpenEXR tools use for depth; ``transmittance`` -> ``T``);
   any other AOV name is used as the channel name unchanged.
 - ``.npy``: linear float32 ``H x W x 4``.
-- ``.png``: tone-mapped sRGB, 8 bits per channel (Pillow) or 16 on request
+- ``.png``: tone-mapped sRGB, 8 bits per channel (Pillow, zlib level 1: docs/benchmarks.md) or 16 on request
   (``png_bits=16``, pypng: Pillow writes no 16-bit colour PNGs). Opaque by default
   (``png_alpha='opaque'``: the picture as rendered, background, sky and environment
   included, alpha 1, as Blender's film is unless made transparent); ``'straight'``
@@ -351,7 +351,7 @@ def _write_png(f, rgba, channels: dict, options: dict) -> None:
         from PIL import PngImagePlugin
         info = PngImagePlugin.PngInfo()
         info.add(b'sRGB', b'\x00')                  # sRGB, perceptual intent
-        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=6)
+        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=1)
     else:
         import png                                  # pypng: 16-bit colour PNGs
         png.Writer(w, h, greyscale=False, alpha=True, bitdepth=16, compression=6).write(

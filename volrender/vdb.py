@@ -20,6 +20,7 @@ the brick layout already live in vdb_header.py and bricks.py.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import os
 import struct
 import warnings
@@ -210,7 +211,9 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
     caller lives on. `$VOLRENDER_VDB_READER=0` reads in this process instead."""
     p = check_volume_file(path)
     if os.environ.get(READER_ENV, "") not in ("0", "1"):
-        import_openvdb()                # here too: its absence is said without a reader
+        if not any(importlib.util.find_spec(n) for n in ("pyopenvdb", "openvdb")):
+            import_openvdb()            # its absence is said without a reader; its import
+                                        # (0.1 s) is the reader's alone
         return _READER.call(p, (p, grid, emission_grid, None),
                             dict(chunk=chunk, temperature_grid=temperature_grid), progress)
     return _load_bricks(p, grid, emission_grid, progress, chunk=chunk,

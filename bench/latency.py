@@ -1,0 +1,236 @@
+"""Latency of a single command: where the wall time of `volrender render` goes outside
+the kernel, and what PNG encoding costs at 1080p.
+
+    .venv/bin/python bench/latency.py [--repeat 5] [--baseline DIR] [--tag TAG]
+
+1. Start: the bare interpreter (`python -c pass`), `import volrender.cli`, and
+   `python -X importtime` of a render command: each top-level package's cumulative import
+   time (numpy, pyopencl, OpenEXR, PIL, OpenVDB, volrender, and whether dask, scipy or
+   matplotlib were imported at all); the OpenCL device's choice and context; and
+   vdb.load_bricks of the demo cloud: its wall time and the CPU time of the renderer's own
+   process (OpenVDB reads in a reader process).
+2. Command: `volrender render scenes/demo_cloud.vdb --size 192x108 --spp 1 -o x.png -v`
+   as a process, wall time split by its `-v` time line (load, setup, kernel, launch
+   overhead, write), its CPU time (user + system, the OpenVDB reader process's included)
+   and the program build it logs; "outside" is the rest (interpreter,
+   imports, OpenCL context, option checks, exit). With --baseline DIR (another checkout,
+   e.g. `git worktree add DIR COMMIT`) the same command runs from there too, interleaved,
+   so before and after come from one run on one (noisy) machine.
+3. PNG at 1080p: a 1920x1080 render of the demo cloud (bench/data/latency_frame_1080p.npy,
+   rendered once when absent): tone mapping (image.png_pixels), then Pillow's encoding
+   at every zlib level (time, size, and whether it decodes to the same pixels), and the
+   whole write_image at volrender's level (1, volrender/image.py).
+
+Medians of --repeat runs. Writes bench/results/latency_<device>[-TAG].json and .png.
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bench.common import device_info, result_path, write_json  # noqa: E402
+
+SCENE = ROOT / "scenes" / "demo_cloud.vdb"
+COMMAND = ["--size", "192x108", "--spp", "1", "-v", "--no-progress"]
+FRAME = ROOT / "bench" / "data" / "latency_frame_1080p.npy"
+PACKAGES = ("numpy", "pyopencl", "OpenEXR", "PIL", "pyopenvdb", "openvdb", "volrender",
+            "dask", "scipy", "matplotlib", "PyOpenColorIO", "png")
+STAGES = ("load", "setup", "kernel", "launch overhead", "write")
+
+
+def env_for(root: Path) -> dict:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
+
+
+def wall(argv, root: Path, cpu=None, out=False) -> tuple[float, str]:
+    """(wall seconds, stderr) of a process run from checkout `root` (its folder is the
+    working directory: `python -c` and `-m` put that first on the path); `cpu` (a list) gets its CPU seconds, user +
+    system, its own children's (the OpenVDB reader) included; out: stdout instead: on a shared machine it
+    moves far less with the load than wall time."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    p = subprocess.run(argv, capture_output=True, text=True, env=env_for(root), cwd=root)
+    took = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if cpu is not None:
+        cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    if p.returncode:
+        raise SystemExit(f"{' '.join(map(str, argv))}: {p.stderr.strip()[-500:]}")
+    return took, p.stdout if out else p.stderr
+
+
+def import_times(root: Path, out: Path) -> dict:
+    """{top-level package: cumulative import ms} of one render command (-X importtime)."""
+    _, err = wall([sys.executable, "-X", "importtime", "-m", "volrender", "render", str(SCENE),
+                   *COMMAND, "-o", str(out)], root)
+    found = {}
+    for line in err.splitlines():
+        m = re.match(r"import time:\s+\d+ \|\s+(\d+) \| \s*(\S+)$", line)
+        if m and "." not in m.group(2):             # a package's own line: imported once
+            found.setdefault(m.group(2), int(m.group(1)) / 1e3)
+    return {p: found.get(p) for p in PACKAGES}
+
+
+def command_run(root: Path, out: Path) -> dict:
+    cpu = []
+    took, err = wall([sys.executable, "-m", "volrender", "render", str(SCENE), *COMMAND,
+                      "-o", str(out)], root, cpu)
+    line = next(ln for ln in err.splitlines() if ln.startswith("volrender: time: "))
+    parts = {k: float(v) for k, v in re.findall(r"([a-z ]+?) ([0-9.]+) s", line[17:])}
+    parts = {k.strip(" ,"): v for k, v in parts.items()}
+    build = [float(v) / 1e3 for v in re.findall(r"built cl/\S+ .* in (\d+) ms", err)]
+    row = {"wall_s": took, "cpu_s": cpu[0], **{k: parts.get(k, 0.0) for k in STAGES}, "build_s": sum(build)}
+    row["outside_s"] = took - sum(row[k] for k in STAGES)
+    return row
+
+
+def startup(root: Path, repeat: int) -> dict:
+    bare = [wall([sys.executable, "-c", "pass"], root)[0] for _ in range(repeat)]
+    cli = [wall([sys.executable, "-c", "import volrender.cli"], root)[0] for _ in range(repeat)]
+    probe = ("import time; t = time.perf_counter(); from volrender import device; "
+             "t1 = time.perf_counter(); p, d = device.choose(None); t2 = time.perf_counter(); "
+             "device.Device(p, d); t3 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2)")
+    cl = [wall([sys.executable, "-c", probe], root, out=True)[1].split() for _ in range(repeat)]
+    load = ("import time; from volrender import vdb; c, t = time.process_time(), "
+            f"time.perf_counter(); vdb.load_bricks({str(SCENE)!r}); "
+            "print(time.process_time() - c, time.perf_counter() - t)")
+    ld = [wall([sys.executable, "-c", load], root, out=True)[1].split() for _ in range(repeat)]
+    med = lambda xs: statistics.median(float(x) for x in xs)  # noqa: E731
+    return {"interpreter_s": med(bare), "import_cli_s": med(cli),
+            "import_device_s": med(c[0] for c in cl), "choose_device_s": med(c[1] for c in cl),
+            "context_s": med(c[2] for c in cl),
+            "vdb_load_own_cpu_s": med(x[0] for x in ld), "vdb_load_wall_s": med(x[1] for x in ld)}
+
+
+def frame(path: Path) -> np.ndarray:
+    if not path.is_file():
+        print(f"rendering {path} (1920x1080, 1 spp, once)", flush=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        wall([sys.executable, "-m", "volrender", "render", str(SCENE), "--size", "1920x1080",
+              "--spp", "1", "--no-progress", "-o", str(path)], ROOT)
+    return np.load(path)
+
+
+def png_levels(rgba: np.ndarray, repeat: int) -> dict:
+    from PIL import Image as PILImage
+    from volrender import image
+    tone = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        px = image.png_pixels(rgba, alpha="opaque")
+        tone.append(time.perf_counter() - t)
+    rows = []
+    for level in range(10):
+        ts = []
+        for _ in range(repeat):
+            buf = io.BytesIO()
+            t = time.perf_counter()
+            PILImage.fromarray(px, "RGBA").save(buf, format="PNG", compress_level=level)
+            ts.append(time.perf_counter() - t)
+        with PILImage.open(io.BytesIO(buf.getvalue())) as im:
+            same = bool(np.array_equal(np.asarray(im.convert("RGBA")), px))
+        rows.append({"level": level, "encode_s": statistics.median(ts), "runs_s": ts,
+                     "bytes": len(buf.getvalue()), "identical_pixels": same})
+        print(f"PNG level {level}: {rows[-1]['encode_s']:.3f} s, {rows[-1]['bytes'] / 1e6:.2f} MB, "
+              f"identical {same}", flush=True)
+    whole = []
+    with tempfile.TemporaryDirectory() as d:
+        for _ in range(repeat):
+            t = time.perf_counter()
+            image.write_image(Path(d) / "f.png", rgba)
+            whole.append(time.perf_counter() - t)
+    return {"size": list(rgba.shape[1::-1]), "tone_map_s": statistics.median(tone),
+            "tone_runs_s": tone, "levels": rows, "volrender_level": 1,
+            "write_image_s": statistics.median(whole), "write_runs_s": whole}
+
+
+def plot(payload, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    labels = list(payload["command"])
+    keys = ["outside_s", "load", "setup", "kernel", "launch overhead", "write"]
+    bottom = np.zeros(len(labels))
+    for k in keys:
+        v = np.array([payload["command"][c]["median"][k] for c in labels])
+        a.bar(labels, v, bottom=bottom, label=k.replace("_s", ""))
+        bottom += v
+    a.set_ylabel("s (median)")
+    a.set_title("volrender render demo_cloud 192x108 1 spp")
+    a.legend(fontsize=7)
+    lv = payload["png"]["levels"]
+    b.plot([r["bytes"] / 1e6 for r in lv], [r["encode_s"] for r in lv], "o-")
+    for r in lv:
+        b.annotate(str(r["level"]), (r["bytes"] / 1e6, r["encode_s"]))
+    b.axhline(0.1, ls=":", c="k")
+    b.set_xscale("log")
+    b.set_xlabel("PNG size, MB (log)")
+    b.set_ylabel("encode s (median)")
+    b.set_title(f"Pillow PNG 1920x1080 by zlib level; tone map {payload['png']['tone_map_s']:.2f} s")
+    fig.suptitle(f"{payload['device']['device']} @ {payload['device']['commit']}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="volrender bench latency", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=5, help="runs of each measurement (default: 5)")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="another checkout whose command runs interleaved with this one's")
+    ap.add_argument("--frame", type=Path, default=FRAME, help=f"1080p linear frame (.npy; default {FRAME})")
+    ap.add_argument("--tag", default=None, help="added to the results' name: latency_<device>-<tag>.json")
+    args = ap.parse_args(argv)
+    from volrender import device
+    dev = device.get(None)
+    roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
+    tmp = Path(tempfile.mkdtemp())
+    payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
+               "command_argv": [str(SCENE.relative_to(ROOT)), *COMMAND]}
+    payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
+    payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
+    for k in roots:
+        print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
+              {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
+    runs = {k: [] for k in roots}
+    for r in roots.values():                         # warm: programs built, files cached
+        command_run(r, tmp / "w.png")
+    for _ in range(args.repeat):
+        for k, r in roots.items():
+            runs[k].append(command_run(r, tmp / f"{k}.png"))
+    payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]},
+                              "runs": rs} for k, rs in runs.items()}
+    for k, v in payload["command"].items():
+        print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
+    if args.baseline:
+        m = {k: v["median"] for k, v in payload["command"].items()}
+        payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
+        payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
+        print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
+              f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
+    payload["png"] = png_levels(frame(args.frame), args.repeat)
+    print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
+          f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
+    payload["load_end"] = os.getloadavg()
+    path = write_json(result_path("latency", dev, args.tag), payload)
+    plot(payload, path.with_suffix(".png"))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
