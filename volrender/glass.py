@@ -82,6 +82,12 @@ class GlassSettings(CommonSettings):
                            "is traced; 0 = trace them all (slowest, no noise), 1 = sample "
                            "one branch per event (a path tracer's choice, noisiest)",
                            check=in_range(0, 1), toml=("render", "roulette"))
+    split_events: int = knob(64, "--glass-model full: surface events per path at which both "
+                             "Fresnel branches are traced; past them one branch goes on, "
+                             "chosen in proportion to its weight (unbiased, noisier, "
+                             "cheaper); 0 = a path tracer's choice at every event",
+                             check=in_range(0, 64, integer=True),
+                             toml=("render", "split_events"))
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
                       toml=("material", "ior"))
     absorption: tuple = knob((0.25, 1.0, 2.7), "Beer-Lambert coefficient inside glass, per "
@@ -377,7 +383,8 @@ def glass_params(packed: PackedSpheres, settings: GlassSettings, environment=Non
         env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=uber, n_suns=n_suns, n_points=n_points, relax=settings.relax,
-        hit_len=min(packed.hit_len, 3e38), roulette=settings.roulette)
+        hit_len=min(packed.hit_len, 3e38), roulette=settings.roulette,
+        split_events=settings.split_events)
 
 
 def plan(scene, device, variant=None, launch=None):
