@@ -16,6 +16,11 @@
 #define VR_LIT (VR_N_SUNS + VR_N_POINTS > 0)
 #endif
 
+inline float glass_max3(float3 v)
+{
+    return fmax(v.x, fmax(v.y, v.z));
+}
+
 inline float3 glass_env(__constant GlassParams* gp, __global const float4* env, float3 d)
 {
 #if VR_ENV_MAP
@@ -119,56 +124,88 @@ inline float3 glass_shadow_full(const SdfScene* sc, __constant GlassParams* gp, 
 #endif
 #endif
 
-/* Light i seen from p on a surface with normal n: unit direction *l towards it and its
-   incident radiance (irradiance on a plane facing it) including the shadow test; zero,
-   with no shadow ray, when it is behind the surface. */
-inline float3 glass_light(const SdfScene* sc, __constant GlassParams* gp,
-                          __constant Light* lights, int i, float3 p, float3 n, float base,
-                          float3* l)
+/* Light i seen from p: unit direction *l towards it, its distance *dist (INFINITY for a
+   sun) and its unshadowed incident radiance (irradiance on a plane facing it). */
+inline float3 glass_light_at(__constant GlassParams* gp, __constant Light* lights, int i,
+                             float3 p, float3* l, float* dist)
 {
     float3 e = lights[i].radiance.xyz;
-    float dist = INFINITY;
+    *dist = INFINITY;
     if (i < VR_NSUNS) {
         *l = -lights[i].vec.xyz;
     } else {
         float3 to = lights[i].vec.xyz - p;
         float r2 = dot(to, to);
-        dist = sqrt(r2);
-        *l = dist > 0.0f ? to / dist : (float3)(0.0f, 1.0f, 0.0f);
+        *dist = sqrt(r2);
+        *l = *dist > 0.0f ? to / *dist : (float3)(0.0f, 1.0f, 0.0f);
         e /= fmax(r2, 1e-12f * gp->scale * gp->scale);
     }
-    if (dot(n, *l) <= 0.0f)
-        return (float3)(0.0f);
+    return e;
+}
+
+/* The shadow test from p towards a light along l over dist: its transmittance. */
+inline float3 glass_light_shadow(const SdfScene* sc, __constant GlassParams* gp, float3 p,
+                                 float3 l, float base, float dist)
+{
 #if VR_SHADOWS
     if (VR_ON(VR_BIT_SHADOWS)) {
 #if VR_FULL && VR_REFRACTION
         if (VR_ON(VR_BIT_REFRACTION))
-            e *= glass_shadow_full(sc, gp, p, *l, base, dist);
-        else
+            return glass_shadow_full(sc, gp, p, l, base, dist);
 #endif
-        e *= glass_shadow(sc, gp, p, *l, base, dist);
+        return (float3)(glass_shadow(sc, gp, p, l, base, dist));
     }
 #endif
-    return e;
+    return (float3)(1.0f);
 }
 
-/* Normalised Blinn-Phong highlights at p (already offset outwards), normal n, towards v. */
+/* Light i seen from p on a surface with normal n: unit direction *l towards it and its
+   incident radiance including the shadow test; zero, with no shadow ray, when it is
+   behind the surface. */
+inline float3 glass_light(const SdfScene* sc, __constant GlassParams* gp,
+                          __constant Light* lights, int i, float3 p, float3 n, float base,
+                          float3* l)
+{
+    float dist;
+    float3 e = glass_light_at(gp, lights, i, p, l, &dist);
+    if (dot(n, *l) <= 0.0f)
+        return (float3)(0.0f);
+    return e * glass_light_shadow(sc, gp, p, *l, base, dist);
+}
+
+/* Normalised Blinn-Phong highlights at p (already offset outwards), normal n, towards v,
+   times w (the path's weight times F). A light's unshadowed lobe bounds what it adds: one
+   whose bound is below gp->roulette (largest channel) is shadow-tested with probability
+   bound / roulette, else skipped (and takes that much more weight when tested): unbiased,
+   a sample off by at most `roulette` per light, and the shadow rays of the dim part of
+   the lobe (most of them at shininess 200) are saved. *dim: vr_rand's next dimension. */
 inline float3 glass_highlights(const SdfScene* sc, __constant GlassParams* gp,
                                __constant Light* lights, float3 p, float3 n, float3 v,
-                               float base)
+                               float base, float3 w, uint seed, uint pixel, uint sample,
+                               uint* dim)
 {
     float3 sum = (float3)(0.0f);
     float norm = (gp->shininess + 8.0f) * (1.0f / (8.0f * VR_PI));
     for (int i = 0; i < VR_N_LIGHTS; ++i) {
         float3 l;
-        float3 e = glass_light(sc, gp, lights, i, p, n, base, &l);
+        float dist;
+        float3 e = glass_light_at(gp, lights, i, p, &l, &dist);
         float ndl = dot(n, l);
         if (ndl <= 0.0f)
             continue;
         float3 hv = l + v;
         float hl = length(hv);
         float ndh = hl > 0.0f ? fmax(dot(n, hv / hl), 0.0f) : 0.0f;
-        sum += e * ndl * norm * pow(ndh, gp->shininess);
+        float3 c = w * e * ndl * norm * pow(ndh, gp->shininess);
+        float m = glass_max3(c), rr = gp->roulette;
+        if (!(m > 0.0f))
+            continue;
+        if (m < rr) {
+            if (vr_rand(seed, pixel, sample, (*dim)++) * rr >= m)
+                continue;
+            c *= rr / m;
+        }
+        sum += c * glass_light_shadow(sc, gp, p, l, base, dist);
     }
     return sum;
 }
@@ -230,7 +267,7 @@ typedef struct {
 inline GlassEvent glass_event(const SdfScene* sc, __constant GlassParams* gp,
                               __constant Light* lights, float3 o, float3 d, float t,
                               const SdfSample* s, int inside, float base, float3 thr,
-                              float3* rgb)
+                              float3* rgb, uint seed, uint pixel, uint sample, uint* dim)
 {
     GlassEvent e;
     float3 p = o + t * d;
@@ -252,7 +289,8 @@ inline GlassEvent glass_event(const SdfScene* sc, __constant GlassParams* gp,
     e.tir = GLASS_OPAQUE(gp) || !glass_refract(d, e.nf, eta, &e.td);
 #if VR_LIT
     if (!inside)
-        *rgb += thr * e.fr * glass_highlights(sc, gp, lights, e.p_out, e.nf, -d, base);
+        *rgb += glass_highlights(sc, gp, lights, e.p_out, e.nf, -d, base, thr * e.fr, seed,
+                                 pixel, sample, dim);
 #endif
     return e;
 }
@@ -306,6 +344,7 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
     float path = 0.0f, floor_len = 1e-2f * gp->scale;   /* hit-threshold floor near the eye */
     int inside = glass_eye_inside(sc, gp, o, &tint);
     *covered = inside;
+    uint dim = 2u;
     for (int events = 0;; ++events) {
         float t;
         SdfSample s;
@@ -317,7 +356,8 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
         if (events >= gp->bounces)
             return rgb;                                  /* the budget is spent: 0 */
         path += t;
-        GlassEvent e = glass_event(sc, gp, lights, o, d, t, &s, inside, path + floor_len, thr, &rgb);
+        GlassEvent e = glass_event(sc, gp, lights, o, d, t, &s, inside, path + floor_len, thr,
+                                   &rgb, seed, pixel, sample, &dim);
         if (!inside)
             rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);
         if (GLASS_OPAQUE(gp))
@@ -358,11 +398,6 @@ typedef struct {
 #endif
 } GlassBranch;
 
-inline float glass_max3(float3 v)
-{
-    return fmax(v.x, fmax(v.y, v.z));
-}
-
 /* --glass-model full: both branches are traced like camera rays, so glass shows in
    reflections and exits reflect back inside. The path goes on with the larger branch and
    keeps the other (up to VR_GLASS_STACK waiting, VR_GLASS_SPLITS per path); a kept
@@ -398,7 +433,7 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
             ++events;
             path += t;
             GlassEvent e = glass_event(sc, gp, lights, o, d, t, &s, inside, path + floor_len,
-                                       thr, &rgb);
+                                       thr, &rgb, seed, pixel, sample, &dim);
             if (GLASS_OPAQUE(gp)) {
                 rgb += thr * glass_diffuse(sc, gp, lights, env, &e, path + floor_len);
                 thr *= e.fr * gp->reflectivity;          /* the reflection, traced */

@@ -79,8 +79,9 @@ class GlassSettings(CommonSettings):
     roulette: float = knob(0.02, "--glass-model full: a branch weaker than this (its "
                            "largest channel, relative to the camera ray) survives Russian "
                            "roulette with probability weight / roulette, else every branch "
-                           "is traced; 0 = trace them all (slowest, no noise), 1 = sample "
-                           "one branch per event (a path tracer's choice, noisiest)",
+                           "is traced; both models: a highlight whose unshadowed lobe is "
+                           "weaker is shadow-tested with that probability; 0 = trace them "
+                           "all (slowest, no noise), 1 = the most roulette (noisiest)",
                            check=in_range(0, 1), toml=("render", "roulette"))
     split_events: int = knob(64, "--glass-model full: surface events per path at which both "
                              "Fresnel branches are traced; past them one branch goes on, "
