@@ -74,7 +74,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_points, render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
-from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
+from volrender import camera, device, generators, glass, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings  # noqa: E402
 
@@ -559,7 +559,7 @@ def run_defaults(dev, args, record):
 def glass_scenes(width, height, quick):
     """[(name, cloud, camera, lights, base settings)]."""
     out = []
-    cloud = points.generate("blob", 300, seed=1)
+    cloud = generators.generate("blob", 300, seed=1)
     out.append(("blob300", cloud, glass.default_camera(cloud, width, height), [GLASS_SUN],
                 glass.GlassSettings()))
     if not quick:

@@ -22,6 +22,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import device_info, result_path, write_json  # noqa: E402
 from bench.spheres import SCAN_SUN, SUN, measure, scan_path  # noqa: E402
 from volrender import device, glass, points  # noqa: E402
+try:                                   # the layout after issue 36
+    from volrender.generators import generate  # noqa: E402
+except ImportError:                    # an older checkout
+    generate = points.generate
 
 BUNNY = ("bun_zipper.ply", {"radius": 0.002, "blend": 0.004})
 
@@ -50,7 +54,7 @@ def main(argv=None):
                 continue
             cloud, opts, lights = points.load_points(src), dict(BUNNY[1]), [SCAN_SUN]
         else:
-            cloud, opts, lights = points.generate("blob", int(case), seed=1), {}, [SUN]
+            cloud, opts, lights = generate("blob", int(case), seed=1), {}, [SUN]
         cam = glass.default_camera(cloud, w, h, radius=opts.get("radius"))
         for bounces in map(int, args.bounces.split(",")):
             for model in args.models.split(","):

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.common import device_info, render_points, result_path, write_json  # noqa: E402
 from bench.error import errors, pareto, sweep  # noqa: E402
-from volrender import device, glass, points, scene as scene_mod  # noqa: E402
+from volrender import device, generators, glass, scene as scene_mod  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 
 SPLITS = (64, 2, 1, 0)
@@ -39,7 +39,7 @@ ROULETTES = (0.0, 0.02, 0.1)
 def scenes(width, height, names):
     out = []
     if "blob300" in names:
-        cloud = points.generate("blob", 300, seed=1)
+        cloud = generators.generate("blob", 300, seed=1)
         out.append(("blob300", cloud, glass.default_camera(cloud, width, height),
                     [Sun((-0.5, -1.0, -0.4), 3.0)], glass.GlassSettings()))
     if "molten_glass" in names:

@@ -9,6 +9,7 @@ import pytest
 
 import volrender
 from volrender import cli, image, vdb
+from volrender.bricks import Bricks
 from volrender.errors import UserError
 from conftest import ROOT
 
@@ -181,8 +182,8 @@ def test_up_axis_z_on_a_z_up_grid_is_the_y_up_image(cl_device):
     m = np.diag([0.1, 0.1, 0.1, 1.0])
     turn = np.eye(4)
     turn[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
-    y_up = vdb.Bricks.from_dense(values, m)
-    z_up = vdb.Bricks.from_dense(values, turn @ m)
+    y_up = Bricks.from_dense(values, m)
+    z_up = Bricks.from_dense(values, turn @ m)
     a = volrender.render(_scene(y_up, "y"), cl_device).rgba
     b = volrender.render(_scene(z_up, "z"), cl_device).rgba
     assert a[..., 3].max() > 0.3

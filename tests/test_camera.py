@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import volrender
-from volrender import cli, points
+from volrender import cli, generators
 from volrender.camera import View, framing_distance, projected_fill
 
 LO, HI = np.array([-1.0, -0.5, -2.0]), np.array([3.0, 1.5, 0.0])
@@ -119,7 +119,7 @@ def test_conflicts_in_scene_files_and_python(tmp_path):
 def test_sequence_writes_camera_out_and_prints_it(capsys, tmp_path):
     for f in (1, 2):
         np.save(tmp_path / f"p_{f:04d}.npy",
-                (points.blob(80, seed=f).centers).astype(np.float32))
+                (generators.blob(80, seed=f).centers).astype(np.float32))
     camf = tmp_path / "seq_cam.toml"
     code, _, err = run(capsys, "render", tmp_path / "p_####.npy", "-o", tmp_path / "o_####.png",
                        "--size", "12x9", "--workers", "0", "--no-progress", "--bounces", "1",

@@ -13,7 +13,7 @@ from volrender import scene as scene_mod, volume
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Scene, VolumeContent
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 from helpers import render_volume
 from test_path import ENV, soft_ball

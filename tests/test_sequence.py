@@ -8,6 +8,7 @@ import pytest
 
 import volrender
 from volrender import cli, image, sequence, vdb
+from volrender.bricks import Bricks
 from volrender.errors import UserError
 from conftest import ROOT
 
@@ -23,7 +24,7 @@ def frames(tmp_path_factory):
     for f in range(1, 7):
         m = b.index_to_world.copy()
         m[:3, 3] += [0.2 * f, 0.08 * f, 0.0]
-        vdb.Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
+        Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
                    grid_name=b.grid_name).save_npz(d / f"cloud_{f:04d}.npz")
     return d
 

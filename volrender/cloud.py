@@ -9,10 +9,10 @@ import numpy as np
 from .errors import UserError
 from .files import check_memory
 
-MAX_COORDINATE = 1e18       # |coordinate| accepted from files (glass.MAX_EXTENT: float32 squares)
+MAX_COORDINATE = 1e18       # |coordinate| accepted from files (spheres.MAX_EXTENT: float32 squares)
 
 
-_MEMORY_FIX = "load a smaller or decimated cloud, or free memory"
+MEMORY_FIX = "load a smaller or decimated cloud, or free memory"
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class PointCloud:
         return len(self.centers)
 
 
-def _finish(path, centers, radii, colors, notes=()) -> PointCloud:
+def finish_cloud(path, centers, radii, colors, notes=()) -> PointCloud:
     n = len(centers)
     if n == 0:
         raise UserError("the file holds zero points", path=path,
@@ -78,10 +78,10 @@ def _finish(path, centers, radii, colors, notes=()) -> PointCloud:
                       notes=tuple(notes))
 
 
-_CHUNK_LINES = 1 << 16      # text lines parsed at a time
+CHUNK_LINES = 1 << 16      # text lines parsed at a time
 
 
-class _Projection:
+class Projection:
     """Memory check of a reader that parses a stream in chunks: after each chunk the
     memory still to come is projected from what the chunks so far took per byte or row."""
 
@@ -95,4 +95,4 @@ class _Projection:
             more = self.used * (self.total - self.done) / self.done
             # the chunks still to come, then one copy of everything (np.concatenate)
             check_memory(int(more + self.used + more), self.path, "reading this point cloud",
-                         _MEMORY_FIX)
+                         MEMORY_FIX)

@@ -7,6 +7,7 @@ flags a message was written with). `suggest` adds difflib's close matches ("did 
 import contextvars
 import difflib
 import re
+import sys
 
 
 def printable(text) -> str:
@@ -108,7 +109,6 @@ def one_line_if_uncaught(exc: BaseException) -> BaseException:
     """Make `exc`, should it reach the top of a script uncaught, print as the CLI prints
     errors (`volrender: error: ...`, no traceback); any other exception keeps the hook that
     was there. Returns exc (raise it)."""
-    import sys
     previous = sys.excepthook
 
     def hook(kind, value, tb):
@@ -118,3 +118,26 @@ def one_line_if_uncaught(exc: BaseException) -> BaseException:
             previous(kind, value, tb)
     sys.excepthook = hook
     return exc
+
+
+CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
+                    "INVALID_BUFFER_SIZE")
+
+
+def opencl_message(exc) -> str | None:
+    """A one-line message for an OpenCL error (None when exc is not one; pyopencl is not
+    imported here: an error of it exists only once something else has imported it)."""
+    cl = sys.modules.get("pyopencl")
+    if cl is None or not isinstance(exc, cl.Error):
+        return None
+    text = " ".join(str(exc).split())
+    try:
+        code = exc.code
+    except Exception:                       # an Error built without a status record
+        code = None
+    oom = {getattr(cl.status_code, n) for n in CL_OUT_OF_MEMORY if hasattr(cl.status_code, n)}
+    if isinstance(exc, cl.MemoryError) or code in oom:
+        return (f"the OpenCL device ran out of memory ({text}); render a smaller --size, fewer "
+                "points or a smaller volume, or pick a device with more memory (--device)")
+    return (f"OpenCL failed ({text}); try another --device, or rerun with --debug and report "
+            "it as a volrender bug")

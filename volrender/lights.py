@@ -79,6 +79,19 @@ def sky_texels(up=(0.0, 1.0, 0.0), size=SKY_SIZE, scale=SKY_SCALE) -> np.ndarray
     return out.astype(np.float32)
 
 
+def default_sky(frame=None, dim: float = 1.0) -> np.ndarray:
+    """The default volume sky's texels (sky_texels at SKY_SCALE * dim), its zenith along the
+    second column of `frame` (camera.up_frame: world from y-up; None: y is up)."""
+    up = (0.0, 1.0, 0.0) if frame is None else tuple(frame[:, 1])
+    return sky_texels(up, scale=SKY_SCALE * dim)
+
+
+def default_suns(frame=None, dim: float = 1.0) -> tuple:
+    """DEFAULT_LIGHTS turned by `frame` (as default_sky) and dimmed by `dim`."""
+    return tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
+                     else l.direction, l.irradiance * dim, l.color) for l in DEFAULT_LIGHTS)
+
+
 def counts(lights) -> tuple[int, int]:
     return (sum(isinstance(l, Sun) for l in lights), sum(isinstance(l, PointLight) for l in lights))
 

@@ -264,7 +264,7 @@ def sequence_camera(paths, overrides):
     extra, notes = {}, []
     if req.kind == "glass":
         from . import points
-        from .glass import blend_width, sphere_bounds, sphere_radii
+        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
