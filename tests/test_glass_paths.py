@@ -49,7 +49,7 @@ def env_map(tmp_path_factory):
 
 def settings(env, **kw):
     base = dict(env=env, ior=1.5, absorption=(0.0, 0.0, 0.0), glow=0.0, blend=0.0,
-                material_unit=1.0, bounces=16)
+                material_unit=1.0, bounces=16, split_events=64)     # every event splits
     return glass.GlassSettings(**{**base, **kw})
 
 
@@ -250,14 +250,32 @@ def test_bounce_counts_agree_with_mitsuba(cl_device, env_map, case, bounces):
     """--bounces N against Mitsuba's max_depth N + 1, with the checks above: a branch
     inside glass at its last event returns 0 and one outside reads the environment only
     if it meets no glass (two spheres: an exit ray that meets the other sphere at the
-    budget returns 0 too)."""
+    budget returns 0 too). With the device's default --split-events (on CPUs one split,
+    then one branch per event: unbiased, so it agrees too)."""
     spheres, env, absorption = CASES[case]
     env = env_map if env == "map" else env
     m1, m2 = (mitsuba_render(spheres, env, 1.5, absorption, bounces + 1, 256, seed)
               for seed in (1, 2))
-    s = settings(env, absorption=(0.0, 0.0, 0.0), spp=64, bounces=bounces)
+    s = settings(env, absorption=(0.0, 0.0, 0.0), spp=64, bounces=bounces, split_events=None)
     o1, o2 = (ours(cl_device, spheres, dataclasses.replace(s, seed=k)) for k in (1, 2))
     cover = (o1[..., 3] + o2[..., 3]) > 0
     dmean, se, l1, mean = agreement(o1[..., :3], o2[..., :3], m1, m2, cover)
     assert abs(dmean) <= 4 * se + 1e-3 * mean, f"means differ by {dmean:.2g} (se {se:.2g})"
     assert l1 <= 1.5, f"L1 is {l1:.2f} x the noise's"
+
+
+def test_the_status_line_states_the_glass_model(tmp_path, capsys):
+    """The render's status line (stderr) says what the full model did: on CPUs by default
+    both branches at the camera ray's event, then one branch per event
+    (glass.SPLIT_EVENTS_CPU); with --split-events at least --bounces, every event."""
+    from volrender import cli, device
+    from volrender.dispatch import is_gpu
+    if is_gpu(device.resolve(None)):
+        pytest.skip("the default device is a GPU (its default splits every event)")
+    out = tmp_path / "a.npy"
+    args = ["render", "blob:50", "-o", str(out), "--size", "8x6", "--bounces", "3"]
+    assert cli.main(args) == 0
+    assert "glass full, both branches at 1 event then one" in capsys.readouterr().err
+    assert cli.main(args + ["--split-events", "3"]) == 0
+    err = capsys.readouterr().err
+    assert "glass full" in err and "then one" not in err

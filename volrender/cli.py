@@ -301,7 +301,8 @@ def describe(scene, img=None) -> str:
     if scene.kind == "volume":
         return f"{s.spp} spp"
     accel = img.info.get("accel", s.accel) if img is not None else s.accel
-    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {accel}"
+    model = f", {img.info['model']}" if img is not None and img.info.get("model") else ""
+    return f"{len(scene.content.cloud.centers)} spheres, {s.spp} spp, accel {accel}{model}"
 
 
 def look_problems(img, scene) -> list[str]:
