@@ -229,7 +229,15 @@ def plan(scene, device, variant=None, launch=None):
               *zip(("bricks", "cells", "lists", "runs"), grid_arrays)]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
-                PIXELS_PER_LAUNCH, info=info, build_options=build_options(features, device))
+                PIXELS_PER_LAUNCH, info=info,
+                build_options=build_options(features, device) + stack_option(params))
+
+
+def stack_option(params) -> tuple:
+    """The full model's branch stack sized to what can wait: at most one branch per split
+    event (private memory: a smaller stack spills less on GPUs)."""
+    split = int(params["split_events"][0])
+    return (f"-DVR_GLASS_STACK={min(max(split, 1), 4)}",) if split < 4 else ()
 
 
 def build_options(features, device) -> tuple:
