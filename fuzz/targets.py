@@ -268,7 +268,8 @@ def _text(data) -> str:
 
 @target
 def pattern(data):
-    """Sequence patterns: ####, %04d, globs (sequence.parse_pattern, Pattern.path, the glob
+    """Sequence patterns: ####, %04d, @@@@, $F4, globs (sequence.parse_pattern: volrender
+    finds the token and splits the path, fileseq reads its padding; Pattern.path, the glob
     regex): a frame's path holds its number, padded; a glob's regex compiles."""
     import re
     from volrender import sequence
@@ -290,7 +291,8 @@ def pattern(data):
 
 @target
 def frames(data):
-    """--frames ranges: A-B[:STEP], N, comma-separated lists (sequence.parse_frames)."""
+    """--frames ranges: A-B[:STEP], A-BxSTEP, A-BySTEP, N, comma-separated lists
+    (sequence.parse_frames: volrender checks each part and its size, fileseq expands it)."""
     from volrender import sequence
     out = sequence.parse_frames(_text(data))
     if out != sorted(set(out)) or not all(isinstance(f, int) for f in out):

@@ -234,6 +234,46 @@ class Bricks:
         w = (self.local_to_world @ corners.T)[:3].T
         return w.min(axis=0), w.max(axis=0)
 
+    def occupied_corners(self, sub: int = 2) -> np.ndarray:
+        """World corners of the content's boxes, for the default camera's fit: in each
+        brick on the outside of the occupied ones (framing.column_extremes), the box of the
+        non-zero voxels (density or emission; a voxel spans its centre +- 0.5) of each
+        `sub`^3 block. The layout's corners when no voxel is non-zero."""
+        from .framing import box_corners, column_extremes
+        core = self.data[:, :BRICK, :BRICK, :BRICK] != 0
+        if self.emission is not None:
+            core = core | (self.emission[:, :BRICK, :BRICK, :BRICK] != 0)
+        slots = np.nonzero(core.reshape(len(core), -1).any(axis=1))[0]
+        if len(slots) == 0:
+            return box_corners(*self.world_bounds())
+        where = np.nonzero(self.table >= 0)[0]
+        brick_of = np.empty(len(self.data), np.int64)
+        brick_of[self.table[where]] = where
+        flat = brick_of[slots]
+        b = np.stack([flat // (self.dims[1] * self.dims[2]), flat // self.dims[2] % self.dims[1],
+                      flat % self.dims[2]], axis=1)
+        occ = np.zeros(tuple(self.dims), bool)
+        occ[b[:, 0], b[:, 1], b[:, 2]] = True
+        outer = column_extremes(occ)[b[:, 0], b[:, 1], b[:, 2]]
+        b, q = b[outer], BRICK // sub
+        blocks = core[slots[outer]].reshape(-1, q, sub, q, sub, q, sub)
+        lo = np.empty(blocks.shape[:1] + (q, q, q, 3))
+        hi = np.empty_like(lo)
+        full = None
+        for axis, (keep, others) in enumerate(((2, (4, 6)), (4, (2, 6)), (6, (2, 4)))):
+            has = np.moveaxis(blocks.any(axis=others), keep - len([o for o in others if o < keep]), -1)
+            full = has.any(axis=-1) if full is None else full
+            step = np.arange(q).reshape([q if i == axis else 1 for i in range(3)]) * sub
+            lo[..., axis] = step + has.argmax(axis=-1) - 0.5
+            hi[..., axis] = step + sub - 1 - has[..., ::-1].argmax(axis=-1) + 0.5
+        n, i, j, k = np.nonzero(full)
+        base = (b[n] * BRICK)[:, None, :]
+        pick = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], bool)
+        local = (base + np.where(pick[None], hi[n, i, j, k][:, None], lo[n, i, j, k][:, None])
+                 ).reshape(-1, 3)
+        m = self.local_to_world
+        return local @ m[:3, :3].T + m[:3, 3]
+
     def sample_local(self, p, emission=False, temperature=False) -> np.ndarray:
         """Trilinear value at local index coordinates p (N, 3); 0 outside the layout."""
         vals = self.temperature if temperature else self.emission if emission else self.data

@@ -27,12 +27,21 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         unknown = re.match(r"unrecognized arguments: (.*)", message)
-        if unknown:           # "unknown option --spps; did you mean --spp?"
-            words = [w.split("=")[0] for w in unknown.group(1).split() if w.startswith("--")]
+        choice = re.match(r"argument (\S+): invalid choice: '([^']*)' \(choose from (.*)\)",
+                          message)
+        if unknown:           # "unknown option --spps; did you mean --spp?"; peers' -res
+            words = [w.split("=")[0] for w in unknown.group(1).split()
+                     if w.startswith("-") and not _NUMBER.match(w)]
             if words:
                 known = [o[2:] for o in self._all_options()]
-                close = suggest(words[0][2:], known, lambda o: f"--{o}")
+                close = suggest(words[0].lstrip("-"), known, lambda o: f"--{o}")
                 message = f"unknown option {printable(words[0])}" + (f"; {close}" if close else "")
+        elif choice:          # `volrender rendr`: "did you mean render?"
+            known = re.findall(r"'([^']*)'", choice.group(3))
+            close = suggest(choice.group(2), known)
+            what = "command" if choice.group(1) == "COMMAND" else f"value for {choice.group(1)}"
+            message = (f"unknown {what} {printable(repr(choice.group(2)))}; "
+                       + (close or f"choose from {', '.join(known)}"))
         self.exit(2, f"volrender: error: {message}; see `{self.prog} --help`\n")
 
     def _all_options(self) -> list:
@@ -176,11 +185,13 @@ def build_parser():
     cg.add_argument("--camera-out", default=None, metavar="CAM.toml",
                     help="also write the camera used (origin, target, up, fov, size) as TOML")
     sq = r.add_argument_group(
-        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #), smoke_%04d.vdb, "
+        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #; @ as #), "
+                     "smoke_$F4.vdb, smoke_%04d.vdb, "
                      "or a quoted glob 'smoke_*.vdb' (input only); one camera for every frame")
-    sq.add_argument("--frames", default=None, metavar="A-B[:STEP]",
-                    help="frames to render (also N, or a comma-separated list); default: every "
-                         "file a glob matches")
+    sq.add_argument("--frames", default=None, metavar="A-B[xSTEP]",
+                    help="frames to render: A-B, A-BxSTEP (A-B:STEP too), A-BySTEP (the frames "
+                         "STEP skips), N, or a comma-separated list; default: every file the "
+                         "pattern matches")
     sq.add_argument("--workers", type=_int("--workers"), default=None, metavar="N",
                     help="Dask workers of a LocalCluster on this machine; 0 renders in this "
                          "process (default: one per GPU, else one per 8 CPU cores)")
@@ -195,8 +206,14 @@ def build_parser():
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
-    o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
-                   help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
+    o.add_argument("--view", "--tonemap", dest="tonemap", choices=list(VIEW_CHOICES),
+                   default="filmic", metavar="{filmic,standard,agx,aces}",
+                   help="PNG only: the view transform. filmic: volrender's shoulder (identity "
+                        "up to 0.5, mid-tones as rendered, highlights rolled off to white; the "
+                        "default, as before); standard: sRGB clipped at 1 (Blender's Standard; "
+                        "clamp is its older name); aces: ACES 1.0 SDR video; both through "
+                        "OpenColorIO's built-in ACES config; agx: from the OpenColorIO config "
+                        "$OCIO names (Blender's). --tonemap is its older name")
     o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
                    help="PNG only: bits per channel of the sRGB "
                         "file (default: 8)")
@@ -355,6 +372,8 @@ def cmd_sequence(args):
 
 
 def cmd_render(args):
+    from . import image
+    image.check_view(args.tonemap)           # an OpenColorIO view that is missing: now
     from .sequence import is_pattern
     if len(args.input) > 1:                  # the shell expanded a glob: a sequence of files
         return cmd_sequence(args)
@@ -365,7 +384,6 @@ def cmd_render(args):
     if given:
         raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
-    from . import image
     from .files import refuse_overwrite
     from .device import resolve
     from .render import check_image_memory, render
@@ -373,12 +391,12 @@ def cmd_render(args):
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
-    out_path = image.check_output(args.output, aovs)
+    out_path = image.check_output(args.output, aovs, create=True)    # made at the write
     refuse_overwrite(out_path, req.inputs, shown=args.output)
     dev = resolve(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
     try:
-        scene = req.load()
+        scene = req.load(device=dev)
     except MemoryError:
         raise UserError("out of host memory while reading it", path=args.input,
                         fix="render a smaller volume or cloud, or free memory") from None
@@ -518,6 +536,7 @@ COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "inf
 
 
 _NUMBER = re.compile(r"^-[0-9.]")
+VIEW_CHOICES = ("filmic", "standard", "agx", "aces", "clamp")     # image.TONEMAPS
 
 
 def join_negative_values(argv):

@@ -24,6 +24,8 @@ class PointCloud:
     colors: np.ndarray | None = None    # float32 (N, 3) in 0..1, or None
     source: str = ""
     notes: tuple = ()                   # what the reader chose or left out (said to the user)
+    up_axis: str | None = None          # the up axis the format defines (LAS: "z"), else None
+    up_axis_reason: str = ""
 
     def __post_init__(self):
         c = np.ascontiguousarray(self.centers, dtype=np.float64)
@@ -45,7 +47,7 @@ class PointCloud:
         return len(self.centers)
 
 
-def finish_cloud(path, centers, radii, colors, notes=()) -> PointCloud:
+def finish_cloud(path, centers, radii, colors, notes=(), up_axis=None, up_axis_reason="") -> PointCloud:
     n = len(centers)
     if n == 0:
         raise UserError("the file holds zero points", path=path,
@@ -75,7 +77,7 @@ def finish_cloud(path, centers, radii, colors, notes=()) -> PointCloud:
                             f"{np.nanmax(colors)})", path=path,
                             fix="store float colours in 0..1, or as uchar 0..255")
     return PointCloud(centers=centers, radii=radii, colors=colors, source=str(path),
-                      notes=tuple(notes))
+                      notes=tuple(notes), up_axis=up_axis, up_axis_reason=up_axis_reason)
 
 
 CHUNK_LINES = 1 << 16      # text lines parsed at a time

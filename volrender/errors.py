@@ -64,11 +64,38 @@ def option_name(key: str) -> str:
 
 
 def suggest(word: str, known, spell_as=str) -> str:
-    """"did you mean X?" for the close matches of `word` among `known` ('' for none)."""
+    """"did you mean X?" for the close matches of `word` among `known` ('' for none); a
+    peer's spelling of an option (PEER_NAMES) names volrender's instead."""
+    peer = peer_hint(word, spell_as)
+    if peer:
+        return peer
     close = difflib.get_close_matches(word, list(dict.fromkeys(known)), n=2, cutoff=0.6)
     if not close:
         return ""
     return "did you mean " + " or ".join(spell_as(c) for c in close) + "?"
+
+
+# What peers call volrender's options (vdb_render's -res, -samples, -lookat, -translate;
+# pbrt's pixelsamples and Mitsuba's sample_count; Blender's resolution): the option key each
+# means here, and whose spelling it is. `suggest` names the option for them.
+PEER_NAMES = {
+    "res": ("size", "vdb_render's -res"), "resolution": ("size", "Blender's resolution"),
+    "samples": ("spp", "vdb_render's -samples"), "pixelsamples": ("spp", "pbrt's pixelsamples"),
+    "sample_count": ("spp", "Mitsuba's sample_count"), "samplecount": ("spp", "Mitsuba's sample_count"),
+    "lookat": ("target", "vdb_render's -lookat"), "look_at": ("target", "a look-at point"),
+    "translate": ("origin", "vdb_render's -translate"), "eye": ("origin", "a camera's eye"),
+    "camera_position": ("origin", "a camera position"),
+}
+
+
+def peer_hint(word: str, spell_as=str) -> str:
+    """"did you mean --size (vdb_render's -res)?" for a peer's spelling of an option ('' for
+    none); `word` with or without dashes, in any case, with dashes or underscores."""
+    key = word.lstrip("-").lower().replace("-", "_")
+    hit = PEER_NAMES.get(key)
+    if hit is None:
+        return ""
+    return f"did you mean {spell_as(hit[0])} ({hit[1]})?"
 
 
 class UserError(ValueError):

@@ -43,7 +43,9 @@ def suggested_density_scale(bricks, device=None, size=(64, 48)) -> float | None:
 
 
 def _box(lo, hi) -> str:
-    return "(" + ", ".join(f"{v:.4g}" for v in lo) + ")..(" + ", ".join(f"{v:.4g}" for v in hi) + ")"
+    """Coordinates with 10 significant digits: survey offsets (5e5, 4e6) keep their
+    centimetres."""
+    return "(" + ", ".join(f"{v:.10g}" for v in lo) + ")..(" + ", ".join(f"{v:.10g}" for v in hi) + ")"
 
 
 def describe_points(path) -> list[str]:

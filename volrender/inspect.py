@@ -46,12 +46,35 @@ _CORNER_BITS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dt
 
 
 def _pv():
+    """pyvista, with VTK's logger quiet: errors only on stderr (its off-screen warnings,
+    such as "bad X server connection", said nothing a user can act on), and without
+    colour codes when stderr is no terminal (VTK's loguru decides its colours from $TERM
+    when it loads)."""
+    if "vtkmodules.vtkCommonCore" not in sys.modules and not _isatty(sys.stderr):
+        term = os.environ.get("TERM")
+        os.environ["TERM"] = "dumb"
+    else:
+        term = False
     try:
         import pyvista
+        from vtkmodules.vtkCommonCore import vtkLogger
     except ImportError as exc:
         raise UserError(f"pyvista is not installed ({exc})",
                         fix="bash run.sh setup --inspect (or pip install 'volrender[inspect]')") from None
+    finally:
+        if term is None:
+            os.environ.pop("TERM", None)
+        elif term:
+            os.environ["TERM"] = term
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
     return pyvista
+
+
+def _isatty(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError, OSError):
+        return False
 
 
 # --------------------------------------------------------------------------- meshes

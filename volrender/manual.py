@@ -51,7 +51,7 @@ def options_markdown() -> str:
            "Each option is a command-line flag, a keyword of `volrender.load_scene` (the flag "
            "with underscores) and, where a key is given, a scene-file key. An option the "
            "input's kind does not read is an error. `volrender render --help` lists these "
-           "and the output options (`-o`, `--exposure`, `--tonemap`, `--png-bits`, "
+           "and the output options (`-o`, `--exposure`, `--view`, `--png-bits`, "
            "`--camera-out`, sequences' `--frames`, `--workers`, ...).\n"]
     for owner, title in GROUPS:
         out += [f"\n## {title}\n", "| flag | Python keyword | scene key | default | meaning |",

@@ -56,7 +56,8 @@ def load_points(path) -> PointCloud:
               normals, and 9 are x y z with colours and normals in either order.
     ``.npy``  an (N,3) array of centres or (N,4) with the radius as 4th column.
     ``.las`` / ``.laz``  LiDAR point records through laspy (the `las` extra): the
-              scaled x, y, z and, where the format has them, 16-bit colours.
+              scaled x, y, z and, where the format has them, 16-bit colours. Z-up
+              (ASPRS LAS defines z as elevation): the cloud's up_axis is "z".
 
     Raises UserError on a missing file, an unsupported suffix, a malformed or
     truncated file, zero points, NaN/Inf coordinates, or negative/non-finite radii.
@@ -282,7 +283,7 @@ _READERS = {".ply": read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _r
 
 
 def _read_las(path):
-    """(centres, radii, colours, notes) of a LAS/LAZ file through laspy."""
+    """(centres, radii, colours, notes, up axis, why) of a LAS/LAZ file through laspy."""
     try:
         import laspy
     except ImportError:
@@ -304,7 +305,9 @@ def _read_las(path):
         rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)
         if rgb.max() > 0:
             colors = (rgb / (65535.0 if rgb.max() > 255 else 255.0)).astype(np.float32)
-    return centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id})",)
+    offset = ", ".join(f"{v:.10g}" for v in reader.header.offsets)
+    return (centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id}, "
+                                    f"offset {offset})",), "z", "ASPRS LAS is Z-up")
 
 
 def _read_npy(path):

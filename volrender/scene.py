@@ -46,7 +46,7 @@ from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
-from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value
+from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value, coerce
 from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, finite, options, read
 from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
@@ -69,6 +69,11 @@ class VolumeContent:
     def bounds(self):
         return self.bricks.world_bounds()
 
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the corners of the boxes
+        of its non-zero voxels (bricks.Bricks.occupied_corners)."""
+        return self.bricks.occupied_corners(), 0.0
+
     def buffer(self, device, name):
         """The device copy of bricks.<name> ("table", "data", "emission" or
         "temperature"), uploaded once per device."""
@@ -80,10 +85,11 @@ class VolumeContent:
         return self.store[key]
 
     @classmethod
-    def load(cls, req, reuse=None, timings=None):
+    def load(cls, req, reuse=None, timings=None, device=None):
         """(content, notes, fire) of a volume Request: the bricks (those of `reuse`, a
         Scene, when they are what req would read), the fire defaults of a Mantaflow cache
-        and the automatic estimator."""
+        (its exposure, or smoke for an all-zero flame grid) and the automatic estimator
+        (for the request's pixels on `device`)."""
         from . import vdb
         from .volume import auto_estimator
         settings, notes, fire = req.settings, [], False
@@ -101,7 +107,11 @@ class VolumeContent:
             bricks = vdb.load_volume(path, grid=settings.grid,
                                      emission_grid=settings.emission_grid,
                                      temperature_grid=settings.temperature_grid)
-        settings, note = auto_estimator(bricks, settings)
+        if fire:
+            bricks, settings, more, fire = _fire_loaded(bricks, settings, req.given)
+            notes = (notes if fire else [n for n in notes if not n.startswith("fire:")]) + more
+        w, h = req.view.size
+        settings, note = auto_estimator(bricks, settings, int(w) * int(h), device)
         notes += [note] if note else []
         return cls(bricks, settings, **({"store": old.store} if old else {})), notes, fire
 
@@ -120,6 +130,16 @@ class GlassContent:
     def bounds(self):
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
 
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the spheres, each grown by
+        how far the smooth union's surface reaches beyond them (framing.blend_growth)."""
+        from .framing import blend_growth
+        from .spheres import blend_width
+        centres = np.asarray(self.cloud.centers, np.float64)
+        radii = sphere_radii(self.cloud, self.settings)
+        k = blend_width(radii, self.settings) if len(radii) else 0.0
+        return centres, radii + blend_growth(centres, radii, k)
+
     def prepare(self, device=None, samples=None, max_runs=None, tree_on="auto"):
         """The spheres.PackedSpheres of this cloud and settings on `device`, built once (the
         first call's samples, pixels x spp, set the automatic cell edge's budget, and its
@@ -135,7 +155,7 @@ class GlassContent:
         return self.store.builds
 
     @classmethod
-    def load(cls, req, reuse=None, timings=None):
+    def load(cls, req, reuse=None, timings=None, device=None):
         """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
         when it is what req would read) and, for a cloud without radii, the radius and
         blend of its spacing (spheres.scan_defaults; its time in timings["radii"])."""
@@ -424,6 +444,7 @@ def _field_values(given, owners):
             continue
         opt = options()[key]
         if opt.owner in owners:
+            value = coerce(opt.meta, value)
             check_value(opt.meta, value, where)
             out[opt.field] = value
     return out
@@ -486,29 +507,54 @@ def _fire_defaults(path, settings, given):
     with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
     emission from flame, each voxel's blackbody colour and brightness (the intensity law,
     blackbody.py) at 1000 K per temperature unit, Blender's Principled Volume default (the
-    cache stores temperature in units of it; it carries no kelvin of its own).
-    --emission-grid none turns it off."""
+    cache stores temperature in units of it; it carries no kelvin of its own). Naming
+    either grid yourself on such a cache gives the same (issue 33): the other grid and the
+    1000 K are filled in unless given. --emission-grid none turns it off. The exposure
+    and an all-zero flame grid are decided once the grids are read (_fire_loaded)."""
     from . import vdb, vdb_header
     if settings.emission_grid in ("", "none"):
         return dataclasses.replace(settings, emission_grid=None), None
-    if Path(path).suffix.lower() != ".vdb" or settings.emission_grid is not None \
-            or settings.temperature_grid is not None:
+    if Path(path).suffix.lower() != ".vdb":
         return settings, None
     grids = vdb.list_grids(path)
     why = vdb_header.mantaflow_cache(grids)
     by = {g.name: g for g in grids}
-    if not why or "flame" not in by or "temperature" not in by \
-            or by["flame"].value_type != "float" or by["temperature"].value_type != "float" \
-            or not by["flame"].active_voxels:
+    emission = settings.emission_grid or "flame"
+    temperature = settings.temperature_grid or "temperature"
+    if not why or emission not in by or temperature not in by \
+            or by[emission].value_type != "float" or by[temperature].value_type != "float" \
+            or not by[emission].active_voxels:
         return settings, None
-    changes = {"emission_grid": "flame", "temperature_grid": "temperature"}
+    if settings.emission_grid is not None and settings.temperature_grid is None:
+        return settings, None          # an emission grid named alone: coloured, as asked
+    changes = {"emission_grid": emission, "temperature_grid": temperature}
     if "temperature_scale" not in given:
         changes["temperature_scale"] = 1000.0
     settings = dataclasses.replace(settings, **changes)
-    return settings, (f"fire: {why}; emission from grid 'flame', blackbody colour and "
+    return settings, (f"fire: {why}; emission from grid {emission!r}, blackbody colour and "
                       f"brightness (T^4) of {settings.temperature_offset:g} + "
-                      f"{settings.temperature_scale:g} K x 'temperature'; --emission-grid none "
+                      f"{settings.temperature_scale:g} K x {temperature!r}; --emission-grid none "
                       "turns it off")
+
+
+def _fire_loaded(bricks, settings, given):
+    """(bricks, settings, notes, fire) once the grids are read: an emission grid of zeros
+    is smoke (the emission dropped, the normal sky); else, unless --emission-scale is
+    given, the exposure chosen from the emission's statistics (volrender/fire.py)."""
+    from . import fire
+    if fire.is_empty(bricks):
+        bricks = dataclasses.replace(bricks, emission=None, emission_max=None, temperature=None,
+                                     emission_grid_name=None, temperature_grid_name=None)
+        note = (f"fire: none: grid {settings.emission_grid!r} holds only zeros: rendered as "
+                "smoke under the normal sky")
+        settings = dataclasses.replace(settings, emission_grid=None, temperature_grid=None)
+        return bricks, settings, [note], False
+    if "emission_scale" in given:
+        return bricks, settings, [], True
+    scale, note = fire.exposure(bricks, settings)
+    if scale is None:
+        return bricks, settings, [], True
+    return bricks, dataclasses.replace(settings, emission_scale=scale), [note], True
 
 
 def _environment(path, where):
@@ -576,26 +622,27 @@ class Request:
             out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
-    def load(self, reuse=None) -> Scene:
+    def load(self, reuse=None, device=None) -> Scene:
         """The Scene; `reuse`: a Scene whose bricks or cloud (and device builds) serve this
-        one when they are what it would read (Scene.replace)."""
+        one when they are what it would read (Scene.replace); `device`: the one it will
+        render on, which --estimator auto weighs (None: a CPU)."""
         import time
         t0 = time.perf_counter()
         timings = {}
         notes = []
         environment = None
         cls = VolumeContent if self.kind == "volume" else GlassContent
-        content, load_notes, fire = cls.load(self, reuse, timings)
+        content, load_notes, fire = cls.load(self, reuse, timings, device)
         notes += load_notes
         settings = content.settings
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
-        hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
-            if self.kind == "volume" else (None, "")
+        held = content.bricks if self.kind == "volume" else content.cloud
+        hint, why = getattr(held, "up_axis", None), getattr(held, "up_axis_reason", "")
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
-        camera = self.view.camera(lo, hi, hint)
+        camera = self.view.camera(lo, hi, hint, extent=content.extent())
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_sky
@@ -606,6 +653,11 @@ class Request:
                 notes.append("lights: the default sun and sky" + (f" at {dim:g} (dusk: the fire's "
                              "own light dominates)" if dim != 1.0 else "") + " (--env 0 for no "
                              "sky, --sun or --no-lights for other lights)")
+        if environment is None and self.kind == "glass" and self.view.axis(hint) != "y":
+            from .camera import up_frame     # glass's procedural sky, turned to the up axis
+            from .lights import glass_sky_texels
+            environment = Environment(glass_sky_texels(up_frame(self.view.axis(hint))),
+                                      "default sky (z up)")
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             from .camera import up_frame

@@ -86,7 +86,9 @@ def _check_type(value, kind, where, base: Path):
     if kind is bool:
         return value if isinstance(value, bool) else bad("true or false")
     if kind is int:
-        return value if isinstance(value, int) and not isinstance(value, bool) else bad("an integer")
+        if finite(value) and float(value).is_integer():
+            return int(value)    # spp = 2.0 (integral floats are integers here)
+        return bad("an integer")
     if kind is str:
         return value if isinstance(value, str) else bad("a string")
     if kind == NUM:
@@ -103,10 +105,10 @@ def _check_type(value, kind, where, base: Path):
         return tuple(float(v) for v in value)
     if kind == SIZE:
         if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32768
+                or not all(finite(v) and float(v).is_integer() and 1 <= v <= 32768
                            for v in value)):
             bad("[width, height] with integers 1..32768")
-        return tuple(value)
+        return tuple(int(v) for v in value)
     if kind == STRS:
         if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
             bad("a list of strings")
