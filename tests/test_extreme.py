@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from volrender import generators, glass, reference, spheres, tree as tree_mod
+import reference
+from volrender import generators, glass, spheres, tree as tree_mod
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.image import write_image
@@ -19,16 +20,7 @@ from volrender.lights import PointLight, Sun
 from volrender.cloud import PointCloud
 from volrender.volume import G_MAX, VolumeSettings
 from volrender.bricks import Bricks
-from helpers import fresnel, render_points, render_volume
-
-VOX = 0.1
-
-
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
+from helpers import VOX, fresnel, render_points, render_volume, scaled
 
 
 def ball(n, radius, value=1.0):
@@ -40,7 +32,6 @@ def centred(values, vox=VOX, shift=(0.0, 0.0, 0.0)):
     """Bricks of `values` with the array's centre at world `shift`."""
     c = (np.array(values.shape) - 1) / 2 * vox
     return Bricks.from_dense(values, scaled(vox, np.asarray(shift) - c))
-
 
 
 def impact(cam, centre=(0.0, 0.0, 0.0)):
