@@ -262,6 +262,13 @@ def test_a_missing_env_map_is_a_user_error(tmp_path):
         scene.request(tmp_path / "v.npz", env=(1.0, 2.0))
 
 
+def needs_oiio():
+    """Skip where OpenImageIO (a dependency of `pip install volrender`, which reads .hdr) is
+    missing, e.g. where the package was installed with --no-deps."""
+    pytest.importorskip("OpenImageIO", reason="needs OpenImageIO (Radiance .hdr maps are read "
+                        "through it; pip install OpenImageIO)")
+
+
 def write_rgbe(path, texels):
     import OpenImageIO as oiio
     out = oiio.ImageOutput.create(str(path))
@@ -276,6 +283,7 @@ def test_a_radiance_hdr_environment_reads_as_the_map_it_holds(tmp_path, cl_devic
     its texel's largest; row 0 stays the top (the sun spot where it was); rendering with the
     .hdr equals rendering with the same texels as an .exr."""
     from volrender import render, scene
+    needs_oiio()
     t = sky()
     write_rgbe(tmp_path / "sky.hdr", t)
     got = load_environment(tmp_path / "sky.hdr")
@@ -291,7 +299,18 @@ def test_a_radiance_hdr_environment_reads_as_the_map_it_holds(tmp_path, cl_devic
 
 
 def test_a_broken_hdr_environment_is_a_user_error(tmp_path):
+    needs_oiio()
     p = tmp_path / "cut.hdr"
     p.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n\x02\x02")
     with pytest.raises(UserError, match=r"cut\.hdr: cannot read the Radiance HDR image"):
+        load_environment(p)
+
+
+def test_an_hdr_environment_without_openimageio_is_a_user_error(tmp_path, monkeypatch):
+    """Without OpenImageIO a .hdr map is one error line naming the missing package."""
+    import sys
+    monkeypatch.setitem(sys.modules, "OpenImageIO", None)        # import fails
+    p = tmp_path / "sky.hdr"
+    p.write_bytes(b"#?RADIANCE\n")
+    with pytest.raises(UserError, match=r"sky\.hdr: reading a Radiance HDR image needs OpenImageIO"):
         load_environment(p)
