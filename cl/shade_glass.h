@@ -16,6 +16,11 @@
 #define VR_LIT (VR_N_SUNS + VR_N_POINTS > 0)
 #endif
 
+inline float glass_max3(float3 v)
+{
+    return fmax(v.x, fmax(v.y, v.z));
+}
+
 inline float3 glass_env(__constant GlassParams* gp, __global const float4* env, float3 d)
 {
 #if VR_ENV_MAP
@@ -119,62 +124,260 @@ inline float3 glass_shadow_full(const SdfScene* sc, __constant GlassParams* gp, 
 #endif
 #endif
 
-/* Light i seen from p on a surface with normal n: unit direction *l towards it and its
-   incident radiance (irradiance on a plane facing it) including the shadow test; zero,
-   with no shadow ray, when it is behind the surface. */
-inline float3 glass_light(const SdfScene* sc, __constant GlassParams* gp,
-                          __constant Light* lights, int i, float3 p, float3 n, float base,
-                          float3* l)
+/* Light i seen from p: unit direction *l towards it, its distance *dist (INFINITY for a
+   sun) and its unshadowed incident radiance (irradiance on a plane facing it). */
+inline float3 glass_light_at(__constant GlassParams* gp, __constant Light* lights, int i,
+                             float3 p, float3* l, float* dist)
 {
     float3 e = lights[i].radiance.xyz;
-    float dist = INFINITY;
+    *dist = INFINITY;
     if (i < VR_NSUNS) {
         *l = -lights[i].vec.xyz;
     } else {
         float3 to = lights[i].vec.xyz - p;
         float r2 = dot(to, to);
-        dist = sqrt(r2);
-        *l = dist > 0.0f ? to / dist : (float3)(0.0f, 1.0f, 0.0f);
+        *dist = sqrt(r2);
+        *l = *dist > 0.0f ? to / *dist : (float3)(0.0f, 1.0f, 0.0f);
         e /= fmax(r2, 1e-12f * gp->scale * gp->scale);
     }
-    if (dot(n, *l) <= 0.0f)
-        return (float3)(0.0f);
+    return e;
+}
+
+/* The shadow test from p towards a light along l over dist: its transmittance. */
+inline float3 glass_light_shadow(const SdfScene* sc, __constant GlassParams* gp, float3 p,
+                                 float3 l, float base, float dist)
+{
 #if VR_SHADOWS
     if (VR_ON(VR_BIT_SHADOWS)) {
 #if VR_FULL && VR_REFRACTION
         if (VR_ON(VR_BIT_REFRACTION))
-            e *= glass_shadow_full(sc, gp, p, *l, base, dist);
-        else
+            return glass_shadow_full(sc, gp, p, l, base, dist);
 #endif
-        e *= glass_shadow(sc, gp, p, *l, base, dist);
+        return (float3)(glass_shadow(sc, gp, p, l, base, dist));
     }
 #endif
-    return e;
+    return (float3)(1.0f);
 }
 
-/* Normalised Blinn-Phong highlights at p (already offset outwards), normal n, towards v. */
+/* Light i seen from p on a surface with normal n: unit direction *l towards it and its
+   incident radiance including the shadow test; zero, with no shadow ray, when it is
+   behind the surface. */
+inline float3 glass_light(const SdfScene* sc, __constant GlassParams* gp,
+                          __constant Light* lights, int i, float3 p, float3 n, float base,
+                          float3* l)
+{
+    float dist;
+    float3 e = glass_light_at(gp, lights, i, p, l, &dist);
+    if (dot(n, *l) <= 0.0f)
+        return (float3)(0.0f);
+    return e * glass_light_shadow(sc, gp, p, *l, base, dist);
+}
+
+/* Normalised Blinn-Phong highlights at p (already offset outwards), normal n, towards v,
+   times w (the path's weight times F). A light's unshadowed lobe bounds what it adds: one
+   whose bound is below gp->roulette (largest channel) is shadow-tested with probability
+   bound / roulette, else skipped (and takes that much more weight when tested): unbiased,
+   a sample off by at most `roulette` per light, and the shadow rays of the dim part of
+   the lobe (most of them at shininess 200) are saved. *dim: vr_rand's next dimension. */
 inline float3 glass_highlights(const SdfScene* sc, __constant GlassParams* gp,
                                __constant Light* lights, float3 p, float3 n, float3 v,
-                               float base)
+                               float base, float3 w, uint seed, uint pixel, uint sample,
+                               uint* dim)
 {
     float3 sum = (float3)(0.0f);
     float norm = (gp->shininess + 8.0f) * (1.0f / (8.0f * VR_PI));
     for (int i = 0; i < VR_N_LIGHTS; ++i) {
         float3 l;
-        float3 e = glass_light(sc, gp, lights, i, p, n, base, &l);
+        float dist;
+        float3 e = glass_light_at(gp, lights, i, p, &l, &dist);
         float ndl = dot(n, l);
         if (ndl <= 0.0f)
             continue;
         float3 hv = l + v;
         float hl = length(hv);
         float ndh = hl > 0.0f ? fmax(dot(n, hv / hl), 0.0f) : 0.0f;
-        sum += e * ndl * norm * pow(ndh, gp->shininess);
+        float3 c = w * e * ndl * norm * pow(ndh, gp->shininess);
+        float m = glass_max3(c), rr = gp->roulette;
+        if (!(m > 0.0f))
+            continue;
+        if (m < rr) {
+            if (vr_rand(seed, pixel, sample, (*dim)++) * rr >= m)
+                continue;
+            c *= rr / m;
+        }
+        sum += c * glass_light_shadow(sc, gp, p, l, base, dist);
     }
     return sum;
 }
 #endif
 
-#if VR_FULL
+/* Opaque spheres (--opaque; the uber-kernel decides at run time) */
+#if VR_REFRACTION
+#define GLASS_OPAQUE(gp) (!VR_ON(VR_BIT_REFRACTION))
+#else
+#define GLASS_OPAQUE(gp) 1
+#endif
+
+/* One segment of a branch from o along d on its side (inside: marching in glass), up to
+   the next surface; inside glass it absorbs (Beer-Lambert: *thr) and glows with `tint`
+   (into *rgb, the integral of the glow over the segment's transmittance). Returns hit,
+   with *t and *s at the surface. */
+inline int glass_segment(const SdfScene* sc, __constant GlassParams* gp, float3 o, float3 d,
+                         int inside, float base, float3 tint, float3* rgb, float3* thr,
+                         float* t, SdfSample* s)
+{
+    int hit = glass_trace(sc, gp, o, d, inside ? -1.0f : 1.0f, base, INFINITY, t, s);
+#if VR_REFRACTION
+    if (inside && VR_ON(VR_BIT_REFRACTION)) {
+#if VR_ABSORPTION
+        if (VR_ON(VR_BIT_ABSORPTION)) {
+            float3 tau = gp->absorption.xyz * *t;
+#if VR_GLOW
+            /* integral of exp(-a s) over [0, t] = t (1 - exp(-a t)) / (a t) */
+            if (VR_ON(VR_BIT_GLOW)) {
+                float3 w = select(-expm1(-tau) / tau, (float3)(1.0f),
+                                  isless(tau, (float3)(1e-6f)));
+                *rgb += *thr * gp->glow * tint * *t * w;
+            }
+#endif
+            *thr *= exp(-tau);
+            return hit;
+        }
+#endif
+#if VR_GLOW
+        if (VR_ON(VR_BIT_GLOW))
+            *rgb += *thr * gp->glow * tint * *t;
+#endif
+    }
+#endif
+    return hit;
+}
+
+/* A surface event: where a branch at o + t d meets the surface, what the two Fresnel
+   branches are, and (outer surfaces) the lights' highlights, weighted by F, into *rgb. */
+typedef struct {
+    float3 p_in, p_out;   /* the hit point, offset to the far and to the incident side */
+    float3 n, nf;         /* outward normal; normal towards the incident side */
+    float3 refl, td;      /* reflected and refracted directions (td: refl on TIR) */
+    float3 col;           /* the glass's colour there */
+    float fr;             /* Fresnel reflectance (1 on total internal reflection) */
+    int tir;              /* no refracted direction (or opaque) */
+} GlassEvent;
+
+inline GlassEvent glass_event(const SdfScene* sc, __constant GlassParams* gp,
+                              __constant Light* lights, float3 o, float3 d, float t,
+                              const SdfSample* s, int inside, float base, float3 thr,
+                              float3* rgb, uint seed, uint pixel, uint sample, uint* dim)
+{
+    GlassEvent e;
+    float3 p = o + t * d;
+    float gl = length(s->grad);
+    e.n = gl > 0.0f ? s->grad / gl : -d;
+    e.nf = inside ? -e.n : e.n;
+    float eta = inside ? gp->ior : 1.0f / gp->ior;
+    e.fr = glass_fresnel(clamp(-dot(d, e.nf), 0.0f, 1.0f), eta);
+    e.refl = glass_reflect(d, e.nf);
+    float off = 4.0f * gp->epsilon * fmax(base, length(p));
+    e.p_out = p + off * e.nf;
+    e.p_in = p - off * e.nf;
+    e.col = gp->color.xyz;
+#if VR_COLORS
+    if (VR_ON(VR_BIT_COLORS))
+        e.col = s->color;
+#endif
+    e.td = e.refl;
+    e.tir = GLASS_OPAQUE(gp) || !glass_refract(d, e.nf, eta, &e.td);
+#if VR_LIT
+    if (!inside)
+        *rgb += glass_highlights(sc, gp, lights, e.p_out, e.nf, -d, base, thr * e.fr, seed,
+                                 pixel, sample, dim);
+#endif
+    return e;
+}
+
+/* An opaque sphere's diffuse share: its tint lit by the environment around n and the
+   lights. */
+inline float3 glass_diffuse(const SdfScene* sc, __constant GlassParams* gp,
+                            __constant Light* lights, __global const float4* env,
+                            const GlassEvent* e, float base)
+{
+    float3 diffuse = glass_env(gp, env, e->n);
+#if VR_LIT
+    for (int i = 0; i < VR_N_LIGHTS; ++i) {
+        float3 l;
+        float3 li = glass_light(sc, gp, lights, i, e->p_out, e->n, base, &l);
+        diffuse += li * fmax(dot(e->n, l), 0.0f) * (1.0f / VR_PI);
+    }
+#endif
+    return (1.0f - e->fr) * e->col * diffuse;
+}
+
+/* Is the camera in glass? Then *tint is the glow colour there (the host's blend at the
+   eye, glass.eye_color). */
+inline int glass_eye_inside(const SdfScene* sc, __constant GlassParams* gp, float3 o,
+                            float3* tint)
+{
+    int inside = sdf_eval(sc, o).f < 0.0f;
+    *tint = gp->color.xyz;
+#if VR_COLORS
+    if (VR_ON(VR_BIT_COLORS) && inside)
+        *tint = gp->eye_color.xyz;
+#endif
+    return inside;
+}
+
+/* Radiance along one camera ray (render_glass.cl); *covered = the ray starts in or hits
+   glass. Inside glass each segment absorbs and glows (glass_segment); at a surface event
+   the Fresnel share F is reflected and 1 - F refracted (total internal reflection: all
+   reflected; glass_event). A branch that leaves the clip box reads the environment along
+   its direction; one that has used its `bounces` events returns 0 if it meets glass or
+   is inside it (a path tracer's depth bounces + 1). rng: (seed, pixel, sample) of
+   vr_rand. */
+#if !VR_FULL
+/* --glass-model fast: the path follows the refracted branch; the reflection at an outer
+   surface reads the environment only, and at an exit it is dropped. */
+inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
+                         __constant Light* lights, __global const float4* env,
+                         float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
+{
+    float3 rgb = (float3)(0.0f), thr = (float3)(1.0f), tint;
+    float path = 0.0f, floor_len = 1e-2f * gp->scale;   /* hit-threshold floor near the eye */
+    int inside = glass_eye_inside(sc, gp, o, &tint);
+    *covered = inside;
+    uint dim = 2u;
+    for (int events = 0;; ++events) {
+        float t;
+        SdfSample s;
+        int hit = glass_segment(sc, gp, o, d, inside, path + floor_len, tint, &rgb, &thr, &t, &s);
+        if (events == 0)
+            *covered |= hit;
+        if (!hit)
+            return rgb + thr * glass_env(gp, env, d);
+        if (events >= gp->bounces)
+            return rgb;                                  /* the budget is spent: 0 */
+        path += t;
+        GlassEvent e = glass_event(sc, gp, lights, o, d, t, &s, inside, path + floor_len, thr,
+                                   &rgb, seed, pixel, sample, &dim);
+        if (!inside)
+            rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);
+        if (GLASS_OPAQUE(gp))
+            return rgb + thr * glass_diffuse(sc, gp, lights, env, &e, path + floor_len);
+        if (e.tir) {
+            if (!inside)
+                return rgb;                              /* ior < 1: F = 1, counted above */
+            d = e.refl;
+            o = e.p_out;
+        } else {
+            thr *= 1.0f - e.fr;
+            d = e.td;
+            o = e.p_in;
+            if (!inside)
+                tint = e.col;                            /* entering: this glass glows */
+            inside = !inside;
+        }
+    }
+}
+#else
 #ifndef VR_GLASS_STACK
 #define VR_GLASS_STACK 4      /* branches waiting to be traced */
 #endif
@@ -195,217 +398,107 @@ typedef struct {
 #endif
 } GlassBranch;
 
-inline float glass_max3(float3 v)
-{
-    return fmax(v.x, fmax(v.y, v.z));
-}
-#endif
-
-/* Radiance along one camera ray through up to `bounces` surface events per path;
-   *covered = the ray starts in or hits glass. Inside glass each segment absorbs
-   (Beer-Lambert) and glows; at an event the Fresnel share F is reflected and 1 - F
-   refracted (total internal reflection: all reflected). A branch at its last event, or
-   that leaves the clip box, reads the environment along its direction.
-   --glass-model fast (VR_FULL 0): the path follows the refracted branch; the reflection
-   at an outer surface reads the environment only, and at an exit it is dropped.
-   --glass-model full (VR_FULL 1): both branches are traced like camera rays, so glass
-   shows in reflections and exits reflect back inside. The path goes on with the larger
-   branch and keeps the other (up to VR_GLASS_STACK waiting, VR_GLASS_SPLITS per path); a
-   kept branch weaker than gp->roulette (its largest channel) survives Russian roulette
-   with probability weight / roulette (and takes that much more weight): unbiased, and a
+/* --glass-model full: both branches are traced like camera rays, so glass shows in
+   reflections and exits reflect back inside. The path goes on with the larger branch and
+   keeps the other (up to VR_GLASS_STACK waiting, VR_GLASS_SPLITS per path); a kept
+   branch weaker than gp->roulette (its largest channel) survives Russian roulette with
+   probability weight / roulette (and takes that much more weight): unbiased, and a
    sample then differs from its expectation by at most `roulette` of the branch's radiance
-   per decision. Past the budget the weaker branch's weight joins the stronger one (it sees
-   what that one sees: energy is kept, the direction approximated). rng: (seed, pixel, sample) of vr_rand. */
+   per decision. Past the budget the weaker branch's weight joins the stronger one (it
+   sees what that one sees: energy is kept, the direction approximated). Past
+   gp->split_events events one branch goes on, chosen in proportion to its weight (and
+   divided by that probability): unbiased, and nothing waits. */
 inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
                          __constant Light* lights, __global const float4* env,
                          float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
 {
-    float3 rgb = (float3)(0.0f), thr = (float3)(1.0f);
-    float path = 0.0f;                         /* length travelled before o */
-    float floor_len = 1e-2f * gp->scale;       /* hit-threshold floor near the eye */
-    float eps = gp->epsilon;
-    SdfSample s0 = sdf_eval(sc, o);
-    int inside = s0.f < 0.0f;                  /* camera inside glass */
-    float3 tint = gp->color.xyz;               /* glow colour of the glass we are in */
-#if VR_COLORS
-    if (VR_ON(VR_BIT_COLORS) && inside)
-        tint = gp->eye_color.xyz;              /* the host's blend at the eye (glass.eye_color) */
-#endif
+    float3 rgb = (float3)(0.0f), thr = (float3)(1.0f), tint;
+    float path = 0.0f, floor_len = 1e-2f * gp->scale;   /* hit-threshold floor near the eye */
+    int inside = glass_eye_inside(sc, gp, o, &tint);
     *covered = inside;
-    int events = 0, first = 1;
-#if VR_FULL
+    int events = 0;
     GlassBranch stack[VR_GLASS_STACK];
     int sp = 0, splits = 0;
     uint dim = 2u;
-#endif
     for (;;) {
-        int done = 1, add_env = 1;             /* done: the branch ends, reading env(d) */
-        if (events < gp->bounces || inside) {
-            float t;
-            SdfSample s;
-            int hit = glass_trace(sc, gp, o, d, inside ? -1.0f : 1.0f, path + floor_len,
-                                  INFINITY, &t, &s);
-            if (first)
-                *covered |= hit;
-            first = 0;
-#if VR_REFRACTION
-            /* Beer-Lambert and emission over the segment inside glass */
-            if (inside && VR_ON(VR_BIT_REFRACTION)) {
-#if VR_ABSORPTION
-                if (VR_ON(VR_BIT_ABSORPTION)) {
-                    float3 tau = gp->absorption.xyz * t;
-#if VR_GLOW
-                    /* integral of exp(-a s) over [0, t] = t (1 - exp(-a t)) / (a t) */
-                    if (VR_ON(VR_BIT_GLOW)) {
-                        float3 w = select(-expm1(-tau) / tau, (float3)(1.0f),
-                                          isless(tau, (float3)(1e-6f)));
-                        rgb += thr * gp->glow * tint * t * w;
-                    }
-#endif
-                    thr *= exp(-tau);
-                }
-#if VR_GLOW
-                else if (VR_ON(VR_BIT_GLOW)) {
-                    rgb += thr * gp->glow * tint * t;
-                }
-#endif
-#elif VR_GLOW
-                if (VR_ON(VR_BIT_GLOW))
-                    rgb += thr * gp->glow * tint * t;
-#endif
-            }
-#endif
-            if (hit && events < gp->bounces) {
-                done = 0;
-                ++events;
-                path += t;
-                float3 p = o + t * d;
-                float gl = length(s.grad);
-                float3 n = gl > 0.0f ? s.grad / gl : -d;          /* outward normal */
-                float3 nf = inside ? -n : n;                     /* towards the incident side */
-                float eta = inside ? gp->ior : 1.0f / gp->ior;
-                float cos_i = clamp(-dot(d, nf), 0.0f, 1.0f);
-                float fr = glass_fresnel(cos_i, eta);
-                float3 refl = glass_reflect(d, nf);
-                float off = 4.0f * eps * fmax(path + floor_len, length(p));
-                float3 p_out = p + off * nf;                     /* incident side */
-                float3 col = gp->color.xyz;
-#if VR_COLORS
-                if (VR_ON(VR_BIT_COLORS))
-                    col = s.color;
-#endif
-#if VR_LIT
+        float t;
+        SdfSample s;
+        int hit = glass_segment(sc, gp, o, d, inside, path + floor_len, tint, &rgb, &thr, &t, &s);
+        if (events == 0)
+            *covered |= hit;                             /* the camera ray's segment */
+        int alive = hit && events < gp->bounces;         /* a hit past the budget: 0 */
+        if (!hit)
+            rgb += thr * glass_env(gp, env, d);
+        if (alive) {
+            ++events;
+            path += t;
+            GlassEvent e = glass_event(sc, gp, lights, o, d, t, &s, inside, path + floor_len,
+                                       thr, &rgb, seed, pixel, sample, &dim);
+            if (GLASS_OPAQUE(gp)) {
+                rgb += thr * glass_diffuse(sc, gp, lights, env, &e, path + floor_len);
+                thr *= e.fr * gp->reflectivity;          /* the reflection, traced */
+                d = e.refl;
+                o = e.p_out;
+                alive = glass_max3(thr) > 0.0f;
+            } else if (e.tir) {
                 if (!inside)
-                    rgb += thr * fr * glass_highlights(sc, gp, lights, p_out, nf, -d,
-                                                       path + floor_len);
-#endif
-#if !VR_FULL
-                if (!inside)
-                    rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);
-#endif
-                int opaque = 1;
-#if VR_REFRACTION
-                if (VR_ON(VR_BIT_REFRACTION)) {
-                    opaque = 0;
-                    float3 td;
-                    if (!glass_refract(d, nf, eta, &td)) {
-                        /* total reflection: inside, all of it; outside (ior < 1) F = 1 */
-#if VR_FULL
-                        if (!inside)
-                            thr *= gp->reflectivity;
-#else
-                        if (!inside) {
-                            done = 1;                    /* counted above */
-                            add_env = 0;
-                        }
-#endif
-                        d = refl;
-                        o = p_out;
-                    } else {
-#if VR_FULL
-                        /* the refracted and the reflected branch; go on with the larger */
-                        GlassBranch tb, rb;
-                        tb.o = p - off * nf;
-                        tb.d = td;
-                        tb.thr = thr * (1.0f - fr);
-                        tb.path = path;
-                        tb.state = events << 1 | !inside;
-                        rb.o = p_out;
-                        rb.d = refl;
-                        rb.thr = thr * (fr * gp->reflectivity);
-                        rb.path = path;
-                        rb.state = events << 1 | inside;
+                    thr *= gp->reflectivity;             /* ior < 1 outside: F = 1 */
+                d = e.refl;
+                o = e.p_out;
+            } else {
+                /* the refracted and the reflected branch; go on with the larger */
+                GlassBranch tb, rb;
+                tb.o = e.p_in;
+                tb.d = e.td;
+                tb.thr = thr * (1.0f - e.fr);
+                tb.path = path;
+                tb.state = events << 1 | !inside;
+                rb.o = e.p_out;
+                rb.d = e.refl;
+                rb.thr = thr * (e.fr * gp->reflectivity);
+                rb.path = path;
+                rb.state = events << 1 | inside;
 #if VR_COLORS
-                        tb.tint = inside ? tint : col;
-                        rb.tint = tint;
-#else
-                        (void)col;
+                tb.tint = inside ? tint : e.col;
+                rb.tint = tint;
 #endif
-                        int keep_t = glass_max3(tb.thr) >= glass_max3(rb.thr);
-                        GlassBranch go = keep_t ? tb : rb, other = keep_t ? rb : tb;
-                        float w = glass_max3(other.thr);
-                        int keep = w > 0.0f;
-                        float rr = gp->roulette;
-                        if (keep && w < rr) {
-                            keep = vr_rand(seed, pixel, sample, dim++) * rr < w;
-                            other.thr *= rr / w;
-                            w = rr;
-                        }
-                        if (keep && (sp >= VR_GLASS_STACK || splits >= VR_GLASS_SPLITS)) {
-                            go.thr += other.thr;         /* past the budget: merged */
-                            keep = 0;
-                        }
-                        if (keep) {
-                            stack[sp++] = other;
-                            ++splits;
-                        }
-                        o = go.o;
-                        d = go.d;
-                        thr = go.thr;
-                        inside = go.state & 1;
+                float wt = glass_max3(tb.thr), wr = glass_max3(rb.thr);
+                int keep_t = wt >= wr, split = events <= gp->split_events;
+                if (!split && wt + wr > 0.0f) {
+                    /* past the split events: one branch, chosen in proportion */
+                    float pt = wt / (wt + wr);
+                    keep_t = vr_rand(seed, pixel, sample, dim++) < pt;
+                    float inv = 1.0f / (keep_t ? pt : 1.0f - pt);
+                    tb.thr *= inv;
+                    rb.thr *= inv;
+                }
+                GlassBranch go = keep_t ? tb : rb, other = keep_t ? rb : tb;
+                float w = glass_max3(other.thr);
+                int keep = split && w > 0.0f;
+                float rr = gp->roulette;
+                if (keep && w < rr) {
+                    keep = vr_rand(seed, pixel, sample, dim++) * rr < w;
+                    other.thr *= rr / w;
+                    w = rr;
+                }
+                if (keep && (sp >= VR_GLASS_STACK || splits >= VR_GLASS_SPLITS)) {
+                    go.thr += other.thr;                 /* past the budget: merged */
+                    keep = 0;
+                }
+                if (keep) {
+                    stack[sp++] = other;
+                    ++splits;
+                }
+                o = go.o;
+                d = go.d;
+                thr = go.thr;
+                inside = go.state & 1;
 #if VR_COLORS
-                        tint = go.tint;
-#endif
-#else
-                        thr *= 1.0f - fr;
-                        d = td;
-                        o = p - off * nf;
-                        if (!inside)
-                            tint = col;                  /* entering: this glass glows */
-                        inside = !inside;
-#endif
-                    }
-                }
-#endif
-#if !VR_REFRACTION || VR_UBER
-                if (opaque) {
-                    /* opaque: diffuse tint lit by the environment around n and the lights */
-                    float3 diffuse = glass_env(gp, env, n);
-#if VR_LIT
-                    for (int i = 0; i < VR_N_LIGHTS; ++i) {
-                        float3 l;
-                        float3 e = glass_light(sc, gp, lights, i, p_out, n, path + floor_len, &l);
-                        diffuse += e * fmax(dot(n, l), 0.0f) * (1.0f / VR_PI);
-                    }
-#endif
-                    rgb += thr * (1.0f - fr) * col * diffuse;
-#if VR_FULL
-                    thr *= fr * gp->reflectivity;        /* the reflection, traced */
-                    d = refl;
-                    o = p_out;
-                    done = !(glass_max3(thr) > 0.0f);
-#else
-                    done = 1;
-                    add_env = 0;
-#endif
-                }
+                tint = go.tint;
 #endif
             }
         }
-        if (done) {
-            if (add_env)
-                rgb += thr * glass_env(gp, env, d);
-#if VR_FULL
+        if (!alive) {
             if (sp == 0)
                 break;
             GlassBranch b = stack[--sp];
@@ -418,13 +511,10 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
 #if VR_COLORS
             tint = b.tint;
 #endif
-            continue;
-#else
-            break;
-#endif
         }
     }
     return rgb;
 }
+#endif
 
 #endif

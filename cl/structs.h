@@ -84,7 +84,7 @@ typedef struct {  /* 32 bytes */
     int count;
 } TreeNode;
 
-typedef struct {  /* 224 bytes */
+typedef struct {  /* 240 bytes */
     float4 box_lo;
     float4 box_hi;
     float4 absorption;
@@ -117,6 +117,10 @@ typedef struct {  /* 224 bytes */
     int grid_skips;
     float roulette;
     float4 eye_color;
+    int split_events;
+    int _pad0;
+    int _pad1;
+    int _pad2;
 } GlassParams;
 
 typedef struct {  /* 48 bytes */

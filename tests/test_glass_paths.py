@@ -49,7 +49,7 @@ def env_map(tmp_path_factory):
 
 def settings(env, **kw):
     base = dict(env=env, ior=1.5, absorption=(0.0, 0.0, 0.0), glow=0.0, blend=0.0,
-                material_unit=1.0, bounces=16)
+                material_unit=1.0, bounces=16, split_events=64)     # every event splits
     return glass.GlassSettings(**{**base, **kw})
 
 
@@ -132,6 +132,47 @@ def test_shadow_rays_transmit_through_glass(cl_device):
     assert (got[~near & (b < r) & (np.sqrt(1 - cos_t ** 2) > 1 / n)] == 0).all()
 
 
+def sphere_depth_closed_form(cam, r, n, a, bounces):
+    """Radiance of each pixel-centre ray of `cam` at a lossless-or-absorbing sphere (centre
+    0, radius r, index n, absorption a per unit length) under a uniform sky of 1, with at
+    most `bounces` surface events (a path tracer's depth bounces + 1): by symmetry every
+    internal event of a ray at impact b has the same angle, Fresnel share F and chord, so
+    L = F + (1 - F)^2 sum_{k=1}^{N-1} T^k F^(k-1), T = exp(-a 2 r cos t): the exit after k
+    chords. Returns (L (H, W, 3), b / r)."""
+    d = cam.pixel_dirs()
+    o = np.asarray(cam.origin, float)
+    along = -(o @ d.reshape(-1, 3).T).reshape(d.shape[:2])
+    b = np.linalg.norm(o + along[..., None] * d, axis=-1) / r
+    cos_i = np.sqrt(np.clip(1 - b * b, 0, 1))
+    cos_t = np.sqrt(np.clip(1 - (b / n) ** 2, 0, 1))
+    f = fresnel(cos_i, 1 / n)[..., None]
+    t = np.exp(-2 * r * cos_t[..., None] * np.asarray(a, float))
+    L = f + (1 - f) ** 2 * sum(t ** k * f ** (k - 1) for k in range(1, bounces))
+    return np.where((b < 1)[..., None], L + 0 * t, 1.0), b
+
+
+@pytest.mark.parametrize("bounces", [1, 2, 3])
+def test_bounce_limit_is_a_path_tracers_depth(cl_device, bounces):
+    """--bounces N is a path tracer's depth N + 1: a branch still inside the glass when its
+    N events are spent returns 0, so each pixel-centre ray (one sample, every branch
+    traced: roulette 0) gives the closed form of the sphere's geometric series of Fresnel
+    terms cut at N events (the old rule read the sky along the interior direction there:
+    +T (1 - F) F^(N-1) too bright)."""
+    a = (0.3, 1.0, 2.0)
+    s = settings((1.0, 1.0, 1.0), absorption=a, bounces=bounces, roulette=0.0)
+    img = ours(cl_device, SPHERE, s)
+    want, b = sphere_depth_closed_form(CAM, SPHERE[1][0], 1.5, a, bounces)
+    inner = b < 0.95                        # away from the grazing rims (hit band)
+    assert inner.sum() > 200
+    np.testing.assert_allclose(img[inner, :3], want[inner], atol=2e-3)
+    # one branch chosen per event past the first (--split-events 1): unbiased, mean zero
+    # difference within 5 standard errors of the per-pixel spread
+    one = ours(cl_device, SPHERE, dataclasses.replace(s, split_events=1, spp=64))
+    full = ours(cl_device, SPHERE, dataclasses.replace(s, spp=64))
+    diff = (one[..., :3] - full[..., :3])[inner]
+    assert abs(diff.mean()) <= 5 * diff.std() / np.sqrt(diff.size) + 1e-4
+
+
 # ------------------------------------------------------------------ Mitsuba 3
 
 def mitsuba_render(spheres, env, ior, absorption, max_depth, spp, seed, cam=CAM):
@@ -201,3 +242,40 @@ def test_glass_agrees_with_mitsuba(cl_device, env_map, case):
     df, sef, _, _ = agreement(f1[..., :3], f2[..., :3], m1, m2, cover)
     if case != "absorbing sphere, map":          # there the exits reflect little light
         assert abs(df) > 4 * sef + 1e-3 * mean
+
+
+@pytest.mark.parametrize("bounces", [1, 2, 3])
+@pytest.mark.parametrize("case", ["lossless sphere, uniform sky", "two spheres, map"])
+def test_bounce_counts_agree_with_mitsuba(cl_device, env_map, case, bounces):
+    """--bounces N against Mitsuba's max_depth N + 1, with the checks above: a branch
+    inside glass at its last event returns 0 and one outside reads the environment only
+    if it meets no glass (two spheres: an exit ray that meets the other sphere at the
+    budget returns 0 too). With the device's default --split-events (on CPUs one split,
+    then one branch per event: unbiased, so it agrees too)."""
+    spheres, env, absorption = CASES[case]
+    env = env_map if env == "map" else env
+    m1, m2 = (mitsuba_render(spheres, env, 1.5, absorption, bounces + 1, 256, seed)
+              for seed in (1, 2))
+    s = settings(env, absorption=(0.0, 0.0, 0.0), spp=64, bounces=bounces, split_events=None)
+    o1, o2 = (ours(cl_device, spheres, dataclasses.replace(s, seed=k)) for k in (1, 2))
+    cover = (o1[..., 3] + o2[..., 3]) > 0
+    dmean, se, l1, mean = agreement(o1[..., :3], o2[..., :3], m1, m2, cover)
+    assert abs(dmean) <= 4 * se + 1e-3 * mean, f"means differ by {dmean:.2g} (se {se:.2g})"
+    assert l1 <= 1.5, f"L1 is {l1:.2f} x the noise's"
+
+
+def test_the_status_line_states_the_glass_model(tmp_path, capsys):
+    """The render's status line (stderr) says what the full model did: on CPUs by default
+    both branches at the camera ray's event, then one branch per event
+    (glass.SPLIT_EVENTS_CPU); with --split-events at least --bounces, every event."""
+    from volrender import cli, device
+    from volrender.dispatch import is_gpu
+    if is_gpu(device.resolve(None)):
+        pytest.skip("the default device is a GPU (its default splits every event)")
+    out = tmp_path / "a.npy"
+    args = ["render", "blob:50", "-o", str(out), "--size", "8x6", "--bounces", "3"]
+    assert cli.main(args) == 0
+    assert "glass full, both branches at 1 event then one" in capsys.readouterr().err
+    assert cli.main(args + ["--split-events", "3"]) == 0
+    err = capsys.readouterr().err
+    assert "glass full" in err and "then one" not in err

@@ -326,7 +326,8 @@ def describe(scene, img=None) -> str:
     if scene.kind == "volume":
         return f"{spp} spp{done}"
     accel = img.info.get("accel", s.accel) if img is not None else s.accel
-    return f"{len(scene.content.cloud.centers)} spheres, {spp} spp, accel {accel}{done}"
+    model = f", {img.info['model']}" if img is not None and img.info.get("model") else ""
+    return f"{len(scene.content.cloud.centers)} spheres, {spp} spp, accel {accel}{model}{done}"
 
 
 def look_problems(img, scene) -> list[str]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import layout, lights as lights_mod
 from .camera import DEFAULT_FOV, frame_bounds
-from .dispatch import Dispatch, Plan
+from .dispatch import Dispatch, Plan, is_gpu
 from .environment import texels as env_texels
 from .errors import UserError
 from .features import GlassFeatures
@@ -27,6 +27,13 @@ PIXELS_PER_LAUNCH = 1 << 14
 NV_MAX_REGISTERS = 40         # per work-item, the glass kernel on NVIDIA (build_options)
 UBER_BITS = layout.UBER_BITS   # uber-kernel runtime feature bits (VR_BIT_* in cl/structs.h)
 ACCELS = ("auto", "grid", "tree", "none")
+# --split-events by device (docs/error_time.md, issue 32): on CPUs one split (the camera
+# hit's reflection and refraction) then one branch per event: x1.6 less time per sample,
+# the same error per unit time within the measurement's spread, so a preview answers in
+# seconds; 64 (every event splits) where the device is not known (the probes).
+SPLIT_EVENTS_CPU = 1
+SPLIT_EVENTS_GPU = 64
+SPLIT_ALL = 64
 GLASS_MODELS = ("full", "fast")
 
 
@@ -74,9 +81,20 @@ class GlassSettings(CommonSettings):
     roulette: float = knob(0.02, "--glass-model full: a branch weaker than this (its "
                            "largest channel, relative to the camera ray) survives Russian "
                            "roulette with probability weight / roulette, else every branch "
-                           "is traced; 0 = trace them all (slowest, no noise), 1 = sample "
-                           "one branch per event (a path tracer's choice, noisiest)",
+                           "is traced; both models: a highlight whose unshadowed lobe is "
+                           "weaker is shadow-tested with that probability; 0 = trace them "
+                           "all (slowest, no noise), 1 = the most roulette (noisiest)",
                            check=in_range(0, 1), toml=("render", "roulette"))
+    split_events: int | None = knob(None, "--glass-model full: surface events per path at "
+                                    "which both Fresnel branches are traced; past them one "
+                                    "branch goes on, chosen in proportion to its weight "
+                                    "(unbiased, noisier per sample, cheaper); 0 = a path "
+                                    "tracer's choice at every event (default: "
+                                    f"{SPLIT_EVENTS_CPU} on CPUs, {SPLIT_EVENTS_GPU} on GPUs, "
+                                    "docs/error_time.md)",
+                                    check=in_range(0, 64, integer=True, allow_none=True),
+                                    toml=("render", "split_events"), kind=int,
+                                    show_default=False)
     ior: float = knob(1.5, "index of refraction", check=in_range(1 / 16, 16),
                       toml=("material", "ior"))
     absorption: tuple = knob((0.25, 1.0, 2.7), "Beer-Lambert coefficient inside glass, per "
@@ -157,7 +175,25 @@ def glass_params(packed: PackedSpheres, settings: GlassSettings, environment=Non
         env_height=env_h, tile_margin=packed.margin,
         shadow_cone=math.tan(math.radians(settings.shadow_angle)),
         uber=uber, n_suns=n_suns, n_points=n_points, relax=settings.relax,
-        hit_len=min(packed.hit_len, 3e38), roulette=settings.roulette)
+        hit_len=min(packed.hit_len, 3e38), roulette=settings.roulette,
+        split_events=SPLIT_ALL if settings.split_events is None else settings.split_events)
+
+
+def split_events(settings: GlassSettings, device) -> int:
+    """--split-events, its default resolved for the device (SPLIT_EVENTS_CPU/GPU)."""
+    if settings.split_events is not None:
+        return settings.split_events
+    return SPLIT_EVENTS_GPU if device is not None and is_gpu(device) else SPLIT_EVENTS_CPU
+
+
+def describe_model(settings: GlassSettings, device) -> str:
+    """The glass model a render used, for the status line."""
+    if settings.glass_model != "full" or not settings.refraction:
+        return f"glass {settings.glass_model}" if settings.refraction else "opaque"
+    k = split_events(settings, device)
+    if k >= settings.bounces:
+        return "glass full"
+    return f"glass full, both branches at {k} event{'s' if k != 1 else ''} then one"
 
 
 def plan(scene, device, variant=None, launch=None):
@@ -175,12 +211,14 @@ def plan(scene, device, variant=None, launch=None):
     env = env_texels(scene.environment)[0]
     bits = uber_bits(GlassFeatures.from_scene(scene, packed, dispatch)) if variant == "uber" else 0
     params = glass_params(packed, settings, scene.environment, scene.lights, bits)
+    params["split_events"] = split_events(settings, device)
     eye = np.asarray(cam.origin, np.float64) - packed.centre
     if np.all(eye >= packed.box_lo) and np.all(eye <= packed.box_hi):
         params["eye_color"] = eye_color(packed, eye)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
     spheres, grid_arrays = kernel_arrays(packed, params, device.context)
-    info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0}
+    info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0,
+            "model": describe_model(settings, device)}
     if packed.cells is not None:
         info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.summary())
     if packed.note:
@@ -191,7 +229,15 @@ def plan(scene, device, variant=None, launch=None):
               *zip(("bricks", "cells", "lists", "runs"), grid_arrays)]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
-                PIXELS_PER_LAUNCH, info=info, build_options=build_options(features, device))
+                PIXELS_PER_LAUNCH, info=info,
+                build_options=build_options(features, device) + stack_option(params))
+
+
+def stack_option(params) -> tuple:
+    """The full model's branch stack sized to what can wait: at most one branch per split
+    event (private memory: a smaller stack spills less on GPUs)."""
+    split = int(params["split_events"][0])
+    return (f"-DVR_GLASS_STACK={min(max(split, 1), 4)}",) if split < 4 else ()
 
 
 def build_options(features, device) -> tuple:

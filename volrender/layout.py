@@ -154,6 +154,10 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("grid_skips", "int"),           # most skips per ray segment
         ("roulette", "float"),           # --glass-model full: weaker branches play Russian roulette
         ("eye_color", "float4"),         # rgb glow tint at the eye (per-point colours, eye in glass)
+        ("split_events", "int"),         # --glass-model full: events that trace both branches
+        ("_pad0", "int"),
+        ("_pad1", "int"),
+        ("_pad2", "int"),
     ],
     # Support-cell builder (cl/build_cells.cl): boxes are cells or bricks of the grid.
     "CellBuild": [

@@ -245,6 +245,24 @@ def pack_scene(cloud, settings, device=None, samples=None,
                          colors, margin, accel, grid, note, hit_len)
 
 
+# The CPU rule (cells.choose_edge) was fitted on one refracted path per sample (the fast
+# model). The full model traces the camera hit's reflection too (x2 paths: FULL_WORK) and,
+# splitting at more than one event, about FULL_SPLIT_WORK times the field work (issue 32:
+# kernel ms full/fast x3-7 on the H200). The bunny at 320x240 on PoCL, CPU s tree/cells:
+# fast 9.7/8.4, full split once 10.5/7.1, split always 25.6/16.3; the rule alone chose the
+# tree for all three.
+FULL_WORK = 2.0
+FULL_SPLIT_WORK = 4.0
+
+
+def sample_work(settings) -> float:
+    """A pixel sample's field work relative to one refracted path (the CPU cell rule)."""
+    if getattr(settings, "glass_model", "fast") != "full" or not settings.refraction:
+        return 1.0
+    split = getattr(settings, "split_events", None)
+    return FULL_SPLIT_WORK if split is not None and split > 1 else FULL_WORK
+
+
 def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, settings,
                  device, samples=None, max_runs=None):
     """(cells.Cells, "") or (None, why) when the lists would not fit (then: the tree)."""
@@ -256,7 +274,8 @@ def _build_cells(spheres, nodes, first_leaf, k, box_lo, box_hi, radii, scale, se
         if is_gpu(device):
             budget = cells_mod.GPU_CELLS
         else:
-            chosen = cells_mod.choose_edge(spheres, k, box_lo, cell, samples)
+            chosen = cells_mod.choose_edge(spheres, k, box_lo, cell,
+                                           None if samples is None else samples * sample_work(settings))
             if chosen is None and settings.accel == "auto":
                 return None, (f"a job of {samples or cells_mod.DEFAULT_SAMPLES} pixel samples is "
                               "too small for support cells to repay their build on this CPU: "
