@@ -1,0 +1,179 @@
+"""The light cache (volrender/light_cache.py, cl/bake_light.cl, cl/light_cache.h) against
+the exact shadow march it replaces.
+
+Closed-form media (a slab, a ball) lit by one sun: the only approximation the cache makes
+for a light is the trilinear interpolation of the shadow optical depth tau between nodes
+`cell` voxels apart. `predicted_error` computes that error in numpy from the medium
+itself: tau by brute-force quadrature of the renderer's trilinear density at the nodes
+and at random points of the medium, then the RMS difference of exp(-tau) between the
+interpolated and the direct value, relative to the RMS of exp(-tau). The images must
+agree within it (mean and RMSE over covered pixels, reference alpha > 0.05), plus the
+exact march's own noise (it samples its shadows with jitter: Z standard errors).
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from volrender import light_cache, load_scene
+from volrender.lights import Sun
+from volrender.render import render
+from volrender.scene import Scene, VolumeContent
+from volrender.vdb import Bricks
+from volrender.volume import VolumeSettings
+from helpers import Z, look_at, scaled, trilinear
+
+SUN = Sun((0.35, -1.0, 0.25), 3.0)
+SIGMA = 0.12                     # per voxel (world unit = one voxel here)
+
+
+def slab_values():
+    v = np.zeros((32, 32, 32), np.float32)
+    v[:, 8:24, :] = 1.0          # 16 voxels thick along y, the sun's main axis
+    return v
+
+
+def ball_values():
+    i = np.indices((32, 32, 32)).astype(np.float64) - 15.5
+    return (np.sqrt((i ** 2).sum(0)) <= 11.0).astype(np.float32)
+
+
+def tau_towards_sun(values, m, x, sigma, ds=0.1, length=60.0):
+    """Brute-force shadow optical depth at world points x (n, 3) along -SUN.direction."""
+    d = -np.asarray(SUN.direction, np.float64)
+    d /= np.linalg.norm(d)
+    s = (np.arange(int(length / ds)) + 0.5) * ds
+    tau = np.zeros(len(x))
+    for chunk in np.array_split(np.arange(len(x)), max(1, len(x) // 200)):
+        pts = x[chunk, None, :] + s[None, :, None] * d
+        tau[chunk] = sigma * trilinear(values, m, pts).sum(axis=1) * ds
+    return tau
+
+
+def predicted_error(bricks, values, m, cell, sigma, rng, n=400):
+    """Relative RMS error of the sun's transmittance read from nodes `cell` voxels apart
+    (trilinear), at random points where the density is positive."""
+    shape = np.array(values.shape)
+    pts = rng.uniform(0, shape - 1, size=(8 * n, 3))
+    pts = pts[trilinear(values, m, pts @ m[:3, :3].T + m[:3, 3]) > 0][:n]
+    origin = np.asarray(bricks.origin, np.float64)
+    q = (pts - origin) / cell                       # node lattice: origin + cell * integers
+    i0 = np.floor(q)
+    f = q - i0
+    corners = np.array([(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
+    nodes = origin + (i0[:, None, :] + corners[None]) * cell          # (n, 8, 3) index
+    world = lambda p: p @ m[:3, :3].T + m[:3, 3]
+    tau_nodes = tau_towards_sun(values, m, world(nodes.reshape(-1, 3)), sigma).reshape(-1, 8)
+    w = np.prod(np.where(corners[None], f[:, None, :], 1 - f[:, None, :]), axis=-1)
+    t_cache = np.exp(-(w * tau_nodes).sum(axis=1))
+    t_exact = np.exp(-tau_towards_sun(values, m, world(pts), sigma))
+    return float(np.sqrt(np.mean((t_cache - t_exact) ** 2) / np.mean(t_exact ** 2)))
+
+
+def compare(ref, img):
+    """(mean ratio - 1, relative RMSE, standard error of the mean ratio) on covered pixels."""
+    cov = ref.rgba[..., 3] > 0.05
+    a, b = ref.rgba[..., :3][cov], img.rgba[..., :3][cov]
+    diff = (b - a).mean(axis=-1)
+    se = float(diff.std(ddof=1) / np.sqrt(diff.size) / a.mean())
+    rel = float(np.sqrt(((b - a) ** 2).mean() / (a ** 2).mean()))
+    return float(b.mean() / a.mean() - 1.0), rel, se
+
+
+def render_pair(dev, values, cell, size=32, spp=16):
+    c = (np.array(values.shape) - 1) / 2
+    m = scaled(1.0, -c)
+    bricks = Bricks.from_dense(values, m)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=size)
+    base = VolumeSettings(estimator="march", ms_octaves=1, density_scale=SIGMA, spp=spp,
+                          step=0.5, shadow_step=0.5)
+    out = []
+    for mode in ("off", "on"):
+        s = dataclasses.replace(base, light_cache=mode, light_cache_cell=cell)
+        img = render(Scene.of(cam, [SUN], VolumeContent(bricks, s)), dev)
+        out.append(img)
+    assert out[1].info.get("light_cache_cell") == cell
+    assert out[0].info["light_cache"].startswith("light cache off")
+    return bricks, m, out
+
+
+@pytest.mark.parametrize("name, values", [("slab", slab_values), ("ball", ball_values)])
+@pytest.mark.parametrize("cell", [2, 4])
+def test_cached_sun_matches_the_exact_march(cl_device, rng, name, values, cell):
+    v = values()
+    bricks, m, (ref, img) = render_pair(cl_device, v, cell)
+    eps = predicted_error(bricks, v, m, cell, SIGMA, rng)
+    mean, rel, se = compare(ref, img)
+    # eps is per point; an image averages points along each ray, so it bounds both
+    assert abs(mean) <= eps + Z * se, (name, cell, mean, eps, se)
+    assert rel <= 2.0 * eps, (name, cell, rel, eps)
+
+
+def test_probe_reads_the_baked_nodes_trilinearly(cl_device, rng):
+    """The bake at its nodes against brute-force tau (a node offset shows here), and the
+    marcher's lookup (light_cache.h) at random points against numpy's trilinear
+    interpolation of the read-back nodes (a wrong weight shows here)."""
+    v = ball_values()
+    c = (np.array(v.shape) - 1) / 2
+    m = scaled(1.0, -c)
+    bricks = Bricks.from_dense(v, m)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=8)
+    s = VolumeSettings(estimator="march", ms_octaves=1, density_scale=SIGMA, shadow_step=0.25,
+                       light_cache="on", light_cache_cell=2)
+    scene = Scene.of(cam, [SUN], VolumeContent(bricks, s))
+    nodes, occ = light_cache.read_back(scene, cl_device)          # (slots, n, n, n, ch)
+    n = nodes.shape[1]
+    origin = np.asarray(bricks.origin, np.float64)
+    # nodes of a few bricks against brute force
+    pick = occ[rng.choice(len(occ), 6, replace=False)]
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    for bx, by, bz, slot in pick:
+        local = np.array([bx, by, bz]) * 8 + ijk * 2
+        world = (origin + local) @ m[:3, :3].T + m[:3, 3]
+        want = tau_towards_sun(v, m, world, SIGMA, ds=0.05)
+        got = nodes[slot].reshape(-1, nodes.shape[-1])[:, 0]
+        # the bake marches at 0.25 voxel with midpoint samples: error << the density ramp
+        np.testing.assert_allclose(got, want, atol=0.02 + 0.01 * want.max())
+    # the lookup at random points of occupied bricks
+    b = occ[rng.integers(0, len(occ), 300)]
+    frac = rng.uniform(0, 8, size=(300, 3))
+    local = b[:, :3] * 8 + frac
+    got = light_cache.probe(scene, cl_device, local)[:, 0]
+    q = frac / 2
+    i0 = np.minimum(np.floor(q).astype(int), n - 2)
+    f = q - i0
+    want = np.zeros(300)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (np.where(dx, f[:, 0], 1 - f[:, 0]) * np.where(dy, f[:, 1], 1 - f[:, 1])
+                     * np.where(dz, f[:, 2], 1 - f[:, 2]))
+                want += w * nodes[b[:, 3], i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz, 0]
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+
+
+def small_scene(**kw):
+    v = ball_values()
+    return load_scene(v, size=(24, 18), estimator="march", ms_octaves=1, density_scale=SIGMA,
+                      light_cache="on", light_cache_cell=4, **kw)
+
+
+def test_camera_change_reuses_the_cache_and_a_light_change_rebakes_it(cl_device):
+    scene = small_scene(sun=[(0.35, -1.0, 0.25, 3.0)], env=(0.2, 0.3, 0.4))
+    first = render(scene, cl_device)
+    assert first.info["light_cache_baked"] and light_cache.builds(scene.content) == 1
+    moved = scene.replace(azimuth=40.0)
+    img = render(moved, cl_device)
+    assert not img.info["light_cache_baked"]
+    assert light_cache.builds(moved.content) == 1
+    assert not np.allclose(img.rgba, first.rgba)            # the camera did move
+    resized = scene.replace(size=(32, 24), spp=2)
+    render(resized, cl_device)
+    assert light_cache.builds(resized.content) == 1
+    for change in ({"sun": [(-0.35, -1.0, 0.25, 3.0)]}, {"env": (0.4, 0.3, 0.2)},
+                   {"density_scale": 2 * SIGMA}):
+        other = scene.replace(**change)
+        before = light_cache.builds(other.content)
+        img = render(other, cl_device)
+        assert img.info["light_cache_baked"], change
+        assert light_cache.builds(other.content) == before + 1, change

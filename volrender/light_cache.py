@@ -1,0 +1,223 @@
+"""The light cache (issue 33): the light reaching the medium, baked once per scene and
+lights on the device (cl/bake_light.cl) and read trilinearly by the marcher
+(cl/light_cache.h) instead of a shadow march per sample per light.
+
+Nodes sit every `cell` voxels inside each occupied brick (8 / cell + 1 per axis, the faces
+shared with the neighbours); each holds every light's shadow optical depth and, with an
+environment, the L1 harmonics of its banded light over 14 fixed directions. The cache
+belongs to the volume's content like the uploaded bricks: `Scene.replace` with another
+camera reuses it, other lights, environment or medium settings bake it again.
+
+The cost model (`choose`): a bake costs (nodes x marches per node) shadow marches, the
+exact march (marches per sample) x (its samples inside occupied bricks), estimated as
+each brick's world volume over the pixel footprint at its distance times the step, times
+spp. The finest cell whose bake costs at most BAKE_SHARE of what it replaces is taken;
+`auto` turns the cache off where even the coarsest costs more than that.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import layout
+
+MODES = ("auto", "on", "off")
+CELLS = (1, 2, 4)              # node spacings the cost model picks from (8 also valid)
+BAKE_SHARE = 0.5               # the bake may cost this share of the shadow marches it replaces
+ENV_DIRS = 14                  # cl/light_cache.h's fixed environment directions
+ENV_CH = 12
+MAX_BYTES = 512 << 20          # the cache is coarsened until it fits
+
+
+@dataclass(frozen=True)
+class Choice:
+    cell: int                  # node spacing, voxels (0: no cache)
+    nodes: int
+    channels: int
+    bake_marches: float
+    exact_marches: float
+    reason: str
+
+    @property
+    def nbytes(self) -> int:
+        return 4 * self.nodes * self.channels
+
+    def note(self) -> str:
+        if not self.cell:
+            return f"light cache off ({self.reason})"
+        return (f"light cache: nodes every {self.cell} voxel{'s' if self.cell > 1 else ''} "
+                f"({self.nodes / 1e3:.0f}k nodes x {self.channels} channels, "
+                f"{self.nbytes / 2**20:.1f} MB), baked once: ~{self.bake_marches / 1e6:.2g}M "
+                f"marches against ~{self.exact_marches / 1e6:.2g}M shadow marches of the exact "
+                f"march ({self.reason}); --light-cache off for the exact march")
+
+
+def nodes_per_brick(cell: int) -> int:
+    return (layout.BRICK // cell + 1) ** 3
+
+
+def camera_samples(bricks, camera, step_world, spp) -> float:
+    """Estimated camera samples inside occupied bricks: per brick in front of the camera,
+    its world volume over (pixel footprint at its distance x the step), times spp."""
+    idx = np.flatnonzero(np.asarray(bricks.table) >= 0)
+    if idx.size == 0:
+        return 0.0
+    b = np.stack(np.unravel_index(idx, tuple(int(d) for d in bricks.dims)), axis=1)
+    l2w = np.asarray(bricks.local_to_world, np.float64)
+    centres = (b + 0.5) * layout.BRICK
+    world = centres @ l2w[:3, :3].T + l2w[:3, 3]
+    vox_vol = abs(float(np.linalg.det(l2w[:3, :3])))
+    dist = np.linalg.norm(world - np.asarray(camera.origin, np.float64), axis=1)
+    pix = 2.0 * math.tan(math.radians(camera.fov) / 2.0) / camera.height   # per unit distance
+    area = (np.maximum(dist, 1e-30) * pix) ** 2
+    return float(np.sum(vox_vol * layout.BRICK ** 3 / (area * step_world))) * spp
+
+
+def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None) -> Choice:
+    """The cache for this scene: the finest of CELLS whose bake costs at most BAKE_SHARE
+    of the exact march's shadow marches (settings.light_cache_cell fixes it), within
+    MAX_BYTES; cell 0 where the mode is off, the estimator is not the march, nothing
+    lights the medium, or (auto) even the coarsest costs more."""
+    mode = settings.light_cache
+    channels = n_lights + (ENV_CH if env else 0)
+    per_node = n_lights + (ENV_DIRS if env else 0)
+    per_sample = n_lights + (1 if env else 0)
+    slots = int(bricks.n_slots)
+
+    def off(why):
+        return Choice(0, 0, channels, 0.0, 0.0, why)
+    if mode == "off":
+        return off("--light-cache off")
+    if settings.estimator != "march":
+        return off(f"the {settings.estimator} estimator traces its own shadows")
+    if channels == 0 or slots == 0:
+        return off("nothing lights the medium")
+    step = settings.step * float(bricks.voxel_size)
+    exact = camera_samples(bricks, camera, step, settings.spp) * per_sample
+    cell = cell or settings.light_cache_cell
+    fits = [c for c in (8, *CELLS) if slots * nodes_per_brick(c) * channels * 4 <= MAX_BYTES]
+    if cell is None:
+        ok = [c for c in CELLS if c in fits and slots * nodes_per_brick(c) * per_node
+              <= BAKE_SHARE * exact]
+        if ok:
+            cell, why = min(ok), f"the finest whose bake is at most {BAKE_SHARE:g} of them"
+        elif mode == "auto":
+            bake = slots * nodes_per_brick(max(CELLS)) * per_node
+            return Choice(0, 0, channels, bake, exact,
+                          f"auto: even {max(CELLS)}-voxel nodes would bake "
+                          f"~{bake / 1e6:.2g}M marches against ~{exact / 1e6:.2g}M")
+        else:
+            cell, why = max(c for c in CELLS if c in fits) if any(c in fits for c in CELLS) \
+                else 8, "--light-cache on"
+    else:
+        why = f"--light-cache-cell {cell}"
+    nodes = slots * nodes_per_brick(cell)
+    return Choice(cell, nodes, channels, float(nodes * per_node), exact, why)
+
+
+def occupied_slots(bricks) -> np.ndarray:
+    """(n, 4) int32: (bx, by, bz, slot) of every occupied brick."""
+    table = np.asarray(bricks.table)
+    idx = np.flatnonzero(table >= 0)
+    out = np.zeros((len(idx), 4), np.int32)
+    out[:, :3] = np.stack(np.unravel_index(idx, tuple(int(d) for d in bricks.dims)), axis=1)
+    out[:, 3] = table[idx]
+    return out
+
+
+@dataclass
+class LightCache:
+    buffer: object             # cl.Buffer of float32
+    choice: Choice
+    bake_ms: float
+
+
+def builds(content) -> int:
+    """How many times the content's light cache was baked."""
+    return content.store.get("light_cache_builds", 0)
+
+
+def get(content, device, features, params, lights_packed, env, choice: Choice) -> LightCache:
+    """The content's cache on `device` for these features (the marcher's flags), params,
+    packed lights and environment texels: baked on the first call, reused while they stay
+    the same (only the latest per device is kept)."""
+    import dataclasses
+    flags = dataclasses.replace(features, light_cache=choice.cell, tiled=False, tile_w=1,
+                                tile_h=1, tile_cap=0, depth=False).flags()
+    key = (tuple(sorted(flags.items())), params.tobytes(), np.asarray(lights_packed).tobytes(),
+           np.asarray(env).tobytes())
+    slot = ("light_cache", device.device.int_ptr)
+    hit = content.store.get(slot)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    content.store.pop(slot, None)          # free the old one before baking anew
+    cache = bake(content.bricks, device, flags, params, lights_packed, env, choice,
+                 content.buffer(device, "table"), content.buffer(device, "data"))
+    content.store[slot] = (key, cache)
+    content.store["light_cache_builds"] = builds(content) + 1
+    return cache
+
+
+def bake(bricks, device, flags, params, lights_packed, env, choice, table, data) -> LightCache:
+    """Run cl/bake_light.cl over every node of every occupied brick."""
+    import pyopencl as cl
+    from .dispatch import upload
+    ctx, q = device.context, device.queue
+    occ = occupied_slots(bricks)
+    n = len(occ) * nodes_per_brick(choice.cell)
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, max(4, 4 * int(bricks.n_slots) *
+                                                      nodes_per_brick(choice.cell) * choice.channels))
+    kernel = device.kernel("bake_light", flags)
+    local = 64
+    t0 = time.perf_counter()
+    kernel(q, (-(-n // local) * local,), (local,), upload(ctx, params), upload(ctx, lights_packed),
+           table, data, upload(ctx, np.asarray(env, np.float32)), upload(ctx, occ), out,
+           np.int32(len(occ)))
+    q.finish()
+    return LightCache(out, choice, 1e3 * (time.perf_counter() - t0))
+
+
+def _scene_cache(scene, device):
+    """(LightCache, bricks, occupied slots) of a volume scene on `device` (tests)."""
+    from . import device as device_mod, volume
+    dev = device_mod.resolve(device)
+    plan = volume.plan(scene, dev)
+    cache = scene.content.store[("light_cache", dev.device.int_ptr)][1]
+    return dev, plan, cache
+
+
+def read_back(scene, device):
+    """The baked nodes of a volume scene, (slots, n, n, n, channels) float32, and its
+    occupied bricks (occupied_slots); tests and diagnostics."""
+    import pyopencl as cl
+    dev, _, cache = _scene_cache(scene, device)
+    n = layout.BRICK // cache.choice.cell + 1
+    out = np.empty((int(scene.content.bricks.n_slots), n, n, n, cache.choice.channels),
+                   np.float32)
+    cl.enqueue_copy(dev.queue, out, cache.buffer)
+    dev.queue.finish()
+    return out, occupied_slots(scene.content.bricks)
+
+
+def probe(scene, device, local):
+    """The cache's channels as the marcher reads them (cl/light_cache.h) at local points
+    (n, 3) inside occupied bricks: (n, channels); tests."""
+    import pyopencl as cl
+    from .dispatch import upload
+    dev, plan, cache = _scene_cache(scene, device)
+    flags = dict(plan.features.flags())
+    kernel = dev.kernel("bake_light", flags, "probe_light_cache")
+    pts = np.zeros((len(local), 4), np.float32)
+    pts[:, :3] = local
+    out = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, 4 * len(local) * cache.choice.channels)
+    kernel(dev.queue, (len(local),), None, upload(dev.context, pts),
+           scene.content.buffer(dev, "table"), np.asarray(scene.content.bricks.dims.tolist() + [0],
+                                                          np.int32).view(cl.cltypes.int4)[0],
+           cache.buffer, out)
+    host = np.empty((len(local), cache.choice.channels), np.float32)
+    cl.enqueue_copy(dev.queue, host, out)
+    dev.queue.finish()
+    return host
