@@ -13,10 +13,11 @@
 #include "march.h"
 #include "light_cache.h"
 
-/* bricks: (bx, by, bz, slot) of each occupied brick; cache: its nodes' channels. */
+/* bricks: (bx, by, bz, slot) of each occupied brick; cache: its nodes' channels; envq:
+   the environment's directions and cell integrals (light_cache.env_quadrature). */
 __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
                          __global const int* table, __global const float* data,
-                         __global const float4* env, __global const int4* bricks,
+                         __global const float4* envq, __global const int4* bricks,
                          __global float* cache, int n_bricks)
 {
     int gid = get_global_id(0);
@@ -45,30 +46,32 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
     (void)lights;
 #endif
 #if VR_ENV
+    /* envq: per direction j, 5 float4: the direction (world), then the map's integral
+       over its cell / 4 pi (rgb) and its first moments / 4 pi (x, y, z: rgb each) */
     float3 a0 = (float3)(0.0f), ax = a0, ay = a0, az = a0;
     for (int j = 0; j < VR_CACHE_DIRS; ++j) {
-        float3 w = vr_cache_dirs[j].xyz;
-        float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, w);
+        __global const float4* q = envq + 5 * j;
+        float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2,
+                            q[0].xyz);
         float tau = vr_march_tau(&g, vp, p, dl, INFINITY, 0.5f, stop);
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
-        float3 f = vr_env_bands(vp, tau) * vr_env_radiance(vp, env, w);
+        VrSpec f = vr_env_bands(vp, tau);
 #else
-        float3 f = vr_transmit(tau) * vr_env_radiance(vp, env, w);
+        float f = vr_transmit(tau);
 #endif
-        a0 += f;
-        ax += w.x * f;
-        ay += w.y * f;
-        az += w.z * f;
+        a0 += f * q[1].xyz;
+        ax += f * q[2].xyz;
+        ay += f * q[3].xyz;
+        az += f * q[4].xyz;
     }
-    float k0 = 1.0f / (float)VR_CACHE_DIRS, k1 = 3.0f / (float)VR_CACHE_DIRS;
-    a0 *= k0; ax *= k1; ay *= k1; az *= k1;
+    ax *= 3.0f; ay *= 3.0f; az *= 3.0f;
     __global float* e = out + VR_CACHE_LIGHTS;
     e[0] = a0.x; e[1] = a0.y; e[2] = a0.z;
     e[3] = ax.x; e[4] = ax.y; e[5] = ax.z;
     e[6] = ay.x; e[7] = ay.y; e[8] = ay.z;
     e[9] = az.x; e[10] = az.y; e[11] = az.z;
 #else
-    (void)env;
+    (void)envq;
 #endif
 }
 

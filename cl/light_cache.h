@@ -6,10 +6,13 @@
    Channels per node (VR_CACHE_CH):
      0 .. n_lights-1   each light's shadow optical depth (grey, as vr_shadow_tau gives it);
                        the octave bands and the channels' extinction apply when it is read
-     then, with VR_ENV, 12 floats: the environment's light, L1 spherical harmonics of
-                       L_env(w) F(tau(w)) over VR_CACHE_DIRS fixed directions (a0 rgb, then
-                       a1 = 3 mean(w f) as x rgb, y rgb, z rgb), F the bands' transmittance
-                       (exp(-tau) with one octave). The phase folds in exactly
+     then, with VR_ENV, 12 floats: the environment's light, the L1 spherical harmonics
+                       of L_env(w) F(tau(w)) (a0 rgb, then a1 = 3 mean(w f) as x rgb, y rgb,
+                       z rgb), F the bands' transmittance (exp(-tau) with one octave),
+                       tau marched along VR_CACHE_DIRS fixed directions and held constant
+                       over each one's cell of the sphere (the map integrated over the cell
+                       on the host: light_cache.env_quadrature, so F = 1 gives the map's
+                       own L1 projection exactly). The phase folds in exactly
                        (Funk-Hecke: a0 + g_mean a1 . d for a Henyey-Greenstein mixture).
    Layout: cache[(slot * nodes + (i * n + j) * n + k) * VR_CACHE_CH + ch].
    Include after volume.h and lights.h. */
@@ -23,20 +26,6 @@
 #define VR_CACHE_ENV_CH 12
 #define VR_CACHE_CH (VR_CACHE_LIGHTS + (VR_ENV ? VR_CACHE_ENV_CH : 0))
 #define VR_CACHE_DIRS 14
-
-/* The fixed environment directions: the 6 axes and the 8 cube diagonals, each a
-   spherical 3-design, so equal weights integrate the L1 harmonics exactly. */
-__constant float4 vr_cache_dirs[VR_CACHE_DIRS] = {
-    (float4)(1, 0, 0, 0), (float4)(-1, 0, 0, 0), (float4)(0, 1, 0, 0),
-    (float4)(0, -1, 0, 0), (float4)(0, 0, 1, 0), (float4)(0, 0, -1, 0),
-    (float4)(0.57735027f, 0.57735027f, 0.57735027f, 0),
-    (float4)(0.57735027f, 0.57735027f, -0.57735027f, 0),
-    (float4)(0.57735027f, -0.57735027f, 0.57735027f, 0),
-    (float4)(0.57735027f, -0.57735027f, -0.57735027f, 0),
-    (float4)(-0.57735027f, 0.57735027f, 0.57735027f, 0),
-    (float4)(-0.57735027f, 0.57735027f, -0.57735027f, 0),
-    (float4)(-0.57735027f, -0.57735027f, 0.57735027f, 0),
-    (float4)(-0.57735027f, -0.57735027f, -0.57735027f, 0)};
 
 /* The eight nodes around local point (cell c, fraction f) of brick `slot` and their
    trilinear weights: *base the first node's offset (in floats), node offsets
@@ -70,19 +59,62 @@ inline float vr_cache_read(__global const float* cache, const VrCacheTap* t, int
     return s;
 }
 
+/* Channel ch of the cache at local point q (-1 where q is in no occupied brick). */
+inline float vr_cache_at(const VrGrid* g, __global const float* cache, float3 q, int ch)
+{
+    float3 cf = floor(q);
+    int3 c = convert_int3(cf);
+    int slot = vr_brick_slot(g, c);
+    if (slot < 0)
+        return -1.0f;
+    VrCacheTap t;
+    vr_cache_tap(slot, c, q - cf, &t);
+    return vr_cache_read(cache, &t, ch);
+}
+
 #if VR_CACHE_LIGHTS > 0
-/* vr_inscatter (march.h) with each light's shadow optical depth read from the cache. */
-inline float3 vr_cached_inscatter(__constant VolumeParams* vp, __constant Light* lights,
-                                  __global const float* cache, const VrCacheTap* t,
-                                  float3 p, float3 wo)
+/* A light's shadow optical depth from local p along dl (local per world unit) over
+   tmax: marched exactly for the first vp->cache_near (world; the shadow's sharp part
+   near lit surfaces, which trilinear nodes cannot hold in dense media), read from the
+   cache at that point for the rest (marched on where that point lies in no occupied
+   brick: the cache has no nodes there). */
+inline float vr_cached_tau(const VrGrid* g, __constant VolumeParams* vp,
+                           __global const float* cache, int i, float3 p, float3 dl,
+                           float tmax, float u, float stop)
+{
+    float near = fmin(vp->cache_near, tmax);
+    float tau = near > 0.0f ? vr_shadow_tau(g, vp, p, dl, near, u, stop) : 0.0f;
+    if (near >= tmax || tau > stop)
+        return tau;
+    float3 q = p + near * dl;
+    float far = vr_cache_at(g, cache, q, i);
+    if (far < 0.0f)
+        far = vr_shadow_tau(g, vp, q, dl, tmax - near, u, stop - tau);
+    return tau + far;
+}
+
+/* vr_inscatter (march.h) with each light's shadow optical depth read from the cache
+   (vr_cached_tau). */
+inline float3 vr_cached_inscatter(const VrGrid* g, __constant VolumeParams* vp,
+                                  __constant Light* lights, __global const float* cache,
+                                  const VrCacheTap* t, float3 p, float3 wo,
+                                  uint seed, uint pixel, uint s, uint step)
 {
     float3 sum = (float3)(0.0f);
+    uint dim = 16u + step * VR_MAX_LIGHTS;
+#if VR_MS_OCTAVES > 1 || VR_CHROMATIC
+    float stop = VR_TAU_STOP(vp);
+#else
+    float stop = VR_SHADOW_TAU_STOP;
+#endif
     for (int i = 0; i < VR_CACHE_LIGHTS; ++i) {
         float3 dl, prop;
         float tmax, atten;
         if (!vr_light_at(vp, lights, i, p, &dl, &tmax, &prop, &atten))
             continue;
-        float tau = vr_cache_read(cache, t, i);
+        float tau = vp->cache_near > 0.0f
+                  ? vr_cached_tau(g, vp, cache, i, p, dl, tmax, vr_rand(seed, pixel, s, dim++), stop)
+                  : vr_cache_read(cache, t, i);
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
         sum += vr_octaves(vp, dot(prop, wo), tau, 1) * lights[i].radiance.xyz / atten;
 #else

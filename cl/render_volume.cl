@@ -140,7 +140,8 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 VrCacheTap tap;
                 vr_cache_tap(slot, c, f, &tap);
 #if VR_N_SUNS + VR_N_POINTS > 0
-                S = vr_cached_inscatter(vp, lights, light_cache, &tap, p, -dir);
+                S = vr_cached_inscatter(&g, vp, lights, light_cache, &tap, p, -dir, cam->seed, pixel,
+                                        (uint)s, (uint)k);
 #endif
 #if VR_ENV
                 S += vr_cached_env(vp, light_cache, &tap, dir);

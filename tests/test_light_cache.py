@@ -21,7 +21,7 @@ from volrender.render import render
 from volrender.scene import Scene, VolumeContent
 from volrender.vdb import Bricks
 from volrender.volume import VolumeSettings
-from helpers import Z, look_at, scaled, trilinear
+from helpers import Z, look_at, scaled
 
 SUN = Sun((0.35, -1.0, 0.25), 3.0)
 SIGMA = 0.12                     # per voxel (world unit = one voxel here)
@@ -38,35 +38,53 @@ def ball_values():
     return (np.sqrt((i ** 2).sum(0)) <= 11.0).astype(np.float32)
 
 
-def tau_towards_sun(values, m, x, sigma, ds=0.1, length=60.0):
-    """Brute-force shadow optical depth at world points x (n, 3) along -SUN.direction."""
-    d = -np.asarray(SUN.direction, np.float64)
-    d /= np.linalg.norm(d)
+def tau_towards_sun(bricks, local, sigma, sun=SUN, ds=0.1):
+    """Brute-force shadow optical depth at local points (n, 3) towards the sun: the
+    renderer's trilinear density (Bricks.sample_local) summed at ds-voxel steps to the
+    layout's edge."""
+    w2l = np.linalg.inv(bricks.local_to_world)[:3, :3]
+    d = w2l @ -np.asarray(sun.direction, np.float64)
+    d /= np.linalg.norm(d)                          # local, per voxel
+    world_per_voxel = 1.0 / np.linalg.norm(w2l @ -np.asarray(sun.direction, np.float64)
+                                           / np.linalg.norm(sun.direction))
+    length = float(np.linalg.norm(np.asarray(bricks.dims) * 8))
     s = (np.arange(int(length / ds)) + 0.5) * ds
-    tau = np.zeros(len(x))
-    for chunk in np.array_split(np.arange(len(x)), max(1, len(x) // 200)):
-        pts = x[chunk, None, :] + s[None, :, None] * d
-        tau[chunk] = sigma * trilinear(values, m, pts).sum(axis=1) * ds
-    return tau
+    tau = np.zeros(len(local))
+    for chunk in np.array_split(np.arange(len(local)), max(1, len(local) // 100)):
+        pts = local[chunk, None, :] + s[None, :, None] * d
+        tau[chunk] = bricks.sample_local(pts.reshape(-1, 3)).reshape(len(chunk), -1).sum(axis=1)
+    return sigma * tau * ds * world_per_voxel
 
 
-def predicted_error(bricks, values, m, cell, sigma, rng, n=400):
-    """Relative RMS error of the sun's transmittance read from nodes `cell` voxels apart
-    (trilinear), at random points where the density is positive."""
-    shape = np.array(values.shape)
-    pts = rng.uniform(0, shape - 1, size=(8 * n, 3))
-    pts = pts[trilinear(values, m, pts @ m[:3, :3].T + m[:3, 3]) > 0][:n]
-    origin = np.asarray(bricks.origin, np.float64)
-    q = (pts - origin) / cell                       # node lattice: origin + cell * integers
+def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400):
+    """Relative RMS error of the sun's transmittance as the marcher reads it
+    (light_cache.h vr_cached_tau: exact over the first NEAR_CELLS node spacings, then
+    trilinear between nodes `cell` voxels apart, exact again where that point is in no
+    occupied brick), at random points of the occupied bricks where the density is
+    positive."""
+    occ = light_cache.occupied_slots(bricks)
+    pts = occ[rng.integers(0, len(occ), 8 * n), :3] * 8 + rng.uniform(0, 8, (8 * n, 3))
+    pts = pts[bricks.sample_local(pts) > 0][:n]
+    w2l = np.linalg.inv(bricks.local_to_world)[:3, :3]
+    dl = w2l @ -np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
+    far = pts + light_cache.NEAR_CELLS * cell * bricks.voxel_size * dl
+    tau_p = tau_towards_sun(bricks, pts, sigma, sun)
+    tau_q = tau_towards_sun(bricks, far, sigma, sun)
+    q = far / cell                                   # nodes: local multiples of cell
     i0 = np.floor(q)
     f = q - i0
     corners = np.array([(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
-    nodes = origin + (i0[:, None, :] + corners[None]) * cell          # (n, 8, 3) index
-    world = lambda p: p @ m[:3, :3].T + m[:3, 3]
-    tau_nodes = tau_towards_sun(values, m, world(nodes.reshape(-1, 3)), sigma).reshape(-1, 8)
+    nodes = (i0[:, None, :] + corners[None]) * cell
+    tau_nodes = tau_towards_sun(bricks, nodes.reshape(-1, 3), sigma, sun).reshape(-1, 8)
     w = np.prod(np.where(corners[None], f[:, None, :], 1 - f[:, None, :]), axis=-1)
-    t_cache = np.exp(-(w * tau_nodes).sum(axis=1))
-    t_exact = np.exp(-tau_towards_sun(values, m, world(pts), sigma))
+    b = np.floor(far / 8).astype(np.int64)
+    inside = np.all((b >= 0) & (b < bricks.dims), axis=1)
+    slot = np.full(len(far), -1)
+    slot[inside] = bricks.table[(b[inside, 0] * bricks.dims[1] + b[inside, 1]) * bricks.dims[2]
+                                + b[inside, 2]]
+    tau_far = np.where(slot >= 0, (w * tau_nodes).sum(axis=1), tau_q)
+    t_cache = np.exp(-(tau_p - tau_q + tau_far))
+    t_exact = np.exp(-tau_p)
     return float(np.sqrt(np.mean((t_cache - t_exact) ** 2) / np.mean(t_exact ** 2)))
 
 
@@ -102,7 +120,7 @@ def render_pair(dev, values, cell, size=32, spp=16):
 def test_cached_sun_matches_the_exact_march(cl_device, rng, name, values, cell):
     v = values()
     bricks, m, (ref, img) = render_pair(cl_device, v, cell)
-    eps = predicted_error(bricks, v, m, cell, SIGMA, rng)
+    eps = predicted_error(bricks, cell, SIGMA, rng)
     mean, rel, se = compare(ref, img)
     # eps is per point; an image averages points along each ray, so it bounds both
     assert abs(mean) <= eps + Z * se, (name, cell, mean, eps, se)
@@ -123,14 +141,12 @@ def test_probe_reads_the_baked_nodes_trilinearly(cl_device, rng):
     scene = Scene.of(cam, [SUN], VolumeContent(bricks, s))
     nodes, occ = light_cache.read_back(scene, cl_device)          # (slots, n, n, n, ch)
     n = nodes.shape[1]
-    origin = np.asarray(bricks.origin, np.float64)
     # nodes of a few bricks against brute force
     pick = occ[rng.choice(len(occ), 6, replace=False)]
     ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
     for bx, by, bz, slot in pick:
         local = np.array([bx, by, bz]) * 8 + ijk * 2
-        world = (origin + local) @ m[:3, :3].T + m[:3, 3]
-        want = tau_towards_sun(v, m, world, SIGMA, ds=0.05)
+        want = tau_towards_sun(bricks, local.astype(np.float64), SIGMA, ds=0.05)
         got = nodes[slot].reshape(-1, nodes.shape[-1])[:, 0]
         # the bake marches at 0.25 voxel with midpoint samples: error << the density ramp
         np.testing.assert_allclose(got, want, atol=0.02 + 0.01 * want.max())
@@ -177,3 +193,59 @@ def test_camera_change_reuses_the_cache_and_a_light_change_rebakes_it(cl_device)
         img = render(other, cl_device)
         assert img.info["light_cache_baked"], change
         assert light_cache.builds(other.content) == before + 1, change
+
+
+@pytest.mark.parametrize("look", ["sun", "default"])
+def test_cached_march_on_a_real_cloud(cl_device, shared_data, rng, look):
+    """WDAS's cloud (dense: the light dies within a voxel or two of its lit surface), as
+    the command line loads it, cached (4-voxel nodes) against the exact march. `sun`:
+    the sun alone, single scattering, within predicted_error; `default`: the default sky
+    and octave bands, whose sky term interpolates the same nodes over 14 directions:
+    held to the same bound (its L1 truncation is not derived here; measured: mean +1 %,
+    relative RMSE 6 % at 64x48, docs/error_time.md)."""
+    path = shared_data / "vdb" / "wdas_cloud_sixteenth.vdb"
+    if not path.exists():
+        pytest.skip(f"{path} not found")
+    kw = dict(env=0, estimator="march", ms_octaves=1) if look == "sun" else {}
+    base = load_scene(path, size=(48, 36), spp=4, **kw)
+    ref = render(base.replace(light_cache="off", spp=16), cl_device)
+    img = render(base.replace(light_cache="on", light_cache_cell=4), cl_device)
+    assert img.info["light_cache_cell"] == 4
+    eps = predicted_error(base.content.bricks, 4, base.settings.density_scale, rng,
+                          sun=base.lights[0])
+    mean, rel, se = compare(ref, img)
+    assert abs(mean) <= eps + Z * se, (look, mean, eps, se)
+    assert rel <= 2.0 * eps, (look, rel, eps)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.6])
+def test_cached_sky_in_a_thin_slab_is_the_maps_l1_projection(cl_device, g):
+    """tests/test_env.py's thin slab (tau 4e-3) under its map with a sun spot, cached: the
+    in-scattered light is albedo alpha (a0 + g a1 . d), a0 and a1 the map's own L1
+    harmonics (numpy, over the texels; the shadowing of a thin slab is first order in
+    tau, -tau/2 ~ -0.4 %). With g = 0 that is the exact integral of p L (test_env's
+    closed form); with g = 0.6 the L1 truncation of the phase's convolution."""
+    from volrender.environment import Environment
+    from test_env import sky, thin_slab, top_camera
+    t = sky()
+    cam = top_camera()
+    s = VolumeSettings(estimator="march", ms_octaves=1, density_scale=0.01, albedo=0.8,
+                       phase=(g, 0.0, 1.0), spp=16, seed=5, step=0.5, shadow_step=0.5,
+                       hide_env=True, light_cache="on", light_cache_cell=2)
+    img = render(Scene.of(cam, [], VolumeContent(thin_slab(), s), Environment(t)), cl_device)
+    assert img.info["light_cache_cell"] == 2
+    h, w = t.shape[:2]
+    th = (np.arange(h) + 0.5) / h * np.pi
+    ph = ((np.arange(w) + 0.5) / w - 0.5) * 2 * np.pi
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    d = np.stack([np.sin(T) * np.sin(P), np.cos(T), -np.sin(T) * np.cos(P)], -1).reshape(-1, 3)
+    dA = (np.sin(T) * (np.pi / h) * (2 * np.pi / w)).ravel() / (4 * np.pi)
+    lum = t.reshape(-1, 3).astype(np.float64)
+    a0 = (lum * dA[:, None]).sum(0)
+    a1 = 3 * np.einsum("na,nc,n->ac", d, lum, dA)                # (axis, rgb)
+    pix = cam.pixel_dirs().reshape(-1, 3)
+    alpha = img.rgba[..., 3].reshape(-1).astype(np.float64)
+    want = 0.8 * alpha[:, None] * (a0[None] + g * pix @ a1)
+    ratio = img.rgba.reshape(-1, 4)[:, :3] / want
+    # no direction noise left: every pixel within the shadowing and float rounding
+    np.testing.assert_allclose(ratio, 0.996, atol=0.004)

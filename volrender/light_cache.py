@@ -30,6 +30,15 @@ BAKE_SHARE = 0.5               # the bake may cost this share of the shadow marc
 ENV_DIRS = 14                  # cl/light_cache.h's fixed environment directions
 ENV_CH = 12
 MAX_BYTES = 512 << 20          # the cache is coarsened until it fits
+# a light's shadow is marched exactly over this many node spacings from the sample, and
+# read from the cache beyond (cl/light_cache.h vr_cached_tau): dense media shade within a
+# voxel of their lit surface, sharper than trilinear nodes can hold
+NEAR_CELLS = 2.0
+
+
+def near_length(bricks, cell: int) -> float:
+    """World length of the exact part of a cached shadow ray."""
+    return float(NEAR_CELLS * cell * bricks.voxel_size)
 
 
 @dataclass(frozen=True)
@@ -53,6 +62,50 @@ class Choice:
                 f"{self.nbytes / 2**20:.1f} MB), baked once: ~{self.bake_marches / 1e6:.2g}M "
                 f"marches against ~{self.exact_marches / 1e6:.2g}M shadow marches of the exact "
                 f"march ({self.reason}); --light-cache off for the exact march")
+
+
+def env_dirs() -> np.ndarray:
+    """The ENV_DIRS fixed world directions (cl/bake_light.cl marches along them): the 6
+    axes and the 8 cube diagonals."""
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    diag = np.array([(x, y, z) for x in (1, -1) for y in (1, -1) for z in (1, -1)]) / math.sqrt(3)
+    return np.vstack([axes, diag])
+
+
+def env_quadrature(environment, res=(128, 256)) -> np.ndarray:
+    """(ENV_DIRS * 5, 4) float32 for cl/bake_light.cl: per direction its world vector,
+    then over its cell of the sphere (the directions nearer to it than to any other) the
+    environment's integral / 4 pi (rgb) and its first moments / 4 pi (x, y, z: rgb each),
+    summed over the map's texels (or a res grid for a uniform environment). With every
+    transmittance 1 the bake then gives the map's own L1 projection exactly; a sun disk in
+    the map is integrated, never missed between directions."""
+    from .environment import env_mode
+    mode = env_mode(environment)
+    out = np.zeros((ENV_DIRS, 5, 4), np.float64)
+    dirs = env_dirs()
+    out[:, 0, :3] = dirs
+    if mode == 0:
+        return out.reshape(-1, 4).astype(np.float32)
+    if mode == 1:
+        h, w = res
+        rad = np.broadcast_to(np.asarray(environment.uniform, np.float64), (h, w, 3))
+    else:
+        rad = np.asarray(environment.texels, np.float64)
+        h, w = rad.shape[:2]
+    theta = (np.arange(h) + 0.5) / h * math.pi
+    phi = ((np.arange(w) + 0.5) / w - 0.5) * 2 * math.pi
+    st = np.sin(theta)[:, None]
+    d = np.stack([st * np.sin(phi)[None], np.broadcast_to(np.cos(theta)[:, None], (h, w)),
+                  -st * np.cos(phi)[None]], -1).reshape(-1, 3)     # cl/env.h vr_env_dir
+    da = (np.broadcast_to(st, (h, w)) * (math.pi / h) * (2 * math.pi / w)).reshape(-1)
+    cell = np.argmax(d @ dirs.T, axis=1)
+    lw = rad.reshape(-1, 3) * (da / (4 * math.pi))[:, None]
+    for j in range(ENV_DIRS):
+        sel = cell == j
+        out[j, 1, :3] = lw[sel].sum(0)
+        for a in range(3):
+            out[j, 2 + a, :3] = (lw[sel] * d[sel, a:a + 1]).sum(0)
+    return out.reshape(-1, 4).astype(np.float32)
 
 
 def nodes_per_brick(cell: int) -> int:
@@ -140,10 +193,16 @@ def builds(content) -> int:
     return content.store.get("light_cache_builds", 0)
 
 
-def get(content, device, features, params, lights_packed, env, choice: Choice) -> LightCache:
+def get(content, device, features, params, lights_packed, environment,
+        choice: Choice) -> LightCache:
     """The content's cache on `device` for these features (the marcher's flags), params,
-    packed lights and environment texels: baked on the first call, reused while they stay
-    the same (only the latest per device is kept)."""
+    packed lights and environment: baked on the first call, reused while they stay the
+    same (only the latest per device is kept)."""
+    memo = content.store.get("env_quadrature")
+    if memo is None or memo[0] is not environment:
+        memo = (environment, env_quadrature(environment))
+        content.store["env_quadrature"] = memo
+    env = memo[1]
     import dataclasses
     flags = dataclasses.replace(features, light_cache=choice.cell, tiled=False, tile_w=1,
                                 tile_h=1, tile_cap=0, depth=False).flags()

@@ -468,7 +468,8 @@ def light_cache_of(scene, device, features, params, inputs):
     named = dict(inputs)
     before = light_cache.builds(scene.content)
     cache = light_cache.get(scene.content, device, features, params, named["lights"],
-                            named["env"], choice)
+                            scene.environment, choice)
+    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice.cell)
     baked = light_cache.builds(scene.content) > before
     return cache, {"light_cache": choice.note(), "light_cache_baked": baked,
                    "light_cache_bake_ms": cache.bake_ms if baked else 0.0,
