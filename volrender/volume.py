@@ -142,12 +142,13 @@ class VolumeSettings(CommonSettings):
                                    check=rgb(0, 100, n=(3,)), toml=("volume", "ms_octave_scales"))
     light_cache: str = knob("auto", "march: bake the light reaching the medium once per scene "
                             "and lights on a coarse grid and read it instead of a shadow march "
-                            "per sample per light (volrender/light_cache.py); auto: when its bake "
-                            "costs less than half the shadow marches it replaces (the choice is "
-                            "printed); off: the exact shadow march", check=one_of(CACHE_MODES),
+                            "per sample per light (volrender/light_cache.py); auto: where the "
+                            "cost model says the bake and the short exact marches near each "
+                            "sample cost less than the exact march (the choice is printed); "
+                            "off: the exact shadow march", check=one_of(CACHE_MODES),
                             choices=CACHE_MODES, toml=("volume", "light_cache"))
     light_cache_cell: int | None = knob(None, "light cache node spacing, voxels (1, 2, 4 or 8; "
-                                        "default: the finest the cost model affords)",
+                                        "default: the cost model's cheapest)",
                                         check=lambda v: None if v in (None, 1, 2, 4, 8)
                                         else "must be 1, 2, 4 or 8", toml=("volume",
                                         "light_cache_cell"), kind=int, show_default=False)
@@ -454,8 +455,10 @@ def light_cache_choice(scene):
     from . import light_cache
     from .lights import counts
     n_suns, n_points = counts(scene.lights)
-    return light_cache.choose(scene.content.bricks, scene.content.settings, scene.camera,
-                              n_suns + n_points, env_mode(scene.environment) > 0)
+    bricks, settings = scene.content.bricks, scene.content.settings
+    return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
+                              env_mode(scene.environment) > 0,
+                              tau=optical_size(bricks, settings)["tau"])
 
 
 def light_cache_of(scene, device, features, params, inputs):
