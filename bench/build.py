@@ -20,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.common import device_info, result_path, write_json  # noqa: E402
-from volrender import device, glass, points  # noqa: E402
+from volrender import device, generators, glass, spheres  # noqa: E402
 
 COUNTS = [1000, 10000, 100000, 1000000]
 
@@ -29,12 +29,12 @@ def measure(cloud, dev, width, height, repeat):
     """Medians over repeat builds after an untimed one (it compiles the builder for this
     tree depth): total, tree, cells, cells' kernels; the last build's stats."""
     samples = width * height
-    glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev, samples=samples)
+    spheres.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev, samples=samples)
     runs = {"total_ms": [], "tree_ms": [], "cells_ms": [], "kernel_ms": [], "host_ms": []}
     stats = {}
     for _ in range(repeat):
         t0 = time.perf_counter()
-        packed = glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
+        packed = spheres.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
                                   samples=samples)
         total = 1e3 * (time.perf_counter() - t0)
         if packed.cells is None:
@@ -92,7 +92,7 @@ def main(argv=None):
     path = result_path("build", dev, args.tag)
     rows = []
     for n in counts:
-        row = {"n": n, **measure(points.blob(n, seed=1), dev, width, height, args.repeat)}
+        row = {"n": n, **measure(generators.blob(n, seed=1), dev, width, height, args.repeat)}
         rows.append(row)
         if "cells_ms" in row:
             c = row["cells"]
@@ -108,10 +108,10 @@ def main(argv=None):
     if args.profile:
         import cProfile
         import pstats
-        cloud = points.blob(args.profile, seed=1)
+        cloud = generators.blob(args.profile, seed=1)
         prof = cProfile.Profile()
         prof.enable()
-        glass.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
+        spheres.pack_scene(cloud, glass.GlassSettings(accel="grid"), device=dev,
                          samples=width * height)
         prof.disable()
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.common import device_info, result_path, shared_data, write_json  # noqa: E402
-from volrender import cells, device, glass, points  # noqa: E402
+from volrender import cells, device, generators, glass, spheres  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.render import render  # noqa: E402
 from volrender.scene import GlassContent, Scene  # noqa: E402
@@ -42,7 +42,7 @@ def cloud_of(name):
         return sc.content.cloud, sc.content.settings
     gen, n = name.split(":")
     gen = {"gather": "glass_gather"}.get(gen, gen)
-    return points.generate(gen, int(n), 1), glass.GlassSettings()
+    return generators.generate(gen, int(n), 1), glass.GlassSettings()
 
 
 def timed_render(cloud, settings, cam, dev):
@@ -154,8 +154,8 @@ def main(argv=None):
             continue
         cam = glass.default_camera(cloud, w, h, radius=base.radius)
         _, tb, tk, tw, tbc, tkc = timed_render(cloud, dataclasses.replace(base, accel="tree"), cam, dev)
-        radii = glass.sphere_radii(cloud, base)
-        k = glass.blend_width(radii, base)
+        radii = spheres.sphere_radii(cloud, base)
+        k = spheres.blend_width(radii, base)
         edge0 = cells.auto_cell_size(radii, k)
         for m in factors:
             s = dataclasses.replace(base, cell_size=m * edge0)

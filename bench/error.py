@@ -74,9 +74,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_points, render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
-from volrender import camera, device, glass, points, scene as scene_mod, vdb  # noqa: E402
+from volrender import camera, device, generators, glass, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings  # noqa: E402
+from volrender.volume import VolumeSettings, octave_scales  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GLASS_SUN = Sun((-0.5, -1.0, -0.4), 3.0)
@@ -88,8 +88,38 @@ GLASS_REF = dict(epsilon=1e-6, max_steps=4096, bounces=12, relax=1.0, use_tree=F
 
 # --------------------------------------------------------------------------- metrics
 
+COVERED = 0.05       # covered pixels: reference alpha above this (issue 33)
+
+
+def covered(ref, emits=False):
+    """The pixels with content: reference alpha > COVERED; for an emitting medium (thin
+    fire has almost no alpha) also where the reference is brighter than COVERED of its
+    99th-percentile luminance."""
+    cov = np.asarray(ref)[..., 3] > COVERED
+    if emits:
+        y = np.asarray(ref)[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+        cov |= y > COVERED * np.percentile(y, 99)
+    return cov
+
+
+def covered_errors(img, ref, var=None, emits=False) -> dict:
+    """Relative RMSE (the reference's noise removed when var is given) and mean ratio on
+    the covered pixels, with their fraction of the image (issue 33: error is reported
+    where the content is, beside the whole image)."""
+    cov = covered(ref, emits)
+    if not cov.any():
+        return {"covered_fraction": 0.0}
+    d = img[..., :3][cov].astype(np.float64) - ref[..., :3][cov]
+    mse = float((d ** 2).mean()) - (float(var[..., :3][cov].mean()) if var is not None else 0.0)
+    rms = float(np.sqrt((ref[..., :3][cov] ** 2).mean()))
+    return {"covered_fraction": float(cov.mean()),
+            "covered_rel_rmse": max(mse, 0.0) ** 0.5 / max(rms, 1e-30),
+            "covered_mean_ratio": float(img[..., :3][cov].mean() / max(ref[..., :3][cov].mean(), 1e-30))}
+
+
 def errors(img, ref, ref_var=None) -> dict:
-    """Error of an RGBA image against a reference (RGB: radiance, A: alpha)."""
+    """Error of an RGBA image against a reference (RGB: radiance, A: alpha), over the whole
+    image and on covered pixels (covered_errors)."""
     d = img[..., :3].astype(np.float64) - ref[..., :3]
     mse = float((d ** 2).mean())
     out = {"rmse": mse ** 0.5, "max_abs": float(np.abs(d).max()), "bias": float(d.mean()),
@@ -98,6 +128,7 @@ def errors(img, ref, ref_var=None) -> dict:
     if ref_var is not None:
         # E[mse] = true mse + mean reference variance (independent noise)
         out["rmse_corrected"] = max(mse - float(ref_var[..., :3].mean()), 0.0) ** 0.5
+    out.update(covered_errors(img, ref, ref_var))
     return out
 
 
@@ -410,14 +441,16 @@ def run_ms(dev, args, record):
             img, t = done[i]
             e = errors(img, ref, var)
             row = {"group": group, "label": label, "settings": {**describe_volume(st),
-                   "ms_octaves": st.ms_octaves, "ms_octave_scales": list(st.ms_octave_scales),
+                   "ms_octaves": st.ms_octaves, "ms_octave_scales": list(octave_scales(st, b)),
                    "max_depth": st.max_depth}, **t, **e,
                    "rel_rmse": e["rmse_corrected"] / summ["value_rms"],
                    "mean_ratio": float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30)),
                    "spp": st.spp}
             sc["rows"].append(row)
             print(f"[{name}] {label:28s} {t['time_ms']:9.1f} ms  rel rmse {row['rel_rmse']:.2%}  "
-                  f"mean x{row['mean_ratio']:.3f}", flush=True)
+                  f"mean x{row['mean_ratio']:.3f}; covered pixels "
+                  f"({e.get('covered_fraction', 0):.0%}) {e.get('covered_rel_rmse', 0):.2%} "
+                  f"x{e.get('covered_mean_ratio', 0):.3f}", flush=True)
         pts = [r for r in sc["rows"] if r["group"] == "path"]
         sc["path_time_to_error"] = {f"{tg:g}": time_to_error(pts, tg) for tg in MS_TARGETS}
         print(f"[{name}] path time to " + ", ".join(
@@ -454,6 +487,7 @@ def default_errors(img, ref, var) -> dict:
         out[key] = max(float((d ** 2).mean()) - float(v.mean()), 0.0) ** 0.5 / max(r, 1e-30)
     out["mean_ratio"] = float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30))
     out["value_rms"] = rms
+    out.update(covered_errors(img, ref, var))
     return out
 
 
@@ -545,7 +579,9 @@ def run_defaults(dev, args, record):
             row["time_vs_single"] = row["time_ms"] / max(single["time_ms"], 1e-9)
             print(f"[{stem} {w}x{h}] {row['label']:40s} {row['time_ms']:9.1f} ms "
                   f"(x{row['time_vs_single']:.2f})  rel rmse {row['rel_rmse']:.1%}  2x2 "
-                  f"{row['rel_rmse_box2']:.1%}  mean x{row['mean_ratio']:.3f}", flush=True)
+                  f"{row['rel_rmse_box2']:.1%}  mean x{row['mean_ratio']:.3f}; covered "
+                  f"{row.get('covered_rel_rmse', 0):.1%} x{row.get('covered_mean_ratio', 0):.3f}",
+                  flush=True)
         d = sc["rows"][0]
         sc["target"] = {"mean_within_10pct": abs(d["mean_ratio"] - 1) <= 0.10,
                         "box2_rel_rmse_le_15pct": d["rel_rmse_box2"] <= 0.15,
@@ -554,12 +590,67 @@ def run_defaults(dev, args, record):
         sc["bench_s"] = time.perf_counter() - t0
 
 
+# --------------------------------------------------------------------------- the command (issue 33)
+
+def run_command(dev, args, record):
+    """`volrender render FILE -o OUT.npy --size WxH` for the five real files, as a user runs
+    it (a fresh process each: load, auto's choice, program from the cache, render, write;
+    wall time of the whole command, median of --repeat), against the path-traced reference
+    of the same scene in --command-refs (ref_<stem>.npy, var_<stem>.npy where present: from
+    `bench/ms_refs.py run`, which renders the scenes `prepare` saved): relative RMSE (the
+    reference's noise removed) and mean ratio on covered pixels and over the whole image."""
+    import subprocess
+    import tempfile
+    refs = Path(args.command_refs)
+    w, h = args.command_size
+    for stem in DEFAULT_FILES:
+        p, ref_path = _find(stem), refs / f"ref_{stem}.npy"
+        if p is None or not ref_path.exists():
+            print(f"bench/error.py: {stem} or its reference not found; skipping it", flush=True)
+            continue
+        ref = np.load(ref_path).astype(np.float64)
+        var_path = refs / f"var_{stem}.npy"
+        var = np.load(var_path).astype(np.float64) if var_path.exists() else None
+        walls, notes = [], ""
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "out.npy"
+            for _ in range(args.repeat):
+                out.unlink(missing_ok=True)
+                t0 = time.perf_counter()
+                r = subprocess.run([sys.executable, "-m", "volrender", "render", str(p), "-o",
+                                    str(out), "--size", f"{w}x{h}"]
+                                   + (["--device", args.device] if args.device else []),
+                                   capture_output=True, text=True, cwd=ROOT,
+                                   env={**os.environ, "PYTHONPATH": str(ROOT)})
+                walls.append(time.perf_counter() - t0)
+                if r.returncode:
+                    raise SystemExit(f"bench/error.py: {stem}: {r.stderr.strip()}")
+                notes = r.stderr
+            img = np.load(out).astype(np.float64)
+        if img.shape != ref.shape:
+            raise SystemExit(f"bench/error.py: {stem}: image {img.shape} != reference {ref.shape}")
+        emits = stem == "fluid_data_0056"
+        d = img[..., :3] - ref[..., :3]
+        mse = float((d ** 2).mean()) - (float(var[..., :3].mean()) if var is not None else 0.0)
+        row = {"file": stem, "size": [w, h], "wall_s": float(np.median(walls)), "wall_runs_s": walls,
+               "notes": [n for n in notes.splitlines() if n.startswith("volrender:")],
+               "reference": {"file": str(ref_path), "noise_removed": var is not None},
+               "rel_rmse": max(mse, 0.0) ** 0.5 / max(float(np.sqrt((ref[..., :3] ** 2).mean())), 1e-30),
+               "mean_ratio": float(img[..., :3].mean() / max(ref[..., :3].mean(), 1e-30)),
+               **covered_errors(img, ref, var, emits)}
+        record["command"].append(row)
+        print(f"[{stem} {w}x{h}] the command: {row['wall_s']:.2f} s wall; covered pixels "
+              f"({row['covered_fraction']:.0%}): rel RMSE {row.get('covered_rel_rmse', 0):.1%}, "
+              f"mean x{row.get('covered_mean_ratio', 0):.3f}; whole image {row['rel_rmse']:.1%}, "
+              f"x{row['mean_ratio']:.3f}", flush=True)
+
+
 # --------------------------------------------------------------------------- glass
 
 def glass_scenes(width, height, quick):
     """[(name, cloud, camera, lights, base settings)]."""
     out = []
-    cloud = points.generate("blob", 300, seed=1)
+    cloud = generators.generate("blob", 300, seed=1)
     out.append(("blob300", cloud, glass.default_camera(cloud, width, height), [GLASS_SUN],
                 glass.GlassSettings()))
     if not quick:
@@ -647,6 +738,8 @@ def plot(record, path):
     panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
     panels += [("ms", s) for s in record.get("multiple_scattering", [])]
     panels += [("defaults", s) for s in record.get("defaults", [])]
+    if not panels and record.get("command"):
+        return plot_command(record, path)
     if not panels:
         return
     cols = min(2, len(panels))
@@ -711,6 +804,34 @@ def plot(record, path):
     plt.close(fig)
 
 
+def plot_command(record, path):
+    """The command section: relative RMSE on covered pixels and over the whole image, and
+    the wall time, per file."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows = record["command"]
+    names = [r["file"].replace("_", " ") for r in rows]
+    x = np.arange(len(rows))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    a.bar(x - 0.2, [100 * r.get("covered_rel_rmse", 0) for r in rows], 0.4, label="covered pixels")
+    a.bar(x + 0.2, [100 * r["rel_rmse"] for r in rows], 0.4, label="whole image")
+    a.axhline(10, color="C3", ls="--", lw=0.8, label="issue target 10 %")
+    a.set_ylabel("relative RMSE vs path reference, %")
+    b.bar(x, [r["wall_s"] for r in rows], 0.5, color="C2")
+    b.set_ylabel("wall s (the whole command)")
+    for ax in (a, b):
+        ax.set_xticks(x, names, rotation=20, fontsize=7)
+        ax.grid(True, axis="y", alpha=0.3)
+    a.legend(fontsize=7)
+    w, h = rows[0]["size"]
+    fig.suptitle(f"volrender render FILE at {w}x{h} — {record['device']} (load "
+                 f"{record['load_average_start'][0]:.0f})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
@@ -738,6 +859,10 @@ def main(argv=None):
     ap.add_argument("--defaults-size", default="160x120", help="defaults section image size")
     ap.add_argument("--defaults-ref-spp", type=int, default=None,
                     help="defaults section: path reference spp per batch (default 128; quick 16)")
+    ap.add_argument("--command-refs", default=None,
+                    help="only the command section (issue 33): `volrender render FILE` for the "
+                         "five files against the references in this folder (bench/ms_refs.py)")
+    ap.add_argument("--command-size", default="640x480", help="the command section's image size")
     ap.add_argument("--tag", default=None, help="added to the results' name: error_<device>-<tag>.json")
     args = ap.parse_args(argv)
     if args.quick and args.size == ap.get_default("size"):
@@ -749,8 +874,10 @@ def main(argv=None):
     args.defaults_ref_spp = args.defaults_ref_spp or (16 if args.quick else 128)
     args.ref_batches_defaults = 4 if args.quick else 8
     args.defaults_size = tuple(int(v) for v in args.defaults_size.lower().split("x"))
-    if args.defaults_only:
-        args.defaults = args.no_volume = args.no_ms = args.no_glass = True
+    if args.defaults_only or args.command_refs:
+        args.defaults = not args.command_refs
+        args.no_volume = args.no_ms = args.no_glass = True
+    args.command_size = tuple(int(v) for v in args.command_size.lower().split("x"))
     try:
         args.ms_size = tuple(int(v) for v in (args.ms_size or ("32x24" if args.quick else "96x72"))
                              .lower().split("x"))
@@ -771,8 +898,11 @@ def main(argv=None):
               "time_label": ("kernel ms per frame (median of runs)" if args.time == "kernel" else
                              f"kernel-equivalent ms: CPU ms of the launches / {cores} cores (median)"),
               "load_average_start": os.getloadavg(), "volume": [], "glass": [],
-              "multiple_scattering": [], "defaults": []}
+              "multiple_scattering": [], "defaults": [], "command": []}
     t0 = time.perf_counter()
+    if args.command_refs:
+        run_command(dev, args, record)
+        write_json(path, record)
     if args.defaults:
         run_defaults(dev, args, record)
         write_json(path, record)

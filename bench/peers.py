@@ -46,7 +46,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
-from volrender import camera as camera_mod, device, vdb  # noqa: E402
+from volrender import camera as camera_mod, device, layout, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings  # noqa: E402
 
@@ -319,13 +319,13 @@ def import_mitsuba(variant):
 def dense_grid(b):
     """The brick layout as a dense array over local voxels 0..dims*8 (values at voxel
     centres, x-major [i, j, k]); zeros where no brick is stored."""
-    n = np.asarray(b.dims, np.int64) * vdb.BRICK + 1
+    n = np.asarray(b.dims, np.int64) * layout.BRICK + 1
     dense = np.zeros(tuple(int(v) for v in n), np.float32)
     d1, d2 = int(b.dims[1]), int(b.dims[2])
     for idx in np.flatnonzero(b.table >= 0):
         bx, r = divmod(int(idx), d1 * d2)
         by, bz = divmod(r, d2)
-        sl = tuple(slice(c * vdb.BRICK, c * vdb.BRICK + vdb.APRON) for c in (bx, by, bz))
+        sl = tuple(slice(c * layout.BRICK, c * layout.BRICK + layout.APRON) for c in (bx, by, bz))
         dense[sl] = b.data[b.table[idx]]
     return dense
 

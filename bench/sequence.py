@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (CONVERTED, device_info, find_volume, missing_data,  # noqa: E402
                           result_path, write_json)
 from volrender import device, sequence, vdb  # noqa: E402
+from volrender.bricks import Bricks  # noqa: E402
 
 DENSITY = {"smoke": 1.0, "wdas_cloud_sixteenth": 0.05, "dragon_with_xform": 1.0}
 
@@ -41,7 +42,7 @@ def make_frames(src: Path, n: int, folder: Path) -> Path:
     for f in range(1, n + 1):
         m = np.array(b.index_to_world, np.float64)
         m[:3, 3] += m[:3, 0] * 0.1 * f
-        vdb.Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
+        Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
                    grid_name=b.grid_name).save_npz(folder / f"frame_{f:04d}.npz")
     return folder / "frame_####.npz"
 
@@ -49,8 +50,8 @@ def make_frames(src: Path, n: int, folder: Path) -> Path:
 def make_point_frames(n_points: int, n: int, folder: Path) -> Path:
     """n .npy frames of a blob of n_points spheres (centre, radius) moving across: every
     frame its own cloud, so every frame builds its acceleration."""
-    from volrender import points
-    base = points.blob(n_points, seed=1)
+    from volrender import generators
+    base = generators.blob(n_points, seed=1)
     arr = np.column_stack([base.centers, base.radii]).astype(np.float32)
     for f in range(1, n + 1):
         arr[:, 0] += 0.02

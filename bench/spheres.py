@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import render_points, CONVERTED, device_info, result_path, shared_data, stats, write_json  # noqa: E402
-from volrender import device, glass, points  # noqa: E402
+from volrender import device, generators, glass, points  # noqa: E402
 from volrender.dispatch import parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.render import render  # noqa: E402
@@ -143,7 +143,7 @@ def main(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
     ap.add_argument("--size", default="640x480", help="image size WxH (default: 640x480)")
-    ap.add_argument("--generator", default="blob", choices=sorted(points.GENERATORS),
+    ap.add_argument("--generator", default="blob", choices=sorted(generators.GENERATORS),
                     help="point generator (default: blob)")
     ap.add_argument("--counts", type=ints, default=COUNTS,
                     help="sphere counts, comma-separated (default: 1000 ... 1000000)")
@@ -180,7 +180,7 @@ def main(argv=None):
     dev = device.get(args.device)
     path = result_path("spheres", dev, "-".join(t for t in (args.tag, "opaque" if args.opaque else None) if t))
     rows, uber_rows, scan_rows = [], [], []
-    warm = points.blob(50, seed=1)        # builds the cells builder's program once
+    warm = generators.blob(50, seed=1)        # builds the cells builder's program once
     render_points(warm, glass.default_camera(warm, 8, 8), [], glass.GlassSettings(), dev)
 
     def save():          # after every row, so a run cut short still leaves its data
@@ -194,7 +194,7 @@ def main(argv=None):
     tiled_accel = args.tiled_accel or args.accel
     brute_ok = {(d, lit): True for d in args.dispatch for lit in ("lit", "unlit")}
     for n in ([] if args.no_sweep else args.counts):
-        cloud = points.generate(args.generator, n, seed=1)
+        cloud = generators.generate(args.generator, n, seed=1)
         cam = glass.default_camera(cloud, width, height)
         for lit in args.lit:
             ref = None
@@ -227,7 +227,7 @@ def main(argv=None):
                     save()
                     _print(row)
     if args.uber_count and not args.no_sweep:
-        cloud = points.generate(args.generator, args.uber_count, seed=1)
+        cloud = generators.generate(args.generator, args.uber_count, seed=1)
         cam = glass.default_camera(cloud, width, height)
         for lit in args.lit:
             for uber in (False, True):
@@ -248,8 +248,8 @@ def main(argv=None):
             continue
         cloud = points.load_points(src)
         if cloud.radii is None:
-            from volrender.scene import _scan_defaults
-            settings0, _ = _scan_defaults(cloud, glass.GlassSettings(**opts))
+            from volrender.spheres import scan_defaults
+            settings0, _ = scan_defaults(cloud, glass.GlassSettings(**opts))
             opts = {**opts, "radius": settings0.radius, "blend": settings0.blend}
         cam = glass.default_camera(cloud, sw, sh, radius=opts["radius"])
         ref = None

@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
 from volrender import camera, device, features, vdb  # noqa: E402
+from volrender.bricks import Bricks  # noqa: E402
 from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, occupied_bricks, volume_params  # noqa: E402
@@ -63,7 +64,7 @@ def sparse_pair():
     dense[:n] = blob
     dense[-n:] = blob
     m = np.diag([0.1, 0.1, 0.1, 1.0])
-    return vdb.Bricks.from_dense(dense, m, name="sparse_pair")
+    return Bricks.from_dense(dense, m, name="sparse_pair")
 
 
 # The tiled kernel's culling alone, to report list lengths and overflows per tile.

@@ -40,17 +40,17 @@ def vdb_descriptors(names, meta=()) -> bytes:
 def vdb_skeleton(data: bytes) -> bytes | None:
     """A real .vdb with its voxel data cut out: the header, the descriptors and each grid's
     metadata as written, offsets rewritten (small seeds with real metadata)."""
-    from volrender import vdb
+    from volrender import vdb_header
     f = io.BytesIO(data)
-    r = vdb._Reader(f, len(data))
+    r = vdb_header._Reader(f, len(data))
     try:
-        if r.unpack("q") != vdb.VDB_MAGIC or r.unpack("I") < 222:
+        if r.unpack("q") != vdb_header.VDB_MAGIC or r.unpack("I") < 222:
             return None
         r.unpack("II")
         if r.read(1) == b"\0":
             return None
         r.read(36)
-        vdb._read_metamap(r)
+        vdb_header._read_metamap(r)
         head_end = f.tell()
         count = r.unpack("i")
         out = bytearray(data[:head_end]) + struct.pack("<i", count)
@@ -62,7 +62,7 @@ def vdb_skeleton(data: bytes) -> bytes | None:
             grid_pos, _, end_pos = r.unpack("qqq")
             f.seek(grid_pos)
             r.unpack("I")
-            vdb._read_metamap(r)
+            vdb_header._read_metamap(r)
             body = data[grid_pos:f.tell()]
             g = len(out) + (d1 - d0) + 24
             out += data[d0:d1] + struct.pack("<qqq", g, g + len(body), g + len(body)) + body
@@ -153,12 +153,12 @@ def _npz_bytes(bricks) -> bytes:
 
 def _npz_seeds():
     import numpy as np
-    from volrender import vdb
+    from volrender.bricks import Bricks
     v = np.zeros((3, 2, 2), np.float32)
     v[1, 1, 0] = 2.0
-    out = [_npz_bytes(vdb.Bricks.from_dense(v)),
-           _npz_bytes(vdb.Bricks.from_dense(v, emission=v * 3, temperature=v + 1, origin=(-5, 7, 0))),
-           _npz_bytes(vdb.Bricks.from_dense(np.ones((1, 1, 1), np.float32), np.diag([2.0, 2, 2, 1])))]
+    out = [_npz_bytes(Bricks.from_dense(v)),
+           _npz_bytes(Bricks.from_dense(v, emission=v * 3, temperature=v + 1, origin=(-5, 7, 0))),
+           _npz_bytes(Bricks.from_dense(np.ones((1, 1, 1), np.float32), np.diag([2.0, 2, 2, 1])))]
     return out
 
 

@@ -108,7 +108,7 @@ def target(fn):
 
 def _check_cloud(cloud):
     import numpy as np
-    from volrender.points import MAX_COORDINATE, PointCloud
+    from volrender.cloud import MAX_COORDINATE, PointCloud
     if not isinstance(cloud, PointCloud) or len(cloud) < 1:
         raise Finding(f"not a non-empty PointCloud: {cloud!r}")
     c = cloud.centers
@@ -125,9 +125,9 @@ def _check_cloud(cloud):
 
 def _check_bricks(b):
     import numpy as np
-    from volrender import vdb
+    from volrender.bricks import Bricks, check_transform
     from volrender.layout import APRON
-    if not isinstance(b, vdb.Bricks):
+    if not isinstance(b, Bricks):
         raise Finding(f"not Bricks: {b!r}")
     n = len(b.data)
     if b.data.dtype != np.float32 or b.data.shape != (n, APRON, APRON, APRON):
@@ -140,7 +140,7 @@ def _check_bricks(b):
         raise Finding("voxels not finite or negative")
     if b.majorant.shape != (n,) or (n and np.any(b.majorant < b.data.reshape(n, -1).max(axis=1))):
         raise Finding("majorants below their bricks' values")
-    if vdb.check_transform(b.index_to_world) is not None:
+    if check_transform(b.index_to_world) is not None:
         raise Finding("a transform check_transform refuses")
 
 
@@ -170,15 +170,15 @@ def npy(data):
 
 @target
 def vdb_header(data):
-    """The VDB header, grid descriptors and grid metadata (vdb.parse_vdb_header)."""
-    from volrender import vdb
-    grids = vdb.parse_vdb_header(io.BytesIO(data), len(data), "<fuzz>.vdb")
+    """The VDB header, grid descriptors and grid metadata (parse_vdb_header)."""
+    from volrender import vdb_header as header
+    grids = header.parse_vdb_header(io.BytesIO(data), len(data), "<fuzz>.vdb")
     if grids is None:
         return
-    if not isinstance(grids, list) or len(grids) * vdb._MIN_DESCRIPTOR > len(data):
+    if not isinstance(grids, list) or len(grids) * header._MIN_DESCRIPTOR > len(data):
         raise Finding(f"{len(grids)} grids from {len(data)} bytes")
     for g in grids:
-        if not (isinstance(g, vdb.GridInfo) and isinstance(g.name, str)
+        if not (isinstance(g, header.GridInfo) and isinstance(g.name, str)
                 and isinstance(g.value_type, str) and isinstance(g.grid_class, str)
                 and isinstance(g.creator, str)
                 and all(isinstance(k, str) for k in g.metadata_keys)
@@ -190,9 +190,9 @@ def vdb_header(data):
 
 @target
 def npz(data):
-    """The .npz brick cache validator (vdb.read_npz)."""
-    from volrender import vdb
-    _check_bricks(vdb.read_npz(io.BytesIO(data), len(data), "<fuzz>.npz"))
+    """The .npz brick cache validator (read_npz)."""
+    from volrender.bricks import read_npz
+    _check_bricks(read_npz(io.BytesIO(data), len(data), "<fuzz>.npz"))
 
 
 def _dense_from(data):
@@ -215,19 +215,19 @@ def _dense_from(data):
 
 @target
 def bricks(data):
-    """The brick builder the VDB reader feeds (vdb.Bricks.from_dense, vdb._build): any
+    """The brick builder the VDB reader feeds (Bricks.from_dense, build_bricks): any
     float32 values (NaN, Inf, negative), shapes up to 10^3 and origins up to 2^34; the
     bricks must hold the sanitised values at every voxel."""
     import warnings
     import numpy as np
-    from volrender import vdb
+    from volrender.bricks import Bricks
     got = _dense_from(data)
     if got is None:
         return
     values, origin, emission = got
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        b = vdb.Bricks.from_dense(values, origin=origin, emission=emission, chunk=2)
+        b = Bricks.from_dense(values, origin=origin, emission=emission, chunk=2)
     _check_bricks(b)
     want = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0).clip(0, None)
     idx = np.argwhere(np.ones(values.shape, bool)).astype(np.float64)
@@ -245,10 +245,10 @@ def _in_file(data, name, fn):
 
 @target
 def scene(data):
-    """Scene TOML files (scene.read: tomllib, then the schema: sections, keys, types,
+    """Scene TOML files (scene_file.read: tomllib, then the schema: sections, keys, types,
     lights, paths relative to the file)."""
-    from volrender import scene as scene_mod
-    out = _in_file(data, "scene.toml", scene_mod.read)
+    from volrender import scene_file
+    out = _in_file(data, "scene.toml", scene_file.read)
     if not isinstance(out, dict) or not (("points" in out) ^ ("volume" in out)):
         raise Finding(f"scene without exactly one of [points], [volume]: {out!r}")
 
@@ -268,7 +268,8 @@ def _text(data) -> str:
 
 @target
 def pattern(data):
-    """Sequence patterns: ####, %04d, globs (sequence.parse_pattern, Pattern.path, the glob
+    """Sequence patterns: ####, %04d, @@@@, $F4, globs (sequence.parse_pattern: volrender
+    finds the token and splits the path, fileseq reads its padding; Pattern.path, the glob
     regex): a frame's path holds its number, padded; a glob's regex compiles."""
     import re
     from volrender import sequence
@@ -290,7 +291,8 @@ def pattern(data):
 
 @target
 def frames(data):
-    """--frames ranges: A-B[:STEP], N, comma-separated lists (sequence.parse_frames)."""
+    """--frames ranges: A-B[:STEP], A-BxSTEP, A-BySTEP, N, comma-separated lists
+    (sequence.parse_frames: volrender checks each part and its size, fileseq expands it)."""
     from volrender import sequence
     out = sequence.parse_frames(_text(data))
     if out != sorted(set(out)) or not all(isinstance(f, int) for f in out):

@@ -4,7 +4,7 @@ cells and extreme-case tests."""
 import numpy as np
 import pyopencl as cl
 
-from volrender import glass, layout
+from volrender import glass, layout, spheres
 
 SOURCE = """
 #include "common.h"
@@ -88,12 +88,12 @@ def f4(a, w=0.0):
 
 
 class Probe:
-    """The probe kernels over one packed scene (glass.pack_scene, glass.glass_params)."""
+    """The probe kernels over one packed scene (spheres.pack_scene, glass.glass_params)."""
 
     def __init__(self, dev, cloud, settings):
         self.dev = dev
         self.settings = settings
-        self.scene = glass.pack_scene(cloud, settings, device=dev)
+        self.scene = spheres.pack_scene(cloud, settings, device=dev)
         p = self.scene
         flags = {"VR_TREE": int(p.accel == "tree"), "VR_GRID": int(p.accel == "grid"),
                  "VR_TILED": 0, "VR_COLORS": 0,
@@ -109,11 +109,11 @@ class Probe:
                               for n in ("field", "lip", "trace", "shadow", "optics")}
         self.kernels = _PROGRAMS[key]
         params = glass.glass_params(p, settings)
-        spheres, grid = glass.kernel_arrays(p, params)
+        balls, grid = glass.kernel_arrays(p, params)
         mf = cl.mem_flags
         self.bufs = [cl.Buffer(dev.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                hostbuf=np.ascontiguousarray(a))
-                     for a in (spheres, p.nodes, params, *grid)]
+                     for a in (balls, p.nodes, params, *grid)]
 
     def _run(self, name, *arrays, n_out, scalars=(), n_vis=0):
         mf = cl.mem_flags
@@ -158,7 +158,7 @@ class Probe:
 
 def optics(dev, d, eta):
     """Refracted directions (0 on TIR) and Fresnel reflectance for normal +z."""
-    from volrender.points import PointCloud
+    from volrender.cloud import PointCloud
     key = next((k for k in _PROGRAMS if k[0] == id(dev)), None)
     if key is None:
         Probe(dev, PointCloud(np.zeros((1, 3)), np.ones(1)), glass.GlassSettings(accel="none"))

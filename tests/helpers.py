@@ -15,7 +15,7 @@ import numpy as np
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Environment, GlassContent, Scene, VolumeContent
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 
 Z = 5.0
 

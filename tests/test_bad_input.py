@@ -228,7 +228,7 @@ def _ply_lists(kind):
 
 def _bricks_npz(kind):
     def make(path):
-        from volrender.vdb import Bricks
+        from volrender.bricks import Bricks
         b = Bricks.from_dense(np.ones((9, 9, 9), np.float32))
         b.save_npz(path)
         z = dict(np.load(path))

@@ -7,7 +7,7 @@ import pytest
 from volrender import blackbody as bb, vdb
 from volrender.camera import Camera
 from volrender.volume import VolumeSettings
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks, load_npz
 from helpers import render_volume
 
 # Planckian locus (CIE 1931 x, y), as tabulated (c2 = 1.4388e-2 m K)
@@ -139,7 +139,7 @@ def test_temperature_grid_colours_each_voxel(cl_device, estimator):
 def test_temperature_grid_round_trips_through_npz(tmp_path):
     b = two_temperatures()
     b.save_npz(tmp_path / "fire.npz")
-    c = vdb.load_npz(tmp_path / "fire.npz")
+    c = load_npz(tmp_path / "fire.npz")
     np.testing.assert_array_equal(c.temperature, b.temperature)
     assert c.temperature_grid_name == "temperature"
     with np.load(tmp_path / "fire.npz") as z:

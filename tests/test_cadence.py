@@ -12,7 +12,7 @@ from volrender.camera import Camera
 from volrender.dispatch import Launch
 from volrender.render import render
 from volrender.scene import Scene, VolumeContent
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
 W, H, SPP = 32, 240, 8

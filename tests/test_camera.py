@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 
 import volrender
-from volrender import cli, points
-from volrender.camera import View, framing_distance, projected_fill
+from volrender import cli, generators
+from volrender.camera import View
 
 LO, HI = np.array([-1.0, -0.5, -2.0]), np.array([3.0, 1.5, 0.0])
-RADIUS = 0.5 * float(np.linalg.norm(HI - LO))
-CENTRE = 0.5 * (LO + HI)
 
 
 def run(capsys, *argv):
@@ -32,25 +30,44 @@ def dist(c):
     return float(np.linalg.norm(np.subtract(c.origin, c.target)))
 
 
+def footprint(c, pts, radii=0.0):
+    """The projected bounds of spheres through camera c: (larger side / the frame's smaller
+    side, centre offset in pixels), by brute force per point (independent of framing.fit)."""
+    f, r, u = c.basis()
+    d = np.asarray(pts, np.float64) - np.asarray(c.origin)
+    depth = d @ f
+    assert (depth > 0).all()
+    k = c.height / (2.0 * math.tan(math.radians(c.fov) / 2.0))      # pixels per tan unit
+    rad = np.broadcast_to(radii, (len(d),))
+    x0, x1 = k * ((d @ r - rad) / depth).min(), k * ((d @ r + rad) / depth).max()
+    y0, y1 = k * ((d @ u - rad) / depth).min(), k * ((d @ u + rad) / depth).max()
+    return max(x1 - x0, y1 - y0) / min(c.width, c.height), (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+
+
+CORNERS = np.array([[x, y, z] for x in (LO[0], HI[0]) for y in (LO[1], HI[1]) for z in (LO[2], HI[2])])
+
+
 def test_fov_zooms_from_a_fixed_origin():
     base = cam()
     for fov in (15.0, 28.0, 60.0):
         c = cam(fov=fov)
         assert np.allclose(c.origin, base.origin) and np.allclose(c.target, base.target)
-        # the bounding sphere's projected size scales as the tan(fov/2) ratio
-        ratio = projected_fill(RADIUS, dist(c), fov) / projected_fill(RADIUS, dist(base), 40.0)
+        # the projected size scales as the tan(fov/2) ratio
+        ratio = footprint(c, CORNERS)[0] / footprint(base, CORNERS)[0]
         assert ratio == pytest.approx(math.tan(math.radians(20)) / math.tan(math.radians(fov / 2)))
-    # at the default fov the sphere fills the height, as before
-    assert projected_fill(RADIUS, dist(base), 40.0) == pytest.approx(1.0)
+    # at the default fov the box's projected bounds cover 0.9 of the smaller side, centred
+    fill, (cx, cy) = footprint(base, CORNERS)
+    assert fill == pytest.approx(0.9) and abs(cx) < 1e-6 and abs(cy) < 1e-6
 
 
 def test_fov_zooms_in_a_render():
     """Same origin, fov 40 and 28: the cloud's rows from the image centre grow by
     tan(20)/tan(14) (1.46), within a pixel at either edge."""
     ext = {}
+    far = 1.6 * dist(volrender.load_scene("blob:300", size=(48, 48)).camera)    # no cropping
     for fov in (40.0, 28.0):
         img = volrender.render(volrender.load_scene("blob:300", size=(48, 48), fov=fov,
-                                                    bounces=1))
+                                                    bounces=1, distance=far))
         rows = np.nonzero((img.rgba[..., 3] > 0.5).any(axis=1))[0]
         ext[fov] = (24 - rows[0], rows[-1] + 1 - 24)        # above and below the centre
     k = math.tan(math.radians(20)) / math.tan(math.radians(14))
@@ -58,13 +75,31 @@ def test_fov_zooms_in_a_render():
         assert abs(b - k * a) <= 1.5, (ext, k)
 
 
-@pytest.mark.parametrize("fill,fov", [(0.5, 40.0), (0.9, 15.0), (1.0, 70.0), (2.0, 30.0)])
-def test_fill_puts_the_bounding_sphere_at_the_asked_fraction(fill, fov):
-    c = cam(fill=fill, fov=fov)
-    assert np.allclose(c.target, CENTRE)
-    assert projected_fill(RADIUS, dist(c), fov) == pytest.approx(fill)
-    # analytic check without the helper: the silhouette's half-angle asin(r/d)
-    assert math.tan(math.asin(RADIUS / dist(c))) == pytest.approx(fill * math.tan(math.radians(fov / 2)))
+@pytest.mark.parametrize("fill,fov,size", [(0.5, 40.0, (32, 24)), (0.9, 15.0, (24, 32)),
+                                           (1.0, 70.0, (30, 30)), (2.0, 30.0, (64, 24))])
+def test_fill_puts_the_contents_bounds_at_the_asked_fraction(fill, fov, size):
+    """The projected bounds of the content (here a box's corners, and spheres) cover
+    `fill` of the frame's smaller side, centred, whatever the fov and the aspect."""
+    c = View(size=size, fill=fill, fov=fov).camera(LO, HI)
+    got, (cx, cy) = footprint(c, CORNERS)
+    assert got == pytest.approx(fill, rel=1e-6) and abs(cx) < 1e-6 and abs(cy) < 1e-6
+    rng = np.random.default_rng(3)
+    pts, radii = rng.normal(size=(500, 3)) * (3.0, 1.0, 0.5), rng.uniform(0.01, 0.3, 500)
+    c = View(size=size, fill=fill, fov=fov, azimuth=40.0).camera(LO, HI, extent=(pts, radii))
+    got, (cx, cy) = footprint(c, pts, radii)
+    assert got == pytest.approx(fill, rel=1e-6) and abs(cx) < 1e-6 and abs(cy) < 1e-6
+
+
+def test_target_alone_is_orbited_with_the_content_inside():
+    """--target: looked at as given, from where the content's farther side from it covers
+    half the asked fraction."""
+    c = View(size=(32, 24), target=(3.0, 1.5, 0.0)).camera(LO, HI)
+    assert np.allclose(c.target, (3.0, 1.5, 0.0))
+    f, r, u = c.basis()
+    d = CORNERS - np.asarray(c.origin)
+    k = c.height / (2.0 * math.tan(math.radians(c.fov) / 2.0))
+    far = k * np.abs(np.stack([(d @ r) / (d @ f), (d @ u) / (d @ f)])).max()
+    assert 2.0 * far / 24 == pytest.approx(0.9)
 
 
 def test_distance_puts_the_origin_at_d_from_the_target():
@@ -73,7 +108,8 @@ def test_distance_puts_the_origin_at_d_from_the_target():
         c = cam(distance=d, target=(1.0, 2.0, 3.0), azimuth=90.0, elevation=0.0)
         assert np.allclose(c.target, (1.0, 2.0, 3.0))
         assert np.allclose(c.origin, (1.0 + d, 2.0, 3.0))     # azimuth 90: along +x
-    assert framing_distance(RADIUS, 40.0) == pytest.approx(dist(cam()))
+    # a distance alone keeps the content centred
+    assert np.allclose(footprint(cam(distance=9.0), CORNERS)[1], 0.0, atol=1e-6)
 
 
 @pytest.mark.parametrize("args,words", [
@@ -119,7 +155,7 @@ def test_conflicts_in_scene_files_and_python(tmp_path):
 def test_sequence_writes_camera_out_and_prints_it(capsys, tmp_path):
     for f in (1, 2):
         np.save(tmp_path / f"p_{f:04d}.npy",
-                (points.blob(80, seed=f).centers).astype(np.float32))
+                (generators.blob(80, seed=f).centers).astype(np.float32))
     camf = tmp_path / "seq_cam.toml"
     code, _, err = run(capsys, "render", tmp_path / "p_####.npy", "-o", tmp_path / "o_####.png",
                        "--size", "12x9", "--workers", "0", "--no-progress", "--bounces", "1",

@@ -8,11 +8,11 @@ import pytest
 from glass_probe import Probe
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import cells, cli, glass, points, reference
+from volrender import cells, cli, generators, glass, reference, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from volrender.render import render as render_scene
 from volrender.scene import GlassContent, Scene
 from helpers import render_points
@@ -25,7 +25,7 @@ LIGHTS = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
 
 def packed(dev, cloud, **kw):
     s = glass.GlassSettings(**{"accel": "grid", **kw})
-    p = glass.pack_scene(cloud, s, device=dev)
+    p = spheres.pack_scene(cloud, s, device=dev)
     assert p.accel == "grid" and p.cells is not None
     return p
 
@@ -122,7 +122,7 @@ def test_builder_matches_the_numpy_oracle(cl_device, rng, blend):
     """Listing every cell (no skipping): each device list is the oracle's list (lo_i <=
     U + k, float64) up to the rounding pad, and the device bounds of skippable cells match
     the oracle's."""
-    cloud = points.blob(120, seed=2)
+    cloud = generators.blob(120, seed=2)
     p = packed(cl_device, cloud, blend=blend, cell_skip=False, cell_size=0.06)
     g = p.cells
     c, r = p.spheres[:, :3].astype(np.float64), p.spheres[:, 3].astype(np.float64)
@@ -178,7 +178,7 @@ def _seam_cloud():
 
 @pytest.mark.parametrize("name,cloud,blend", [
     ("seams", _seam_cloud(), 0.1),
-    ("dense", PointCloud(points.blob(150, seed=3).centers, np.full(150, 0.25)), 0.2),
+    ("dense", PointCloud(generators.blob(150, seed=3).centers, np.full(150, 0.25)), 0.2),
 ])
 @pytest.mark.parametrize("cell_factor", [0.4, 1.0, 3.0])
 @pytest.mark.parametrize("bounces", [1, 3])
@@ -201,7 +201,7 @@ def test_cells_give_the_brute_force_image(cl_device, name, cloud, blend, cell_fa
 def test_tiled_dispatch_with_cells(cl_device):
     """Tiled work-groups read their sphere list where it serves and the cells elsewhere:
     the fragment image up to summation order (test_glass_dispatch's tolerance)."""
-    cloud = points.blob(300, seed=3)
+    cloud = generators.blob(300, seed=3)
     a = render(cl_device, cloud, size=(24, 20), bounces=2, blend=0.12)
     b = render(cl_device, cloud, size=(24, 20), bounces=2, blend=0.12, dispatch="tiled")
     assert (np.abs(a - b).max(-1) <= 2e-3).mean() >= 0.99
@@ -223,10 +223,10 @@ def test_degenerate_clouds_match_brute_force(cl_device, case):
         "collinear": (PointCloud(line, np.full(30, 0.08)), {"blend": 0.1}),
         "tiny": (PointCloud(rng.uniform(-1, 1, (40, 3)) * 1e-6, np.full(40, 2e-7)), {}),
         "huge": (PointCloud(rng.uniform(-1, 1, (40, 3)) * 1e3, np.full(40, 300.0)), {}),
-        "no_blend": (points.blob(60, seed=4), {"blend": 0.0}),
-        "huge_blend": (points.blob(40, seed=4), {"blend": 30.0}),
-        "far": (PointCloud(points.blob(60, seed=4).centers + [1e5, -1e5, 2e5],
-                           points.blob(60, seed=4).radii), {"blend": 0.1}),
+        "no_blend": (generators.blob(60, seed=4), {"blend": 0.0}),
+        "huge_blend": (generators.blob(40, seed=4), {"blend": 30.0}),
+        "far": (PointCloud(generators.blob(60, seed=4).centers + [1e5, -1e5, 2e5],
+                           generators.blob(60, seed=4).radii), {"blend": 0.1}),
     }[case]
     cam = glass.default_camera(cloud, 16, 16)
     grid = render(cl_device, cloud, cam=cam, bounces=2, **kw)
@@ -247,20 +247,20 @@ def test_coincident_points_are_one_run(cl_device):
 
 def test_camera_inside_glass_glows_with_its_colour(cl_device):
     """An eye deep inside coloured glass sits in a cell that rays skip: its glow tint comes
-    from the host's blend at the eye (glass.eye_color, the kernel's formula in float64),
+    from the host's blend at the eye (spheres.eye_color, the kernel's formula in float64),
     so the image equals the tree walk's up to the skipping criterion, and every ray starts
     in glass."""
-    base = points.blob(200, seed=10)
+    base = generators.blob(200, seed=10)
     cols = np.random.default_rng(1).random((200, 3)).astype(np.float32)
     cloud = PointCloud(base.centers, np.full(200, 0.3), cols)
     cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=16, height=16)
     kw = dict(blend=0.15, bounces=2)
-    p = glass.pack_scene(cloud, glass.GlassSettings(**kw), device=cl_device)
+    p = spheres.pack_scene(cloud, glass.GlassSettings(**kw), device=cl_device)
     code, _, _ = p.cells.lookup(p.cells.locate(np.zeros((1, 3)) - p.centre))
     assert code[0] < 0                            # the eye's cell is skipped
     d = np.linalg.norm(cloud.centers, axis=1) - 0.3
     h = np.maximum(1 - (d - d.min()) / 0.15, 0) ** 2
-    np.testing.assert_allclose(glass.eye_color(p, -p.centre)[:3], h @ cols / h.sum(), rtol=1e-5)
+    np.testing.assert_allclose(spheres.eye_color(p, -p.centre)[:3], h @ cols / h.sum(), rtol=1e-5)
     grid = render(cl_device, cloud, cam=cam, **kw)
     tree = render(cl_device, cloud, cam=cam, accel="tree", **kw)
     assert (grid[..., 3] == 1).all()
@@ -268,7 +268,7 @@ def test_camera_inside_glass_glows_with_its_colour(cl_device):
 
 
 def test_too_many_list_entries_fall_back_to_the_tree(cl_device):
-    cloud = points.blob(200, seed=1)
+    cloud = generators.blob(200, seed=1)
     content = GlassContent(cloud, glass.GlassSettings(bounces=1))
     cam = glass.default_camera(cloud, 8, 8)
     packed = content.prepare(cl_device, max_runs=10)
@@ -281,11 +281,11 @@ def test_too_many_list_entries_fall_back_to_the_tree(cl_device):
 def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device):
     """Lists that would exceed the budget at the automatic edge: the edge doubles (the
     total falls about as 1/edge) and the cells still serve, with the tree walk's image."""
-    cloud = points.blob(400, seed=2)
+    cloud = generators.blob(400, seed=2)
     cam = glass.default_camera(cloud, 16, 12)
     s = glass.GlassSettings(bounces=1)
-    full = glass.pack_scene(cloud, s, device=cl_device)
-    small = glass.pack_scene(cloud, s, device=cl_device, max_runs=len(full.cells.runs) // 2)
+    full = spheres.pack_scene(cloud, s, device=cl_device)
+    small = spheres.pack_scene(cloud, s, device=cl_device, max_runs=len(full.cells.runs) // 2)
     assert small.accel == "grid" and small.cells.cell >= 1.9 * full.cells.cell
     assert len(small.cells.runs) <= len(full.cells.runs) // 2
     grid = render(cl_device, cloud, cam=cam, bounces=1)
@@ -296,7 +296,7 @@ def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device):
 def test_probe_field_in_listed_cells_is_brute_force(cl_device, rng):
     """The kernel's field through the cells at random points of listed cells equals brute
     force over all spheres (float32 sums of the same terms)."""
-    cloud = points.blob(200, seed=8)
+    cloud = generators.blob(200, seed=8)
     s = glass.GlassSettings(blend=0.15)
     probe = Probe(cl_device, cloud, s)
     g = probe.scene.cells
@@ -341,7 +341,7 @@ def test_cell_boxes_and_the_tree_command(cl_device, tmp_path, capsys):
     cloud, with its list length; the export and the screenshot are written."""
     pytest.importorskip("pyvista")
     from volrender import inspect
-    cloud = points.blob(150, seed=2)
+    cloud = generators.blob(150, seed=2)
     p = packed(cl_device, cloud)
     boxes = inspect.cell_boxes(p.cells, p.centre)
     assert inspect.n_boxes(boxes) == len(p.cells.lists)
@@ -359,7 +359,7 @@ def test_host_lists_agree_with_the_device(cl_device, rng):
     """The vectorised numpy builder on the tree (cells.host_lists, the measured alternative
     to the device build) finds the same lists, up to the device's rounding pad."""
     from volrender import tree as tree_mod
-    cloud = points.blob(400, seed=6)
+    cloud = generators.blob(400, seed=6)
     p = packed(cl_device, cloud, blend=0.12, cell_skip=False, cell_size=0.05)
     g = p.cells
     t = tree_mod.build(cloud.centers, cloud.radii, 16, 0.0)
@@ -405,7 +405,7 @@ def test_the_hit_threshold_stops_growing_far_away(cl_device):
     covers (GlassParams.hit_len): a cloud framed from 60 box diagonals covers the share of
     the frame it covers from 20 (uncapped, eps x 60 diagonals dilates every silhouette:
     +30% coverage at epsilon 1e-3), and the support cells still agree with the tree."""
-    cloud = points.blob(250, seed=5)
+    cloud = generators.blob(250, seed=5)
     lo, hi = cloud.centers.min(0), cloud.centers.max(0)
     c, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
     way = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])

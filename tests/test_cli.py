@@ -177,9 +177,11 @@ def test_nan_voxels_render_with_a_warning(tmp_path, capsys):
     assert np.all(np.isfinite(np.load(out)))
 
 
-@pytest.mark.parametrize("target", ["missing_dir/o.png", "is_a_dir", "o.tiff"])
+@pytest.mark.parametrize("target", ["a_file/o.png", "is_a_dir", "o.tiff"])
 def test_bad_output_path_fails_before_rendering(tmp_path, capsys, target):
+    """(A missing folder is made at the write, issue 37; a file in its way is refused.)"""
     (tmp_path / "is_a_dir").mkdir()
+    (tmp_path / "a_file").write_text("x")
     out = tmp_path / target
     code, _, err = run(capsys, "render", DEMO, "-o", out, *SMALL)
     assert code == 2 and err.startswith("volrender: error: ") and "Traceback" not in err

@@ -20,14 +20,14 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import camera as camera_mod, features, volume as volume_mod, vdb
+from volrender import camera as camera_mod, features, layout, volume as volume_mod, vdb
 from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings, occupied_bricks, volume_params
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.dispatch import Launch
 from helpers import render_volume
 
@@ -54,7 +54,7 @@ def tolerance(b, cam, s, lights, peak):
     in-scatter is bounded by the phase function's maximum times each light's largest
     irradiance over the grid's box (a point light's at its distance from the box)."""
     eps = float(np.finfo(np.float32).eps)
-    extent = max(float(np.abs(local_origin(b, cam)).max()), float(b.dims.max() * vdb.BRICK))
+    extent = max(float(np.abs(local_origin(b, cam)).max()), float(b.dims.max() * layout.BRICK))
     delta = 8 * eps * extent                               # voxels
     dt = s.step * b.voxel_size                             # world units
     vmax = float(b.majorant.max()) if b.n_slots else 0.0

@@ -13,7 +13,7 @@ from volrender.lights import Sun
 from volrender.environment import (Environment, env_distribution, env_mode, env_weights,
                                   load_environment)
 from volrender.scene import Scene, VolumeContent
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
 from test_phase import chi2_sf
@@ -231,7 +231,7 @@ def test_env_is_seen_behind_unless_hidden(cl_device):
 
 def test_volume_scene_files_take_an_environment(tmp_path):
     from volrender import scene
-    from volrender.vdb import Bricks
+    from volrender.bricks import Bricks
     thin_slab().save_npz(tmp_path / "v.npz")
     (tmp_path / "s.toml").write_text('[volume]\nfile = "v.npz"\nalbedo = 0.95\n'
                                      '[environment]\nmap = [0.2, 0.3, 0.5]\n')
@@ -251,8 +251,8 @@ def test_volume_scene_files_take_an_environment(tmp_path):
 def test_glass_takes_a_uniform_env_as_a_one_texel_map(cl_device):
     """--env R,G,B for glass: a 1x1 map, so every ray that leaves the glass sees R,G,B
     (here every pixel that misses the spheres)."""
-    from volrender import glass, points
-    cloud = points.generate("blob", 40, seed=1)
+    from volrender import generators, glass
+    cloud = generators.generate("blob", 40, seed=1)
     cam = glass.default_camera(cloud, 24, 18)
     s = glass.GlassSettings(env=(0.2, 0.4, 0.6), refraction=False)
     sc = Scene.of(cam, [], glass_content(cloud, s))

@@ -11,14 +11,14 @@ import warnings
 import numpy as np
 import pytest
 
-from volrender import glass, points, reference, tree as tree_mod
+from volrender import generators, glass, reference, spheres, tree as tree_mod
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.image import write_image
 from volrender.lights import PointLight, Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from volrender.volume import G_MAX, VolumeSettings
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from helpers import render_points, render_volume
 
 VOX = 0.1
@@ -435,7 +435,7 @@ def assert_furnace(white, settings):
 def test_blend_to_zero_is_the_plain_union_image(cl_device):
     """k = 1e-30 (below VR_BLEND_MIN and far below float32 resolution of d_i - m) renders
     the plain union k = 0; k = 1e-6 differs from it by a bulge of at most (k/2) ln N."""
-    cloud = points.blob(60, seed=21)
+    cloud = generators.blob(60, seed=21)
     cam = glass.default_camera(cloud, GSIZE, GSIZE)
     sun = [Sun((0.3, -1.0, -0.2), 3.0)]
     zero = grender(cl_device, cloud, glass.GlassSettings(blend=0.0, bounces=3), cam, sun)
@@ -451,7 +451,7 @@ def test_blend_to_zero_is_the_plain_union_image(cl_device):
 def test_huge_blend_is_finite(cl_device, white_env, k):
     """k >> the cloud: every h_i ~ 1 and the surface bulges by ~(k/2) ln N, far past the
     default camera (which frames the spheres, so it ends up inside the glass)."""
-    cloud = points.blob(40, seed=22)
+    cloud = generators.blob(40, seed=22)
     img = grender(cl_device, cloud, glass.GlassSettings(blend=k, bounces=3),
                   lights=[Sun((0, -1, 0), 2.0)])
     finite(img)
@@ -471,7 +471,7 @@ def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s, accel):
     are per cloud radius by default, so the image is the same; with them in world units
     (material_unit 1) they must be scaled by 1/s for that. Refraction paths are chaotic (see
     test_glass): all coverage agrees, nearly all pixels to 2e-3."""
-    base = points.blob(80, seed=23)
+    base = generators.blob(80, seed=23)
     r0 = 0.12
     kw = dict(blend=0.1, bounces=3, radius=r0, accel=accel)
     cam = glass.default_camera(base, GSIZE, GSIZE, radius=r0)
@@ -480,7 +480,7 @@ def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s, accel):
     big = PointCloud(base.centers * s)
     scaled = dict(kw, blend=0.1 * s, radius=r0 * s)
     got = grender(cl_device, big, glass.GlassSettings(**scaled), scaled_cam(cam, s), sun)
-    unit = glass.material_unit(glass.pack_scene(base, glass.GlassSettings(**kw), device=cl_device),
+    unit = spheres.material_unit(spheres.pack_scene(base, glass.GlassSettings(**kw), device=cl_device),
                                glass.GlassSettings())
     world = grender(cl_device, big, glass.GlassSettings(
         **scaled, material_unit=1.0, absorption=tuple(np.array((0.25, 1.0, 2.7)) / (unit * s)),
@@ -496,7 +496,7 @@ def test_radii_tiny_and_huge_are_scale_invariant(cl_device, s, accel):
 def test_tiny_and_huge_radii_on_a_unit_cloud(cl_device, white_env, r):
     """Radius 1e-6 on points ~0.1 apart (dust: nearly invisible) and 1e3 (one melted
     boulder dwarfing the cloud): finite, and in the white furnace never above 1."""
-    cloud = points.blob(50, seed=24)
+    cloud = generators.blob(50, seed=24)
     cam = glass.default_camera(cloud, GSIZE, GSIZE, radius=0.05)
     img = grender(cl_device, cloud, glass.GlassSettings(radius=r, bounces=3), cam,
                   [Sun((0.3, -1.0, -0.2), 3.0)])
@@ -556,7 +556,7 @@ def test_extreme_ior_is_finite_and_conserves_energy(cl_device, white_env, ior):
     """IOR 10 and the bounds 16 and 1/16: finite with lights; in the white furnace each
     covered pixel lies in [F0, 1], F0 = ((n-1)/(n+1))^2 (Fresnel's minimum, so at least
     the entry reflection), and uncovered pixels are exactly the environment."""
-    cloud = points.blob(60, seed=25)
+    cloud = generators.blob(60, seed=25)
     cam = glass.default_camera(cloud, GSIZE, GSIZE)
     img = grender(cl_device, cloud, glass.GlassSettings(ior=ior, bounces=8), cam,
                   [Sun((0.3, -1.0, -0.2), 3.0), PointLight((1.5, 1.5, 1.5), 3.0)])
@@ -670,7 +670,7 @@ def test_glass_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
     from volrender import layout
     knobs = dict(knobs)
     bright = knobs.pop("bright", None)
-    cloud = points.blob(40, seed=26)
+    cloud = generators.blob(40, seed=26)
     lights = [Sun((0.3, -1.0, -0.2), 3.0)]
     mode = knobs.pop("lights", None)
     if mode == "suns":
@@ -694,7 +694,7 @@ def test_environment_texels_beyond_the_range_are_clamped(cl_device, tmp_path):
     write_image(tmp_path / "hot.exr", env)
     with pytest.warns(UserWarning, match="environment texel"):
         s = glass.GlassSettings(env=str(tmp_path / "hot.exr"), reflectivity=BIG, spp=3)
-        img = grender(cl_device, points.blob(30, seed=27), s)
+        img = grender(cl_device, generators.blob(30, seed=27), s)
     finite(img)
     miss = img[..., 3] == 0
     assert miss.sum() > 10

@@ -156,6 +156,8 @@ def test_memory_estimates_refuse_what_cannot_fit(tmp_path, monkeypatch):
     """The in-process checks: a cloud, a .npy, a brick cache and a VDB grid's metadata
     against the memory said to be available."""
     from volrender import files, points, vdb
+    from volrender.bricks import Bricks, load_npz
+    from volrender.vdb_header import GridInfo
     from volrender.errors import UserError
     monkeypatch.setattr(files, "available_memory", lambda: (1 << 20, "available on this host"))
     rows = np.zeros((100_000, 3), np.float32)
@@ -170,11 +172,11 @@ def test_memory_estimates_refuse_what_cannot_fit(tmp_path, monkeypatch):
     (tmp_path / "c.xyz").write_text("0 0 0\n" * 800_000)      # more than one chunk
     with pytest.raises(UserError, match="of memory"):
         points.load_points(tmp_path / "c.xyz")
-    vdb.Bricks.from_dense(np.ones((40, 40, 40), np.float32)).save_npz(tmp_path / "b.npz")
+    Bricks.from_dense(np.ones((40, 40, 40), np.float32)).save_npz(tmp_path / "b.npz")
     with pytest.raises(UserError, match="of memory"):
-        vdb.load_npz(tmp_path / "b.npz")
-    info = vdb.GridInfo("density", "float", "fog volume", active_voxels=10**9,
-                        memory_bytes=6 << 30)
+        load_npz(tmp_path / "b.npz")
+    info = GridInfo("density", "float", "fog volume", active_voxels=10**9,
+                    memory_bytes=6 << 30)
     assert vdb.load_memory_estimate([info]) > 6 << 30
     with pytest.raises(UserError, match="grid 'density'"):
         vdb._check_load_memory(tmp_path / "g.vdb", info, [])
@@ -248,11 +250,11 @@ def test_two_renders_of_one_output_leave_one_complete_file_from_one_of_them(tmp_
 def test_two_sequence_runs_over_one_folder_render_every_frame_once(tmp_path):
     """Two `--skip-existing` runs started together over the same output folder: every frame
     is complete, equals the frame a run alone renders, and was rendered by one run only."""
-    from volrender import vdb
+    from volrender.bricks import Bricks
     rng = np.random.default_rng(5)
     for f in range(1, 9):
         v = rng.random((12, 10, 8)).astype(np.float32)
-        vdb.Bricks.from_dense(v, np.diag([0.1, 0.1, 0.1, 1.0])).save_npz(tmp_path / f"c_{f:04d}.npz")
+        Bricks.from_dense(v, np.diag([0.1, 0.1, 0.1, 1.0])).save_npz(tmp_path / f"c_{f:04d}.npz")
     args = ["render", "c_####.npz", "-o", "{d}/f_####.npy", "--frames", "1-8", "--workers", "0",
             "--size", "24x18", "--no-progress", "--skip-existing", "--origin", "0.6,0.5,3",
             "--target", "0.6,0.5,0.4"]
@@ -288,7 +290,7 @@ def _demo_with(edits):
 def test_a_vdb_that_kills_openvdb_is_one_error_line(tmp_path):
     """One byte changed in the demo cloud makes OpenVDB 10 die (SIGABRT or SIGSEGV: heap damaged),
     another makes it throw (or abort) while voxels decompress: both are one line, status 2, in a
-    process that lives on (OpenVDB reads in a reader process of its own, vdb._Reader)."""
+    process that lives on (OpenVDB reads in a reader process of its own, vdb_header._Reader)."""
     from conftest import openvdb_missing
     if openvdb_missing():
         pytest.skip(openvdb_missing())

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import vdb
+from volrender.vdb_header import GridInfo, parse_vdb
 from volrender.errors import UserError
-from volrender.points import PointCloud, load_points
+from volrender.cloud import PointCloud
+from volrender.points import load_points
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "scenes" / "demo_cloud.vdb"
@@ -92,9 +93,9 @@ VDB_SEEDS = [vdb_descriptors([b"density", b"temperature"]), DEMO.read_bytes()[:4
 @given(seed=st.sampled_from(range(len(VDB_SEEDS))), ops=OPS)
 def test_vdb_header_parser(seed, ops):
     data = mutate(VDB_SEEDS[seed], ops)
-    kind, value = in_file(data, ".vdb", vdb._parse_vdb)
+    kind, value = in_file(data, ".vdb", parse_vdb)
     if kind == "ok" and value is not None:
-        assert all(isinstance(g, vdb.GridInfo) for g in value)
+        assert all(isinstance(g, GridInfo) for g in value)
         assert len(value) * 36 <= len(data)
 
 
@@ -102,8 +103,8 @@ def test_vdb_seeds_are_valid():
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "g.vdb"
         p.write_bytes(VDB_SEEDS[0])
-        assert [g.name for g in vdb._parse_vdb(p)] == ["density", "temperature"]
-    assert [g.name for g in vdb._parse_vdb(DEMO)] == ["density"]
+        assert [g.name for g in parse_vdb(p)] == ["density", "temperature"]
+    assert [g.name for g in parse_vdb(DEMO)] == ["density"]
 
 
 def ply(fmt, rows, lists=False):

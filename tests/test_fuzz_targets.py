@@ -118,10 +118,10 @@ def test_toml_nested_too_deep_for_tomllib():
 
 
 def test_a_huge_scene_file_is_refused_before_it_is_read(tmp_path):
-    from volrender import files, scene
+    from volrender import files, scene_file
     from volrender.errors import UserError
     p = tmp_path / "big.toml"
     with open(p, "wb") as f:
         f.truncate(files.MAX_TOML + 1)
     with pytest.raises(UserError, match="a scene file is at most 16 MiB"):
-        scene.read(p)
+        scene_file.read(p)

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from glass_probe import Probe, optics
 
-from volrender import glass, points, reference
+from volrender import generators, glass, reference, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from helpers import render_points
 
 # Field values are float32 sums of O(10) terms of size ~scale: relative error ~1e-6.
@@ -44,7 +44,7 @@ def _samples(rng, cloud, n=400):
 def test_field_matches_oracle(cl_device, rng, accel, k):
     """Every acceleration gives the brute-force field; cells listed everywhere (no
     skipping), so every sample point reads a list."""
-    cloud = points.blob(300, seed=3)
+    cloud = generators.blob(300, seed=3)
     s = glass.GlassSettings(blend=k, leaf_size=2, accel=accel, cell_skip=False)
     x = _samples(rng, cloud)
     f, _, _ = field(cl_device, cloud, s, x)
@@ -74,7 +74,7 @@ def test_two_sphere_blend_is_c1_and_compact():
 
 
 def test_gradient_matches_finite_difference(cl_device, rng):
-    cloud = points.blob(100, seed=4)
+    cloud = generators.blob(100, seed=4)
     s = glass.GlassSettings(blend=0.2, leaf_size=4, cell_skip=False)
     x = _samples(rng, cloud, 50)
     _, g, _ = field(cl_device, cloud, s, x)
@@ -89,7 +89,7 @@ def test_gradient_matches_finite_difference(cl_device, rng):
 def test_gradient_bound_holds(cl_device, rng, k):
     """lip = max(1, 2 s1o/S - 1) bounds |grad F| at the point: the kernel's analytic
     gradient and the oracle's central differences both stay below it."""
-    cloud = points.blob(200, seed=6)
+    cloud = generators.blob(200, seed=6)
     s = glass.GlassSettings(blend=k, leaf_size=4, cell_skip=False)
     x = _samples(rng, cloud, 300)
     gnorm, lip, _ = Probe(cl_device, cloud, s).lip(x)
@@ -129,7 +129,7 @@ def test_trace_finds_the_first_crossing(cl_device, rng, relax, side, accel):
     surface, and neither does crossing support cells without evaluations: from outside
     (rays aimed into the blob) and from inside (rays from sphere centres), the hit is the
     oracle's first crossing."""
-    cloud = points.blob(120, seed=7)
+    cloud = generators.blob(120, seed=7)
     k = 0.25
     probe = Probe(cl_device, cloud, glass.GlassSettings(blend=k, leaf_size=4, accel=accel,
                                                          epsilon=1e-5))
@@ -217,7 +217,7 @@ def _differ(a, b):
 # bounces, 6.4% against 11.3% at 6), with the same coverage.
 @pytest.mark.parametrize("leaf_size,bounces,min_frac", [(1, 2, 1.0), (3, 2, 1.0), (2, 6, 0.97)])
 def test_accelerations_give_the_brute_force_image(cl_device, leaf_size, bounces, min_frac):
-    cloud = points.blob(250, seed=5)
+    cloud = generators.blob(250, seed=5)
     spacing = (4.0 / 250) ** (1 / 3)          # blend ~ spacing: many spheres straddle leaves
     base = glass.GlassSettings(blend=spacing, leaf_size=leaf_size, bounces=bounces)
     lights = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
@@ -286,7 +286,7 @@ def test_fresnel_normal_incidence_and_tir(cl_device):
 # ------------------------------------------------------------------ invisibility
 
 def test_ior_one_is_invisible(cl_device):
-    cloud = points.blob(120, seed=6)
+    cloud = generators.blob(120, seed=6)
     s = glass.GlassSettings(ior=1.0, absorption=(0, 0, 0), reflectivity=0.0, glow=0.0)
     cam = glass.default_camera(cloud, SIZE, SIZE)
     lights = [Sun((0.3, -1.0, -0.2), 4.0)]
@@ -301,7 +301,7 @@ def test_ior_one_is_invisible(cl_device):
 # ------------------------------------------------------------------ degenerate and extreme
 
 def test_tiny_blend_is_plain_union(cl_device, rng):
-    cloud = points.blob(80, seed=7)
+    cloud = generators.blob(80, seed=7)
     x = _samples(rng, cloud, 200)
     f, _, _ = field(cl_device, cloud, glass.GlassSettings(blend=1e-30, cell_skip=False), x)
     d = np.linalg.norm(x[:, None] - cloud.centers[None], axis=2) - cloud.radii
@@ -310,7 +310,7 @@ def test_tiny_blend_is_plain_union(cl_device, rng):
 
 @pytest.mark.parametrize("case", ["huge_blend", "zero_radius", "one_point", "coincident"])
 def test_degenerate_clouds_render_finite(cl_device, case):
-    c = points.blob(60, seed=8)
+    c = generators.blob(60, seed=8)
     cloud, s = {
         "huge_blend": (c, glass.GlassSettings(blend=50.0, bounces=2)),
         "zero_radius": (PointCloud(c.centers, np.zeros(60)), glass.GlassSettings(blend=0.3)),
@@ -326,7 +326,7 @@ def test_degenerate_clouds_render_finite(cl_device, case):
 
 
 def test_far_from_origin_renders_the_same(cl_device):
-    cloud = points.blob(150, seed=9)
+    cloud = generators.blob(150, seed=9)
     offset = np.array([1e5, -2e5, 1e5])
     far = PointCloud(cloud.centers + offset, cloud.radii)
     s = glass.GlassSettings(blend=0.1)
@@ -341,7 +341,7 @@ def test_far_from_origin_renders_the_same(cl_device):
 
 
 def test_camera_inside_glass_is_finite(cl_device):
-    cloud = points.blob(100, seed=10)
+    cloud = generators.blob(100, seed=10)
     cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=SIZE, height=SIZE)
     img = _render(cl_device, cloud, glass.GlassSettings(blend=0.15), cam, [Sun((0, -1, 0))])
     assert np.isfinite(img).all()
@@ -354,7 +354,7 @@ def test_opaque_mode_and_env_map(cl_device, tmp_path):
     env[:4, :, 0] = 2.0                     # red sky, blue ground
     env[4:, :, 2] = 1.0
     write_image(tmp_path / "env.exr", env)
-    cloud = points.blob(60, seed=11)
+    cloud = generators.blob(60, seed=11)
     s = glass.GlassSettings(env=str(tmp_path / "env.exr"), refraction=False)
     img = _render(cl_device, cloud, s, lights=[Sun((0, -1, 0))])
     assert np.isfinite(img).all()
@@ -368,12 +368,12 @@ def test_settings_are_validated():
         with pytest.raises(UserError):
             glass.GlassSettings(**bad)
     with pytest.raises(UserError, match="radius"):
-        glass.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())
+        spheres.pack_scene(PointCloud(np.zeros((2, 3))), glass.GlassSettings())
     # |x - c|^2 would overflow float32 (the field uses sqrt(dot), not length())
     with pytest.raises(UserError, match="float32"):
-        glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e19, 0, 0]])),
+        spheres.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e19, 0, 0]])),
                          glass.GlassSettings(radius=1.0))
-    glass.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e17, 0, 0]])), glass.GlassSettings(radius=1.0))
+    spheres.pack_scene(PointCloud(np.array([[0.0, 0, 0], [1e17, 0, 0]])), glass.GlassSettings(radius=1.0))
 
 
 # ------------------------------------------------------------------ defaults of scans
@@ -386,8 +386,8 @@ def test_default_radius_is_half_the_exact_median_spacing(rng):
     d = np.linalg.norm(c[:, None] - c[None], axis=2)
     np.fill_diagonal(d, np.inf)
     nn = d.min(axis=1)
-    assert points.default_radius(c) == pytest.approx(0.5 * np.median(nn[nn > 0]), rel=1e-12)
-    assert points.default_radius(np.zeros((5, 3))) == 0.5       # no spacing: the fallback
+    assert spheres.default_radius(c) == pytest.approx(0.5 * np.median(nn[nn > 0]), rel=1e-12)
+    assert spheres.default_radius(np.zeros((5, 3))) == 0.5       # no spacing: the fallback
 
 
 def test_scans_get_melting_defaults(shared_data):
@@ -402,11 +402,11 @@ def test_scans_get_melting_defaults(shared_data):
     nn = cKDTree(c).query(c, k=2)[0][:, 1]
     nn = nn[nn > 0]
     assert sc.settings.radius == pytest.approx(0.5 * np.median(nn))
-    assert sc.settings.blend == pytest.approx(glass.SCAN_BLEND * np.percentile(nn, 90))
+    assert sc.settings.blend == pytest.approx(spheres.SCAN_BLEND * np.percentile(nn, 90))
     assert any("without radii" in n for n in sc.notes)
-    scene = glass.pack_scene(sc.content.cloud, glass.GlassSettings(radius=sc.settings.radius,
+    scene = spheres.pack_scene(sc.content.cloud, glass.GlassSettings(radius=sc.settings.radius,
                                                                    accel="none"))
-    assert glass.material_unit(scene, sc.settings) == pytest.approx(scene.scale)
-    assert glass.material_unit(scene, glass.GlassSettings(material_unit=1.0)) == 1.0
+    assert spheres.material_unit(scene, sc.settings) == pytest.approx(scene.scale)
+    assert spheres.material_unit(scene, glass.GlassSettings(material_unit=1.0)) == 1.0
     given = load_scene(path, size=(8, 6), radius=0.01, blend=0.02)
     assert (given.settings.radius, given.settings.blend) == (0.01, 0.02)

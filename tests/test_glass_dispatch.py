@@ -3,11 +3,11 @@ colours and soft shadows."""
 import numpy as np
 import pytest
 
-from volrender import features, glass, points
+from volrender import features, generators, glass, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from helpers import render_points
 
 # Tiled lists change only the order of the blend sums (sorted indices instead of tree
@@ -30,7 +30,7 @@ def _agree(a, b, frac=1.0):
 @pytest.mark.parametrize("accel", ("grid", "tree", "none"))
 @pytest.mark.parametrize("tile", [(8, 8), (16, 4), (1, 1), (5, 3)])
 def test_tiled_matches_fragment(cl_device, accel, tile):
-    cloud = points.blob(300, seed=3)
+    cloud = generators.blob(300, seed=3)
     base = glass.GlassSettings(bounces=2, accel=accel, blend=0.12)
     a = _render(cl_device, cloud, base)                     # 24x20: not a multiple of 16x8
     b = _render(cl_device, cloud, glass.GlassSettings(**{**base.__dict__, "dispatch": "tiled",
@@ -43,7 +43,7 @@ def test_tiled_matches_fragment(cl_device, accel, tile):
 def test_fragment_blocks_do_not_change_the_image(cl_device):
     """Fragment work-groups of any block shape, or the driver's choice, are the same
     per-pixel computation: identical images."""
-    cloud = points.blob(300, seed=3)
+    cloud = generators.blob(300, seed=3)
     base = glass.GlassSettings(bounces=2, blend=0.12, dispatch="fragment")
     a = _render(cl_device, cloud, base)
     for kw in ({"tile": (16, 8)}, {"tile": (5, 3)}, {"dispatch": "fragment-driver"}):
@@ -57,7 +57,7 @@ def test_stats_count_the_field_work(cl_device, accel):
     the sums); the tree tests fewer spheres plus some nodes; the cells look up one cell
     per evaluation or skip, and test at most the longest list plus its core per
     evaluation; coverage is unchanged."""
-    cloud = points.blob(200, seed=3)
+    cloud = generators.blob(200, seed=3)
     base = glass.GlassSettings(bounces=2, blend=0.12, accel=accel, dispatch="fragment")
     img = _render(cl_device, cloud, base)
     st = _render(cl_device, cloud, base, variant="stats")
@@ -71,7 +71,7 @@ def test_stats_count_the_field_work(cl_device, accel):
         assert (evals >= 1).all() and nodes.sum() == 0
         np.testing.assert_array_equal(tests, 2 * len(cloud.centers) * evals)
     else:
-        grid = glass.pack_scene(cloud, base, device=cl_device,          # the render's cells
+        grid = spheres.pack_scene(cloud, base, device=cl_device,          # the render's cells
                                 samples=st.shape[0] * st.shape[1] * base.spp).cells
         longest = int((grid.lengths() + grid.lengths(core=True)).max())
         assert (nodes >= evals).all() and nodes.sum() > evals.sum()   # lookups, skips
@@ -81,7 +81,7 @@ def test_stats_count_the_field_work(cl_device, accel):
 
 def test_tiled_list_overflow_falls_back(cl_device):
     # one 16x12 tile sees all 3000 spheres: more than the list holds (GLASS_TILE_CAP)
-    cloud = points.blob(3000, seed=4)
+    cloud = generators.blob(3000, seed=4)
     assert len(cloud.centers) > features.GLASS_TILE_CAP
     base = glass.GlassSettings(bounces=2)
     a = _render(cl_device, cloud, base, size=(16, 12))
@@ -91,7 +91,7 @@ def test_tiled_list_overflow_falls_back(cl_device):
 
 
 def test_tiled_camera_inside_glass(cl_device):
-    cloud = points.blob(150, seed=10)
+    cloud = generators.blob(150, seed=10)
     cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=90, width=16, height=16)
     s = glass.GlassSettings(blend=0.15, bounces=2)
     a = _render(cl_device, cloud, s, cam=cam)
@@ -103,7 +103,7 @@ def test_tiled_camera_inside_glass(cl_device):
 @pytest.mark.parametrize("opts", [{}, {"refraction": False}, {"shadows": False},
                                   {"glow": 0.0, "absorption": (0, 0, 0)}])
 def test_uber_kernel_gives_the_specialised_image(cl_device, opts):
-    cloud = points.blob(200, seed=6)
+    cloud = generators.blob(200, seed=6)
     s = glass.GlassSettings(bounces=2, **opts)
     a = _render(cl_device, cloud, s)
     r = render_points(cloud, glass.default_camera(cloud, 24, 20), LIGHTS, s, cl_device,
@@ -115,7 +115,7 @@ def test_uber_kernel_gives_the_specialised_image(cl_device, opts):
 
 
 def test_unlit_uber_matches_unlit(cl_device):
-    cloud = points.blob(120, seed=2)
+    cloud = generators.blob(120, seed=2)
     s = glass.GlassSettings(bounces=2)
     a = _render(cl_device, cloud, s, lights=[])
     b = _render(cl_device, cloud, s, lights=[], variant="uber")
@@ -210,7 +210,7 @@ def test_soft_shadow_angle_is_validated():
 def test_over_relaxation_misses_nothing(cl_device):
     """Over-relaxed steps fall back whenever the safe balls stop overlapping, so the same
     rays hit (identical coverage) and hit points move only within the threshold."""
-    cloud = points.blob(200, seed=8)
+    cloud = generators.blob(200, seed=8)
     base = glass.GlassSettings(bounces=1, max_steps=4096, epsilon=1e-5)
     a = _render(cl_device, cloud, base, size=(32, 24))
     for w in (1.5, 1.9):
@@ -251,5 +251,5 @@ def test_register_cap_only_where_the_compiler_takes_it(cl_device, monkeypatch):
     # the default device (PoCL here) takes no NVIDIA option, and renders
     assert glass.build_options(glassy, cl_device) == () or \
         cl_device.has_extension("cl_nv_compiler_options")
-    img = _render(cl_device, points.blob(40, seed=2), glass.GlassSettings())
+    img = _render(cl_device, generators.blob(40, seed=2), glass.GlassSettings())
     assert np.isfinite(img).all() and img[..., 3].max() > 0.5

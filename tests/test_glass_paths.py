@@ -11,7 +11,7 @@ from glass_probe import Probe
 from volrender import glass
 from volrender.camera import Camera
 from volrender.image import write_image
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 from helpers import render_points
 
 CAM = Camera((0.0, 0.4, 3.2), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 32, 32)

@@ -1,5 +1,7 @@
 """The package's modules import each other without a circle: every import counts, those
-inside functions too (a lazy import hides a circle from Python, not from a reader)."""
+inside functions too (a lazy import hides a circle from Python, not from a reader). And no
+module takes another one's private name (`_x`): a name another module uses is part of its
+interface and is spelt so."""
 import ast
 from pathlib import Path
 
@@ -26,6 +28,41 @@ def import_graph(pkg=PKG) -> dict:
                          if a.name.startswith("volrender.")}
         graph[p.stem] = (deps & mods) - {p.stem}
     return graph
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def private_imports(pkg=PKG) -> list:
+    """'module: name' for each private name a module of the package takes from another
+    one: `from .x import _y` (or volrender.x), or `x._y` on a module it imported."""
+    mods = {p.stem for p in pkg.glob("*.py")}
+    out = []
+    for p in sorted(pkg.glob("*.py")):
+        tree = ast.parse(p.read_text(), str(p))
+        aliases = set()                     # local names bound to modules of the package
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                module = node.module or ""
+                whole = (node.level == 1 and not module) or module == "volrender"
+                inner = node.level == 1 or module.startswith("volrender.")
+                for a in node.names:
+                    if whole and a.name in mods:
+                        aliases.add(a.asname or a.name)
+                    elif (whole or inner) and _private(a.name):
+                        out.append(f"{p.stem}: {a.name}")
+            elif isinstance(node, ast.Import):
+                aliases |= {a.asname for a in node.names
+                            if a.asname and a.name.startswith("volrender.")}
+        out += [f"{p.stem}: {node.value.id}.{node.attr}" for node in ast.walk(tree)
+                if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases and _private(node.attr)]
+    return out
+
+
+# 'module: name' -> why it cannot be public (none now)
+PRIVATE_ALLOWED: dict = {}
 
 
 def cycles(graph) -> list:
@@ -72,3 +109,18 @@ def test_the_cycle_finder_finds_a_hidden_cycle(tmp_path):
     (tmp_path / "c.py").write_text("def g():\n    from .a import x\n")
     (tmp_path / "d.py").write_text("from .a import x\n")
     assert cycles(import_graph(tmp_path)) == [["a", "b", "c"]]
+
+
+def test_no_module_takes_another_ones_private_name():
+    assert [f for f in private_imports() if f not in PRIVATE_ALLOWED] == []
+
+
+def test_the_private_import_finder_finds_both_forms(tmp_path):
+    """`from .a import _x`, `from volrender.a import _x` and `a._x` are found; `__all__`,
+    a module's own private names and public names are not."""
+    (tmp_path / "a.py").write_text("_x = 1\ny = 2\n__all__ = ['y']\nprint(_x)\n")
+    (tmp_path / "b.py").write_text("from .a import _x, y\n")
+    (tmp_path / "c.py").write_text("def f():\n    from volrender.a import _x\n")
+    (tmp_path / "d.py").write_text("from . import a as m\nprint(m._x, m.y, m.__all__)\n")
+    (tmp_path / "e.py").write_text("from . import a\nprint(a.y)\n")
+    assert private_imports(tmp_path) == ["b: _x", "c: _x", "d: m._x"]

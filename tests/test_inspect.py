@@ -8,9 +8,9 @@ pv.OFF_SCREEN = True
 
 from volrender import inspect  # noqa: E402
 from volrender.errors import UserError  # noqa: E402
-from volrender.points import generate  # noqa: E402
+from volrender.generators import generate  # noqa: E402
 from volrender.tree import build  # noqa: E402
-from volrender.vdb import Bricks  # noqa: E402
+from volrender.bricks import Bricks  # noqa: E402
 
 
 @pytest.fixture(scope="module")

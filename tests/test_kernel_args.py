@@ -4,7 +4,7 @@ build with -cl-kernel-arg-info), the outputs fill the slots between, y0, s0, s1 
 import pyopencl as cl
 import pytest
 
-from volrender import glass, points, volume
+from volrender import generators, glass, volume
 from volrender.lights import PointLight, Sun
 from volrender.scene import GlassContent, Scene, VolumeContent
 from test_launch import soft_ball
@@ -30,7 +30,7 @@ def plans(dev):
         yield volume.plan(Scene(cam, lights, VolumeContent(ball, s)), dev)
     s = volume.VolumeSettings(dispatch="tiled", tile=(4, 4))
     yield volume.plan(Scene(cam, lights, VolumeContent(ball, s)), dev)
-    cloud = points.blob(60, seed=1)
+    cloud = generators.blob(60, seed=1)
     for accel in ("grid", "tree"):
         content = GlassContent(cloud, glass.GlassSettings(accel=accel))
         yield glass.plan(Scene(glass.default_camera(cloud, 8, 8), lights, content), dev)

@@ -4,13 +4,13 @@ and the progress bar counts every pixel-sample."""
 import numpy as np
 import pytest
 
-from volrender import dispatch, glass, points
+from volrender import dispatch, generators, glass
 from volrender.dispatch import Launch
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.render import render
 from volrender.scene import GlassContent, Scene, VolumeContent
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
 # (rows, samples) per launch: every tile row and every sample its own launch; uneven
@@ -53,7 +53,7 @@ def test_volume_splits_are_bit_identical(cl_device, estimator, dispatch_kind):
 
 @pytest.mark.parametrize("variant", [None, "uber", "stats"])
 def test_glass_splits_are_bit_identical(cl_device, variant):
-    cloud = points.blob(120, seed=3)
+    cloud = generators.blob(120, seed=3)
     cam = glass.default_camera(cloud, 19, 17)
     s = glass.GlassSettings(spp=4, bounces=3)
     scene = Scene(cam, (Sun((0.3, -1.0, -0.2), 3.0),), GlassContent(cloud, s))

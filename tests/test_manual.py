@@ -2,7 +2,7 @@
 knobs and the scene schema (regenerate: python -m volrender.manual)."""
 from conftest import ROOT
 
-from volrender import manual, scene
+from volrender import manual, scene_file
 
 
 def test_generated_references_are_current():
@@ -15,9 +15,9 @@ def test_generated_references_are_current():
 
 def test_every_option_and_scene_key_is_documented():
     text = manual.options_markdown()
-    for opt in scene.options().values():
+    for opt in scene_file.options().values():
         assert f"`{opt.key}`" in text, opt.key
     keys = manual.scene_markdown()
-    for section, table in scene.SCHEMA.items():
+    for section, table in scene_file.SCHEMA.items():
         for key in table:
             assert f"| `{key}` |" in keys, (section, key)

@@ -18,7 +18,7 @@ from helpers import env_lookup, fresnel, look_at, ray_sphere, render_glass, texe
 from volrender import reference
 from volrender.glass import GlassSettings
 from volrender.lights import PointLight, Sun
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 
 ETAS = (1 / 1.5, 1 / 1.33, 1 / 2.4, 1 / 16, 1.5, 1.33, 2.4, 16.0)   # n_incident / n_transmitted
 SPHERE = PointCloud(np.zeros((1, 3)), np.array([1.0]))              # radius 1 at the origin

@@ -10,7 +10,7 @@ import pytest
 from volrender import cli
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 from conftest import ROOT
 from helpers import render_volume

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from volrender.errors import UserError
-from volrender.points import (GENERATORS, PointCloud, blob, generate, glass_gather,
-                              load_points, uniform_box)
+from volrender.cloud import PointCloud
+from volrender.generators import blob, generate, GENERATORS, glass_gather, uniform_box
+from volrender.points import load_points
 
 VERTEX = [("x", "f4"), ("y", "f4"), ("z", "f4")]
 

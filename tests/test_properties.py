@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
-from volrender import cli, glass, scene, tree as tree_mod
+from volrender import cli, glass, scene_file, spheres, tree as tree_mod
 from volrender.errors import UserError
-from volrender.points import PointCloud
+from volrender.cloud import PointCloud
 
 FAST = settings(max_examples=40, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -104,17 +104,17 @@ def valid_value(kind, key):
         return st.booleans()
     if kind is int:
         return INT64
-    if kind is scene.NUM:
+    if kind is scene_file.NUM:
         return st.one_of(finite, st.integers(-10 ** 6, 10 ** 6))
     if kind is str:
         return st.text(max_size=8)
-    if kind == scene.VEC3:
+    if kind == scene_file.VEC3:
         return st.lists(st.one_of(finite, st.integers(-100, 100)), min_size=3, max_size=3)
-    if kind == scene.SIZE:
+    if kind == scene_file.SIZE:
         return st.lists(st.integers(1, 32768), min_size=2, max_size=2)
-    if kind == scene.PATH:
+    if kind == scene_file.PATH:
         return st.just("pts.xyz")
-    if kind == scene.ENV:         # a map file or a uniform radiance
+    if kind == scene_file.ENV:         # a map file or a uniform radiance
         return st.one_of(st.just("pts.xyz"),
                          st.lists(st.one_of(finite, st.integers(0, 100)), min_size=1, max_size=3))
     raise AssertionError(kind)
@@ -129,27 +129,27 @@ def wrong_value(kind):
         return anything.filter(lambda v: not isinstance(v, bool))
     if kind is int:
         return anything.filter(lambda v: isinstance(v, bool) or not isinstance(v, int))
-    if kind is scene.NUM:
+    if kind is scene_file.NUM:
         return anything.filter(lambda v: isinstance(v, bool) or not isinstance(v, (int, float))
                                or (isinstance(v, float) and not math.isfinite(v)))
     if kind is str:
         return anything.filter(lambda v: not isinstance(v, str))
-    if kind == scene.VEC3:
+    if kind == scene_file.VEC3:
         return st.one_of(anything.filter(lambda v: not isinstance(v, list)),
                          st.lists(st.floats(-5, 5), max_size=6).filter(lambda v: len(v) != 3),
                          st.lists(st.one_of(st.booleans(), st.text(max_size=2),
                                             st.sampled_from([math.nan, math.inf])),
                                   min_size=3, max_size=3))
-    if kind == scene.SIZE:
+    if kind == scene_file.SIZE:
         return st.one_of(anything.filter(lambda v: not isinstance(v, list)),
                          st.lists(st.integers(-5, 40000), min_size=2, max_size=2)
                          .filter(lambda v: not all(1 <= x <= 32768 for x in v)),
                          st.lists(st.booleans(), min_size=2, max_size=2),
                          st.lists(st.integers(1, 9), max_size=4).filter(lambda v: len(v) != 2))
-    if kind == scene.PATH:
+    if kind == scene_file.PATH:
         return st.one_of(anything.filter(lambda v: not isinstance(v, str)), st.just(""),
                          st.just("missing.ply"), st.just("."), st.just("a\x00b"), st.just("x" * 300))
-    if kind == scene.ENV:
+    if kind == scene_file.ENV:
         return st.one_of(st.booleans(), st.dates(), st.just(""), st.just("missing.exr"),
                          st.just("."), st.lists(st.text(max_size=2), min_size=1, max_size=3),
                          st.lists(st.floats(-5, 5), min_size=4, max_size=6))
@@ -164,23 +164,23 @@ def valid_scene(draw):
         pts["file"] = "pts.xyz"
     else:
         pts["generator"] = draw(st.text(max_size=8))
-        pts["count"] = draw(st.integers(1, scene.MAX_COUNT))
+        pts["count"] = draw(st.integers(1, scene_file.MAX_COUNT))
     for key in ("seed", "radius"):
         if draw(st.booleans()):
-            pts[key] = draw(valid_value(scene.SCHEMA["points"][key], key))
+            pts[key] = draw(valid_value(scene_file.SCHEMA["points"][key], key))
     doc["points"] = pts
     for name in ("material", "camera", "environment", "render"):
-        keys = draw(st.lists(st.sampled_from(sorted(scene.SCHEMA[name])), unique=True))
+        keys = draw(st.lists(st.sampled_from(sorted(scene_file.SCHEMA[name])), unique=True))
         if keys or draw(st.booleans()):
-            doc[name] = {k: draw(valid_value(scene.SCHEMA[name][k], k)) for k in keys}
+            doc[name] = {k: draw(valid_value(scene_file.SCHEMA[name][k], k)) for k in keys}
     lights = []
     for _ in range(draw(st.integers(0, 3))):
         kind = draw(st.sampled_from(["sun", "point"]))
         need = "direction" if kind == "sun" else "position"
         allowed = {"sun": ["irradiance", "color"], "point": ["intensity", "color"]}[kind]
-        light = {"type": kind, need: draw(valid_value(scene.VEC3, need))}
+        light = {"type": kind, need: draw(valid_value(scene_file.VEC3, need))}
         for k in draw(st.lists(st.sampled_from(allowed), unique=True)):
-            light[k] = draw(valid_value(scene.SCHEMA["lights"][k], k))
+            light[k] = draw(valid_value(scene_file.SCHEMA["lights"][k], k))
         lights.append(light)
     if lights:
         doc["lights"] = lights
@@ -212,19 +212,19 @@ def scene_dir(tmp_path_factory):
 def load_text(scene_dir, text):
     path = scene_dir / "s.toml"
     path.write_text(text, encoding="utf-8")
-    return path, scene.read(path)
+    return path, scene_file.read(path)
 
 
 def expected(kind, v, base):
-    if kind is scene.NUM:
+    if kind is scene_file.NUM:
         return float(v)
-    if kind == scene.VEC3:
+    if kind == scene_file.VEC3:
         return tuple(float(x) for x in v)
-    if kind == scene.SIZE:
+    if kind == scene_file.SIZE:
         return tuple(v)
-    if kind == scene.PATH or (kind == scene.ENV and isinstance(v, str)):
+    if kind == scene_file.PATH or (kind == scene_file.ENV and isinstance(v, str)):
         return (base / v).resolve()
-    if kind == scene.ENV:
+    if kind == scene_file.ENV:
         return tuple(float(x) for x in v)
     return v
 
@@ -235,7 +235,7 @@ def test_valid_scenes_parse_to_their_values(scene_dir, doc):
     _, got = load_text(scene_dir, to_toml(doc))
     assert set(got) == set(doc)
     for name, i, key in keys_of(doc):
-        kind = scene.SCHEMA[name][key]
+        kind = scene_file.SCHEMA[name][key]
         want = doc[name][i][key] if i is not None else doc[name][key]
         have = got[name][i][key] if i is not None else got[name][key]
         assert have == expected(kind, want, scene_dir), where(name, i, key)
@@ -246,7 +246,7 @@ def test_valid_scenes_parse_to_their_values(scene_dir, doc):
 def test_one_wrong_value_is_named_by_its_key(scene_dir, doc, data):
     name, i, key = data.draw(st.sampled_from(keys_of(doc)))
     assume(not (name == "lights" and key == "type"))        # the type picks the schema
-    bad = data.draw(wrong_value(scene.SCHEMA[name][key]))
+    bad = data.draw(wrong_value(scene_file.SCHEMA[name][key]))
     (doc[name][i] if i is not None else doc[name])[key] = bad
     with pytest.raises(UserError) as err:
         load_text(scene_dir, to_toml(doc))
@@ -263,15 +263,15 @@ IDENT = st.text(string.ascii_lowercase + "_", min_size=1, max_size=8)
 def test_an_unknown_key_or_section_is_named(scene_dir, doc, data):
     sections = [n for n in doc if n != "lights"]
     name = data.draw(st.sampled_from(sections + ["lights"] if "lights" in doc else sections))
-    key = data.draw(IDENT.filter(lambda k: k not in scene.SCHEMA[name]))
+    key = data.draw(IDENT.filter(lambda k: k not in scene_file.SCHEMA[name]))
     table = doc[name][0] if name == "lights" else doc[name]
-    table[key] = data.draw(valid_value(scene.NUM, key))
+    table[key] = data.draw(valid_value(scene_file.NUM, key))
     with pytest.raises(UserError) as err:
         load_text(scene_dir, to_toml(doc))
     msg = str(err.value)
     assert "\n" not in msg
     assert where(name, 0, key) in msg and "known keys" in msg, msg
-    section = data.draw(IDENT.filter(lambda k: k not in scene.SCHEMA))
+    section = data.draw(IDENT.filter(lambda k: k not in scene_file.SCHEMA))
     doc[section] = {}
     table.pop(key)
     with pytest.raises(UserError, match=rf"unknown section \[{section}\]"):
@@ -283,8 +283,8 @@ toml_leaf = st.one_of(st.booleans(), INT64, st.floats(), st.text(max_size=6),
 toml_any = st.recursive(toml_leaf, lambda inner: st.one_of(
     st.lists(inner, max_size=3), st.dictionaries(st.text(max_size=4), inner, max_size=3)),
     max_leaves=8)
-SECTION_NAMES = st.sampled_from(sorted(scene.SCHEMA) + ["bogus", "Points", ""])
-KEY_NAMES = st.sampled_from(sorted({k for t in scene.SCHEMA.values() for k in t} | {"x", ""}))
+SECTION_NAMES = st.sampled_from(sorted(scene_file.SCHEMA) + ["bogus", "Points", ""])
+KEY_NAMES = st.sampled_from(sorted({k for t in scene_file.SCHEMA.values() for k in t} | {"x", ""}))
 
 
 @FAST
@@ -308,7 +308,7 @@ def test_garbage_files_raise_a_user_error(scene_dir, raw):
     else:
         path.write_text(raw, encoding="utf-8")
     try:
-        scene.read(path)
+        scene_file.read(path)
     except UserError as exc:
         assert "\n" not in str(exc) and str(path) in str(exc)
 
@@ -340,7 +340,7 @@ def renderable_scene(draw):
         table = doc[name][i] if i is not None else doc[name]
         if key in RENDERABLE:
             table[key] = draw(RENDERABLE[key])
-        elif scene.SCHEMA[name][key] == scene.VEC3:
+        elif scene_file.SCHEMA[name][key] == scene_file.VEC3:
             table[key] = draw(st.lists(in_range(-3, 3), min_size=3, max_size=3))
     return doc
 
@@ -420,7 +420,7 @@ def test_float32_boxes_contain_the_float32_spheres(pts, leaf_size, data):
     c = np.array(pts, np.float64)
     n = len(c)
     r = np.array(data.draw(st.lists(st.floats(0, 3), min_size=n, max_size=n)))
-    sc = glass.pack_scene(PointCloud(c, r), glass.GlassSettings(leaf_size=leaf_size, blend=0.0))
+    sc = spheres.pack_scene(PointCloud(c, r), glass.GlassSettings(leaf_size=leaf_size, blend=0.0))
     s = sc.spheres.astype(np.float64)
     nodes = sc.nodes
     lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], 1).astype(np.float64)

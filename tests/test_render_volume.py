@@ -6,7 +6,7 @@ from volrender import reference, volume as volume_mod
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from volrender.dispatch import Launch
 from helpers import render_volume
 

@@ -2,7 +2,7 @@
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from volrender import scene
+from volrender import scene_file
 from volrender.errors import UserError
 
 GOOD = """
@@ -37,7 +37,7 @@ def write(tmp_path, text, name="s.toml"):
 
 
 def test_good_scene_parses(tmp_path):
-    s = scene.read(write(tmp_path, GOOD))
+    s = scene_file.read(write(tmp_path, GOOD))
     assert s["points"] == {"generator": "blob", "count": 200}
     assert s["material"]["absorption"] == (0.1, 0.5, 2.0)
     assert [l["type"] for l in s["lights"]] == ["sun", "point"]
@@ -47,7 +47,7 @@ def test_good_scene_parses(tmp_path):
 def test_paths_resolve_relative_to_the_scene(tmp_path):
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "pts.xyz").write_text("0 0 0\n")
-    s = scene.read(write(tmp_path, '[points]\nfile = "pts.xyz"\n', "sub/s.toml"))
+    s = scene_file.read(write(tmp_path, '[points]\nfile = "pts.xyz"\n', "sub/s.toml"))
     assert s["points"]["file"] == (tmp_path / "sub" / "pts.xyz").resolve()
 
 
@@ -69,7 +69,7 @@ def test_paths_resolve_relative_to_the_scene(tmp_path):
 def test_bad_scenes_name_the_problem(tmp_path, text, words):
     p = write(tmp_path, text)
     with pytest.raises(UserError) as err:
-        scene.read(p)
+        scene_file.read(p)
     msg = str(err.value)
     assert "\n" not in msg and str(p) in msg
     for w in words:
@@ -82,7 +82,7 @@ toml_scalar = st.one_of(st.integers(-10, 10), st.floats(allow_nan=True, allow_in
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.dictionaries(st.sampled_from(sorted(scene.SCHEMA) + ["bogus"]),
+@given(st.dictionaries(st.sampled_from(sorted(scene_file.SCHEMA) + ["bogus"]),
                        st.dictionaries(st.sampled_from(["file", "generator", "count", "ior", "size",
                                                         "type", "direction", "radius", "x"]),
                                        toml_scalar, max_size=4), max_size=4))
@@ -92,6 +92,6 @@ def test_parser_never_fails_other_than_with_a_user_error(tmp_path_factory, raw):
     if "lights" in raw:
         raw["lights"] = [raw["lights"]]
     try:
-        scene.parse(raw, tmp_path_factory.getbasetemp())
+        scene_file.parse(raw, tmp_path_factory.getbasetemp())
     except UserError as exc:
         assert "\n" not in str(exc)

@@ -8,6 +8,7 @@ import pytest
 
 import volrender
 from volrender import cli, image, sequence, vdb
+from volrender.bricks import Bricks
 from volrender.errors import UserError
 from conftest import ROOT
 
@@ -23,7 +24,7 @@ def frames(tmp_path_factory):
     for f in range(1, 7):
         m = b.index_to_world.copy()
         m[:3, 3] += [0.2 * f, 0.08 * f, 0.0]
-        vdb.Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
+        Bricks(b.origin, b.dims, b.table, b.data, b.majorant, m,
                    grid_name=b.grid_name).save_npz(d / f"cloud_{f:04d}.npz")
     return d
 
@@ -65,11 +66,21 @@ def test_serial_frames_share_one_camera_framing_the_union(frames, serial):
     for h in heads[1:]:
         for k in ("volrender:origin", "volrender:target", "volrender:fov"):
             np.testing.assert_array_equal(h[k], heads[0][k])
-    # the target is the centre of the union of every frame's bounds
+    # the camera fits the union of every frame's bounds: centred, 0.9 of the smaller side
     boxes = [vdb.load_volume(frames / f"cloud_{f:04d}.npz").world_bounds() for f in range(1, 7)]
     lo = np.min([b[0] for b in boxes], axis=0)
     hi = np.max([b[1] for b in boxes], axis=0)
-    np.testing.assert_allclose(heads[0]["volrender:target"], 0.5 * (lo + hi), rtol=1e-6)
+    from volrender.camera import Camera
+    cam = Camera(*(tuple(map(float, heads[0][f"volrender:{k}"])) for k in ("origin", "target", "up")),
+                 float(heads[0]["volrender:fov"]), *image.read_image(serial / "f_0001.exr").shape[1::-1])
+    f, r, u = cam.basis()
+    d = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                  for z in (lo[2], hi[2])]) - np.asarray(cam.origin)
+    k = cam.height / (2.0 * np.tan(np.radians(cam.fov) / 2.0))
+    px, py = k * (d @ r) / (d @ f), k * (d @ u) / (d @ f)
+    assert abs(px.min() + px.max()) < 0.05 and abs(py.min() + py.max()) < 0.05
+    side = max(np.ptp(px), np.ptp(py)) / min(cam.width, cam.height)
+    assert side == pytest.approx(0.9, rel=1e-3)
     # and the cloud moves in the picture: frames differ
     a, b = (image.read_image(serial / f"f_{f:04d}.exr") for f in (1, 6))
     assert np.abs(a - b).max() > 0.1

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import volrender
-from volrender import cli, points
+from volrender import cli, generators
 from test_sequence import client  # noqa: F401  (the module's 2-worker cluster)
 
 SIZE = (32, 24)
@@ -17,7 +17,7 @@ SIZE = (32, 24)
 def cloud_frames(tmp_path_factory):
     """Four .npy frames of a scan-like cloud (no radii) moving right across the frame."""
     d = tmp_path_factory.mktemp("points")
-    base = points.blob(600, seed=4).centers
+    base = generators.blob(600, seed=4).centers
     for f in range(1, 5):
         np.save(d / f"p_{f:04d}.npy", (base + [0.8 * f, 0.0, 0.0]).astype(np.float32))
     return d

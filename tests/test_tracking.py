@@ -15,7 +15,7 @@ from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
 from volrender.volume import (ESTIMATORS, VolumeSettings, emission_color, track_majorants)
-from volrender.vdb import Bricks
+from volrender.bricks import Bricks
 from conftest import ROOT
 from helpers import render_volume
 

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from volrender.errors import UserError
-from volrender.points import blob, glass_gather
+from volrender.generators import blob, glass_gather
 from volrender.tree import build, check_invariants, query_point, tree_depth
 
 

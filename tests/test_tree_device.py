@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import glass, points, tree, tree_device
-from volrender.points import PointCloud, load_points
+from volrender import generators, glass, spheres, tree, tree_device
+from volrender.cloud import PointCloud
+from volrender.points import load_points
 from volrender.lights import Sun
 from volrender.render import render
 from volrender.scene import GlassContent, Scene
@@ -50,8 +51,8 @@ def test_device_tree_is_the_numpy_tree(cl_device, n, leaf, dup, seed):
 
 
 def clouds(shared):
-    yield "blob", points.blob(4000, seed=3), {}
-    yield "gather", points.generate("glass_gather", 3000, 1), {}
+    yield "blob", generators.blob(4000, seed=3), {}
+    yield "gather", generators.generate("glass_gather", 3000, 1), {}
     if shared is not None:
         yield "bunny", load_points(shared / "points" / "bun_zipper.ply"), \
             {"radius": 0.002, "blend": 0.004}
@@ -64,8 +65,8 @@ def test_cells_and_images_from_the_device_tree_are_the_same(cl_device, request, 
         shared = request.getfixturevalue("shared_data")
     cloud, kw = next((c, k) for n, c, k in clouds(shared) if n == name)
     s = glass.GlassSettings(bounces=2, **kw)
-    host = glass.pack_scene(cloud, s, cl_device, tree_on="host")
-    dev = glass.pack_scene(cloud, s, cl_device, tree_on="device")
+    host = spheres.pack_scene(cloud, s, cl_device, tree_on="host")
+    dev = spheres.pack_scene(cloud, s, cl_device, tree_on="device")
     np.testing.assert_array_equal(dev.spheres, host.spheres)
     np.testing.assert_array_equal(dev.nodes, host.nodes)
     for field in ("bricks", "cells", "lists", "runs"):

@@ -18,7 +18,7 @@ import sys as _sys  # noqa: E402
 # modules below import ends it with one line, not a traceback (cli.main takes over).
 if _sys.argv and (_sys.argv[0].rsplit("/", 1)[-1] == "volrender"
                   or list(getattr(_sys, "orig_argv", ()))[1:3] == ["-m", "volrender"]):
-    from .atomic import exit_on_signals_during_startup as _startup
+    from .process import exit_on_signals_during_startup as _startup
     _startup()
 
 from .errors import UserError  # noqa: E402

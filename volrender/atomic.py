@@ -10,8 +10,8 @@ flushed, fsync'ed and renamed over the destination only once complete, then the 
 is fsync'ed. The writer holds an exclusive lock (flock) on its temporary file until the
 rename, which tells a live writer's file from a dead one's also across hosts sharing the
 directory and when a pid has been reused. On any failure or interruption (an exception, Ctrl-C, SIGTERM, SIGHUP: the CLI
-turns the last two into `Interrupted`) the temporary file is removed and an existing
-destination is untouched. SIGINT/SIGTERM/SIGHUP are held back (pthread_sigmask) while the
+turns the last two into `process.Interrupted`) the temporary file is removed and an existing
+destination is untouched. SIGINT/SIGTERM/SIGHUP are held back (process.signals_held) while the
 temporary file is created and while it is renamed, so no signal can fall between creating
 the file and guarding it, or between the rename and recording it in `WRITTEN`. Only SIGKILL
 (or a crash, a power cut) can leave a temporary file behind: the first write of a later
@@ -32,54 +32,17 @@ import os
 import time
 import re
 import secrets
-import signal
 import stat
 from pathlib import Path
 
 from .errors import UserError
+from .process import signals_held
 
 PREFIX = ".volrender-"
 TEMP_RE = re.compile(r"^\.volrender-(\d+)-[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]{1,8})?$")
 STALE_AGE = 24 * 3600              # seconds after which an unlocked temporary file is stale
 WRITTEN: list = []                 # destinations completed by this process, in order
 _SWEPT: set = set()                # directories swept by this process (once each)
-_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP"))
-                 if s is not None)
-
-
-class Interrupted(KeyboardInterrupt):
-    """A terminating signal other than SIGINT (SIGTERM, SIGHUP), raised like Ctrl-C."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def signals_held():
-    """Hold SIGINT/SIGTERM/SIGHUP back for the block (they are delivered after it)."""
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-    except (AttributeError, ValueError, OSError):      # no pthreads, or not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
-def exit_on_signals_during_startup():
-    """For the CLI's first moments (imports, before cli.main installs its handlers): a
-    terminating signal ends the process at once with one line and status 128 + signal;
-    nothing has been written yet."""
-    def leave(signum, frame):
-        os.write(2, f"volrender: interrupted ({signal.Signals(signum).name}) while starting; "
-                    "no output written\n".encode())
-        os._exit(128 + signum)
-    for sig in _SIGNALS:
-        if signal.getsignal(sig) is not signal.SIG_IGN:
-            signal.signal(sig, leave)
 
 
 def _alive(pid: int) -> bool:

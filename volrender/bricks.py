@@ -32,11 +32,11 @@ SCALE_RANGE = (1e-20, 1e20)   # singular values of the transform (world units pe
 MAX_ORIGIN = 1 << 31          # |VDB index| of a layout's origin (VDB coordinates are int32)
 
 
-def _check_file(path) -> Path:
+def check_volume_file(path) -> Path:
     return check_input(path, "volume file", fix="give a .vdb or .npz file")
 
 
-def _one_line(e: Exception) -> str:
+def one_line(e: Exception) -> str:
     return f"{type(e).__name__}: {e}".replace("\n", " ").strip()
 
 
@@ -76,13 +76,13 @@ def _dense_source(values: np.ndarray, origin: np.ndarray):
     return read, (lambda lo, hi: False)
 
 
-def _zero_source():
+def zero_source():
     return (lambda lo, shape: np.zeros(tuple(int(s) for s in shape), np.float32)), \
            (lambda lo, hi: True)
 
 
 
-def _layout(lo, hi):
+def brick_box(lo, hi):
     """Brick origin and dims for an inclusive active box: one zero voxel on each side."""
     origin = np.asarray(lo, np.int64) - 1
     dims = (np.asarray(hi, np.int64) - lo + 2 + BRICK - 1) // BRICK
@@ -109,7 +109,7 @@ def _sanitise(a, own, stats, negative_ok=False):
         a[neg] = 0
 
 
-def _build(label, sources, lo, hi, chunk=16, progress=None, passive=0):
+def build_bricks(label, sources, lo, hi, chunk=16, progress=None, passive=0):
     """Bricks from (read, is_zero) sources (density, then emission, then the `passive`
     ones: temperature) over box lo..hi. Passive sources are stored in the bricks the
     others make, and may be negative.
@@ -117,7 +117,7 @@ def _build(label, sources, lo, hi, chunk=16, progress=None, passive=0):
     Works chunk^3 bricks at a time, so memory holds one chunk plus the kept bricks.
     """
     n_active = len(sources) - passive
-    origin, dims = _layout(lo, hi)
+    origin, dims = brick_box(lo, hi)
     if int(np.prod(dims.astype(np.int64))) > MAX_BRICKS:
         raise UserError(f"the active region ({hi - lo + 1} voxels) needs more than {MAX_BRICKS} "
                         "bricks", path=label, fix="crop or resample the grid")
@@ -176,7 +176,7 @@ def _build(label, sources, lo, hi, chunk=16, progress=None, passive=0):
     return origin, dims, table, out, stats, (float(vmin), float(vmax))
 
 
-def _warn_sanitised(label, name, stats):
+def warn_sanitised(label, name, stats):
     bad, neg = stats
     if bad:
         warnings.warn(f"{label}: grid {name!r} has {bad} NaN/Inf voxels; replaced by 0",
@@ -186,7 +186,7 @@ def _warn_sanitised(label, name, stats):
                       "(a density cannot be negative)", stacklevel=3)
 
 
-def _max_per_slot(data):
+def max_per_slot(data):
     return data.reshape(len(data), -1).max(axis=1) if len(data) else np.zeros(0, np.float32)
 
 
@@ -209,7 +209,7 @@ class Bricks:
     background: float = 0.0
     value_range: tuple = (0.0, 0.0)   # density min/max over the active box, sanitised
     active_voxels: int = 0
-    up_axis: str | None = None        # the up axis the file suggests (vdb.up_axis_hint)
+    up_axis: str | None = None        # the up axis the file suggests (vdb_header.up_axis_hint)
     up_axis_reason: str = ""
     index_box: tuple | None = None    # inclusive VDB index box of the active voxels (lo, hi)
 
@@ -233,6 +233,46 @@ class Bricks:
                             for y in (0, ext[1]) for z in (0, ext[2])])
         w = (self.local_to_world @ corners.T)[:3].T
         return w.min(axis=0), w.max(axis=0)
+
+    def occupied_corners(self, sub: int = 2) -> np.ndarray:
+        """World corners of the content's boxes, for the default camera's fit: in each
+        brick on the outside of the occupied ones (framing.column_extremes), the box of the
+        non-zero voxels (density or emission; a voxel spans its centre +- 0.5) of each
+        `sub`^3 block. The layout's corners when no voxel is non-zero."""
+        from .framing import box_corners, column_extremes
+        core = self.data[:, :BRICK, :BRICK, :BRICK] != 0
+        if self.emission is not None:
+            core = core | (self.emission[:, :BRICK, :BRICK, :BRICK] != 0)
+        slots = np.nonzero(core.reshape(len(core), -1).any(axis=1))[0]
+        if len(slots) == 0:
+            return box_corners(*self.world_bounds())
+        where = np.nonzero(self.table >= 0)[0]
+        brick_of = np.empty(len(self.data), np.int64)
+        brick_of[self.table[where]] = where
+        flat = brick_of[slots]
+        b = np.stack([flat // (self.dims[1] * self.dims[2]), flat // self.dims[2] % self.dims[1],
+                      flat % self.dims[2]], axis=1)
+        occ = np.zeros(tuple(self.dims), bool)
+        occ[b[:, 0], b[:, 1], b[:, 2]] = True
+        outer = column_extremes(occ)[b[:, 0], b[:, 1], b[:, 2]]
+        b, q = b[outer], BRICK // sub
+        blocks = core[slots[outer]].reshape(-1, q, sub, q, sub, q, sub)
+        lo = np.empty(blocks.shape[:1] + (q, q, q, 3))
+        hi = np.empty_like(lo)
+        full = None
+        for axis, (keep, others) in enumerate(((2, (4, 6)), (4, (2, 6)), (6, (2, 4)))):
+            has = np.moveaxis(blocks.any(axis=others), keep - len([o for o in others if o < keep]), -1)
+            full = has.any(axis=-1) if full is None else full
+            step = np.arange(q).reshape([q if i == axis else 1 for i in range(3)]) * sub
+            lo[..., axis] = step + has.argmax(axis=-1) - 0.5
+            hi[..., axis] = step + sub - 1 - has[..., ::-1].argmax(axis=-1) + 0.5
+        n, i, j, k = np.nonzero(full)
+        base = (b[n] * BRICK)[:, None, :]
+        pick = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], bool)
+        local = (base + np.where(pick[None], hi[n, i, j, k][:, None], lo[n, i, j, k][:, None])
+                 ).reshape(-1, 3)
+        m = self.local_to_world
+        return local @ m[:3, :3].T + m[:3, 3]
 
     def sample_local(self, p, emission=False, temperature=False) -> np.ndarray:
         """Trilinear value at local index coordinates p (N, 3); 0 outside the layout."""
@@ -287,21 +327,21 @@ class Bricks:
                 raise ValueError(f"temperature shape {temperature.shape} != density {values.shape}")
             sources.append(_dense_source(temperature, origin))
         hi = origin + np.array(values.shape) - 1
-        lo_, dims, table, out, stats, vrange = _build("<dense>", sources, origin, hi, chunk,
+        lo_, dims, table, out, stats, vrange = build_bricks("<dense>", sources, origin, hi, chunk,
                                                       passive=int(temperature is not None))
-        _warn_sanitised("<dense>", name, stats[0])
+        warn_sanitised("<dense>", name, stats[0])
         m = np.eye(4) if index_to_world is None else np.asarray(index_to_world, np.float64)
         if m.shape != (4, 4):
             raise ValueError(f"index_to_world must be 4x4, got shape {m.shape}")
-        b = cls(lo_, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=name,
+        b = cls(lo_, dims, table, out[0], max_per_slot(out[0]), m, grid_name=name,
                 source="<dense>", value_range=vrange,
                 active_voxels=int(np.count_nonzero(values)))
         if emission is not None:
-            _warn_sanitised("<dense>", "emission", stats[1])
-            b.emission, b.emission_max = out[1], _max_per_slot(out[1])
+            warn_sanitised("<dense>", "emission", stats[1])
+            b.emission, b.emission_max = out[1], max_per_slot(out[1])
             b.emission_grid_name = "emission"
         if temperature is not None:
-            _warn_sanitised("<dense>", "temperature", stats[-1])
+            warn_sanitised("<dense>", "temperature", stats[-1])
             b.temperature, b.temperature_grid_name = out[-1], "temperature"
         return b
 
@@ -339,12 +379,12 @@ class Bricks:
 # what zipfile and numpy raise on a damaged archive: a bad header or CRC, a zip version or
 # compression method it does not implement, an encrypted member, a bad deflate stream
 # (and numpy's .npy header parser: tokenize.TokenError from a header cut short)
-_ZIP_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError,
+ZIP_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError,
                RuntimeError, zlib.error, struct.error, OverflowError, LookupError,
                tokenize.TokenError)
 
 
-def _check_npz_members(z, size):
+def check_npz_members(z, size):
     """Every member's .npy header must agree with the member's stored size (a lying
     header would make numpy allocate what it claims before reading)."""
     for info in z.zip.infolist():
@@ -364,7 +404,7 @@ def load_npz(path) -> Bricks:
     the file, dims against the table, table against the data, majorants against the
     data, a well-conditioned transform; NaN/Inf and negative voxels become 0 with a
     warning, as in a .vdb."""
-    p = _check_file(path)
+    p = check_volume_file(path)
     with open(p, "rb") as f:
         return read_npz(f, os.fstat(f.fileno()).st_size, p)
 
@@ -382,13 +422,13 @@ def read_npz(f, size: int, p) -> Bricks:
         raise UserError("not a readable .npz file (no zip archive)", path=p, fix=fix)
     try:
         z = np.load(f, allow_pickle=False)
-    except _ZIP_ERRORS as e:
-        raise UserError(f"not a readable .npz file ({_one_line(e)})", path=p, fix=fix) from None
+    except ZIP_ERRORS as e:
+        raise UserError(f"not a readable .npz file ({one_line(e)})", path=p, fix=fix) from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise UserError("not a volrender brick cache (a bare .npy array)", path=p, fix=fix)
     with z:
         try:
-            problem = _check_npz_members(z, size)
+            problem = check_npz_members(z, size)
             if problem:
                 raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
             # every member once as read, once as validated (cast, sanitised)
@@ -426,8 +466,8 @@ def read_npz(f, size: int, p) -> Bricks:
                 b.temperature = z["temperature"]
                 b.temperature_grid_name = str(z["temperature_grid_name"])
             problem = _validate(b, p)
-        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
-            raise UserError(f"corrupt brick cache ({_one_line(e)})", path=p, fix=fix) from None
+        except (KeyError, TypeError, SyntaxError, *ZIP_ERRORS) as e:
+            raise UserError(f"corrupt brick cache ({one_line(e)})", path=p, fix=fix) from None
     if problem:
         raise UserError(f"corrupt brick cache ({problem})", path=p, fix=fix)
     return b
@@ -472,13 +512,13 @@ def _validate(b: Bricks, label="<bricks>") -> str | None:
     for name, data, top in arrays:
         stats = [0, 0]
         _sanitise(data, (slice(None),) * 4, stats)
-        _warn_sanitised(label, b.grid_name if name == "density" else (b.emission_grid_name or name),
+        warn_sanitised(label, b.grid_name if name == "density" else (b.emission_grid_name or name),
                         stats)
         if any(stats):                  # the stored maxima saw the bad values: recompute
-            top[:] = _max_per_slot(data)
+            top[:] = max_per_slot(data)
         if not np.all(np.isfinite(top)) or (len(top) and top.min() < 0):
             return f"{name} majorants are negative or not finite"
-        if np.any(top < _max_per_slot(data)):
+        if np.any(top < max_per_slot(data)):
             return f"{name} majorants are below the largest value of their bricks"
     if b.temperature is not None:
         b.temperature = np.array(b.temperature, np.float32)

@@ -15,6 +15,9 @@ from .settings import NUM, SIZE, VEC3, floats, in_range, knob, one_of, pair, rgb
 # (from the centre towards the camera: in front (+z), a little right and above).
 DEFAULT_VIEW = (0.25, 0.35, 1.0)
 DEFAULT_FOV = 40.0
+# The default framing: the content's projected bounds cover this fraction of the frame's
+# smaller side at DEFAULT_FOV (a margin of 5% each side), and --fov zooms from there.
+DEFAULT_FILL = 0.9
 
 
 def _unit(v, what):
@@ -128,11 +131,19 @@ def check_conflicts(where: dict):
 
 def describe(camera) -> str:
     """One line for -v: origin, target, up, fov, size and the distance."""
-    def show(v):
-        return ",".join(f"{float(c):g}" for c in v)
+    def show(v):                 # 10 digits: survey coordinates keep their centimetres
+        return ",".join(f"{float(c):.10g}" for c in v)
     d = float(np.linalg.norm(np.subtract(camera.origin, camera.target)))
     return (f"camera origin {show(camera.origin)} target {show(camera.target)} up {show(camera.up)} "
             f"fov {camera.fov:g} distance {d:g} size {camera.width}x{camera.height}")
+
+
+def _size(v):
+    import numbers
+    ok = isinstance(v, tuple) and len(v) == 2 and all(
+        isinstance(c, numbers.Integral) and not isinstance(c, bool) and 1 <= c <= 32768 for c in v)
+    return None if ok else "must be WxH with integers 1..32768"
+
 
 
 def _vec3_or_none(v):
@@ -168,13 +179,13 @@ class View:
     """The camera a user asks for; `camera(lo, hi)` resolves it against the scene's bounds
     (defaults, ranges and CLI/scene names: settings.knob)."""
     size: tuple = knob((640, 480), "image size", metavar="WxH", parse=pair("--size"),
-                       toml=("render", "size"), kind=SIZE)
-    origin: tuple | None = knob(None, "camera position (default: frame the bounds: look at their "
-                                "centre from --azimuth/--elevation at the distance where their "
-                                "bounding sphere fills --fov)", metavar="X,Y,Z",
+                       toml=("render", "size"), kind=SIZE, check=_size)
+    origin: tuple | None = knob(None, "camera position (default: fit the content: seen from "
+                                "--azimuth/--elevation, centred, its projected bounds covering "
+                                "--fill of the frame's smaller side)", metavar="X,Y,Z",
                                 parse=floats(3, name="--origin"), check=_vec3_or_none,
                                 toml=("camera", "origin"), kind=VEC3, show_default=False)
-    target: tuple | None = knob(None, "point looked at (default: the bounds' centre)",
+    target: tuple | None = knob(None, "point looked at (default: the content's centre in the frame)",
                                 metavar="X,Y,Z", parse=floats(3, name="--target"),
                                 check=_vec3_or_none, toml=("camera", "target"), kind=VEC3,
                                 show_default=False)
@@ -182,15 +193,15 @@ class View:
                             parse=floats(3, name="--up"), check=_vec3_or_none,
                             toml=("camera", "up"), kind=VEC3, show_default=False)
     fov: float = knob(DEFAULT_FOV, "vertical field of view, degrees: it zooms, from the same "
-                      "place (the default framing stands where the bounds' sphere fills 40 "
+                      "place (the default framing stands where the content fills 0.9 at 40 "
                       "degrees; --fill fits it to this fov instead)", check=in_range(1e-3, 179),
                       toml=("camera", "fov"))
-    fill: float | None = knob(None, "default framing: the fraction of the image height the "
-                              "bounds' bounding sphere covers at --fov (default: 1 at 40 degrees, "
-                              "and --fov zooms from there)", check=in_range(1e-3, 1e3, allow_none=True),
+    fill: float | None = knob(None, "default framing: the fraction of the frame's smaller side "
+                              "the content's projected bounds cover at --fov (default: 0.9 at 40 "
+                              "degrees, and --fov zooms from there)", check=in_range(1e-3, 1e3, allow_none=True),
                               metavar="F", toml=("camera", "fill"), kind=NUM, show_default=False)
     distance: float | None = knob(None, "default framing: the camera's distance from the target "
-                                  "(default: set by --fill)", check=in_range(1e-20, 1e30, allow_none=True),
+                                  "(default: set by --fill; the content stays centred)", check=in_range(1e-20, 1e30, allow_none=True),
                                   metavar="D", toml=("camera", "distance"), kind=NUM,
                                   show_default=False)
     up_axis: str = knob("auto", "the world's up axis: y, z (Blender caches are Z-up), or "
@@ -215,28 +226,37 @@ class View:
         """The up axis: up_axis, or with "auto" the file's hint (else y)."""
         return self.up_axis if self.up_axis != "auto" else (hint or "y")
 
-    def camera(self, lo, hi, up_hint=None) -> "Camera":
-        """The Camera: origin/target as given, else framing the box lo..hi from
-        azimuth/elevation around the up axis (up_hint: the file's suggestion for auto)."""
+    def camera(self, lo, hi, up_hint=None, extent=None) -> "Camera":
+        """The Camera: origin/target as given, else framing the content from
+        azimuth/elevation around the up axis (up_hint: the file's suggestion for auto):
+        `extent` = (points (N, 3), radii) of the content (Content.extent), else the box
+        lo..hi; see volrender/framing.py and docs/camera.md."""
+        from . import framing
         frame = up_frame(self.axis(up_hint))
         view = view_direction(self.azimuth, self.elevation)
         up = self.up or ((0.0, 1.0, 0.0) if frame is None else tuple(frame[:, 1]))
-        view = view if frame is None else frame @ view
+        view = _unit(view if frame is None else frame @ view, "view")
         w, h = self.size
+        if self.origin is not None:
+            lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+            return Camera(tuple(self.origin), tuple(self.target or 0.5 * (lo + hi)), tuple(up),
+                          self.fov, w, h)
         if self.fill is None:           # fixed place: --fov zooms
-            fill, fit = 1.0, DEFAULT_FOV
+            fill, fit = DEFAULT_FILL, DEFAULT_FOV
         else:
             fill, fit = self.fill, self.fov
-        cam = frame_bounds(lo, hi, w, h, fov=self.fov, up=up, view=tuple(view), fill=fill,
-                           fit_fov=fit, distance=self.distance)
-        if self.origin is None and self.target is not None:      # orbit the given target
-            dist = float(np.linalg.norm(np.subtract(cam.origin, cam.target)))
-            origin = np.asarray(self.target, np.float64) + dist * _unit(view, "view")
-            cam = Camera(tuple(origin), tuple(self.target), tuple(up), self.fov, w, h)
-        elif self.origin is not None:
-            cam = Camera(tuple(self.origin), tuple(self.target or cam.target), tuple(up),
-                         self.fov, w, h)
-        return cam
+        points, radii = extent if extent is not None else (framing.box_corners(lo, hi), 0.0)
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.target is not None:
+            centre = np.asarray(self.target, np.float64)
+        else:
+            centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+        f = -view
+        r = _unit(np.cross(f, up), "--up")
+        basis = (f, r, np.cross(r, f))
+        target, dist = framing.fit(points, radii, basis, centre, fit, w, h, fill,
+                                   centred=self.target is None, distance=self.distance)
+        return Camera(tuple(target + dist * view), tuple(target), tuple(up), self.fov, w, h)
 
 
 def _num(v):

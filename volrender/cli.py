@@ -12,8 +12,8 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__, atomic
-from .errors import SPELLING, UserError, printable, suggest
+from . import __version__, atomic, process
+from .errors import SPELLING, UserError, opencl_message, printable, suggest
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -27,12 +27,21 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         unknown = re.match(r"unrecognized arguments: (.*)", message)
-        if unknown:           # "unknown option --spps; did you mean --spp?"
-            words = [w.split("=")[0] for w in unknown.group(1).split() if w.startswith("--")]
+        choice = re.match(r"argument (\S+): invalid choice: '([^']*)' \(choose from (.*)\)",
+                          message)
+        if unknown:           # "unknown option --spps; did you mean --spp?"; peers' -res
+            words = [w.split("=")[0] for w in unknown.group(1).split()
+                     if w.startswith("-") and not _NUMBER.match(w)]
             if words:
                 known = [o[2:] for o in self._all_options()]
-                close = suggest(words[0][2:], known, lambda o: f"--{o}")
+                close = suggest(words[0].lstrip("-"), known, lambda o: f"--{o}")
                 message = f"unknown option {printable(words[0])}" + (f"; {close}" if close else "")
+        elif choice:          # `volrender rendr`: "did you mean render?"
+            known = re.findall(r"'([^']*)'", choice.group(3))
+            close = suggest(choice.group(2), known)
+            what = "command" if choice.group(1) == "COMMAND" else f"value for {choice.group(1)}"
+            message = (f"unknown {what} {printable(repr(choice.group(2)))}; "
+                       + (close or f"choose from {', '.join(known)}"))
         self.exit(2, f"volrender: error: {message}; see `{self.prog} --help`\n")
 
     def _all_options(self) -> list:
@@ -94,7 +103,7 @@ _GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
-    from .scene import options
+    from .scene_file import options
     from .glass import GlassSettings
     from .volume import VolumeSettings
     from .camera import View
@@ -119,14 +128,11 @@ def add_render_options(r):
         add_option(group, opt, defaults[opt.field])
 
 
-RENDER_DEST = None      # the render options' argparse dests (set by build_parser)
-
-
 def add_camera_options(t):
     """tree: the render's camera options (the image size is --window-size), so the view
     is the render's."""
     from .camera import View
-    from .scene import options
+    from .scene_file import options
     g = t.add_argument_group("camera (as render's: the view is the render's camera)")
     defaults = {f.name: f.default for f in dataclasses.fields(View)}
     for opt in options().values():
@@ -138,13 +144,12 @@ def add_camera_options(t):
 
 def camera_overrides(args) -> dict:
     """The camera options given to `volrender tree`."""
-    from .scene import options
+    from .scene_file import options
     keys = [o.key for o in options().values() if o.owner == "view" and o.field != "size"]
     return {k: getattr(args, k) for k in keys + ["camera"] if getattr(args, k, None) is not None}
 
 
 def build_parser():
-    global RENDER_DEST
     parser = Parser(
         prog="volrender", formatter_class=Formatter,
         description="Render OpenVDB volumes and point clouds (as molten glass) with OpenCL "
@@ -173,18 +178,20 @@ def build_parser():
                         "inputs; a symlink is written through")
     before = {a.dest for a in r._actions}
     add_render_options(r)
-    RENDER_DEST = [a.dest for a in r._actions if a.dest not in before] + ["camera"]
+    r.set_defaults(render_dests=(*(a.dest for a in r._actions if a.dest not in before), "camera"))
     cg = [g for g in r._action_groups if g.title == "image and camera"][0]
     cg.add_argument("--camera", default=None, metavar="CAM.toml",
                     help="reuse a camera written by --camera-out (options given beside it win)")
     cg.add_argument("--camera-out", default=None, metavar="CAM.toml",
                     help="also write the camera used (origin, target, up, fov, size) as TOML")
     sq = r.add_argument_group(
-        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #), smoke_%04d.vdb, "
+        "sequences", "IN and -o as patterns: smoke_####.vdb (any number of #; @ as #), "
+                     "smoke_$F4.vdb, smoke_%04d.vdb, "
                      "or a quoted glob 'smoke_*.vdb' (input only); one camera for every frame")
-    sq.add_argument("--frames", default=None, metavar="A-B[:STEP]",
-                    help="frames to render (also N, or a comma-separated list); default: every "
-                         "file a glob matches")
+    sq.add_argument("--frames", default=None, metavar="A-B[xSTEP]",
+                    help="frames to render: A-B, A-BxSTEP (A-B:STEP too), A-BySTEP (the frames "
+                         "STEP skips), N, or a comma-separated list; default: every file the "
+                         "pattern matches")
     sq.add_argument("--workers", type=_int("--workers"), default=None, metavar="N",
                     help="Dask workers of a LocalCluster on this machine; 0 renders in this "
                          "process (default: one per GPU, else one per 8 CPU cores)")
@@ -199,8 +206,14 @@ def build_parser():
     o = r.add_argument_group("output")
     o.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG only: exposure in stops, in [-64, 64] (default: 0)")
-    o.add_argument("--tonemap", choices=["filmic", "clamp"], default="filmic",
-                   help="PNG only: filmic shoulder or clip at 1 (default: filmic)")
+    o.add_argument("--view", "--tonemap", dest="tonemap", choices=list(VIEW_CHOICES),
+                   default="filmic", metavar="{filmic,standard,agx,aces}",
+                   help="PNG only: the view transform. filmic: volrender's shoulder (identity "
+                        "up to 0.5, mid-tones as rendered, highlights rolled off to white; the "
+                        "default, as before); standard: sRGB clipped at 1 (Blender's Standard; "
+                        "clamp is its older name); aces: ACES 1.0 SDR video; both through "
+                        "OpenColorIO's built-in ACES config; agx: from the OpenColorIO config "
+                        "$OCIO names (Blender's). --tonemap is its older name")
     o.add_argument("--png-bits", type=int, choices=[8, 16], default=8,
                    help="PNG only: bits per channel of the sRGB "
                         "file (default: 8)")
@@ -296,7 +309,7 @@ def _pair(name):
 
 def render_overrides(args) -> dict:
     """The load_scene overrides the user gave on the command line."""
-    return {k: getattr(args, k) for k in RENDER_DEST if getattr(args, k, None) is not None}
+    return {k: getattr(args, k) for k in args.render_dests if getattr(args, k, None) is not None}
 
 
 def describe(scene, img=None) -> str:
@@ -358,6 +371,8 @@ def cmd_sequence(args):
 
 
 def cmd_render(args):
+    from . import image
+    image.check_view(args.tonemap)           # an OpenColorIO view that is missing: now
     from .sequence import is_pattern
     if len(args.input) > 1:                  # the shell expanded a glob: a sequence of files
         return cmd_sequence(args)
@@ -368,7 +383,6 @@ def cmd_render(args):
     if given:
         raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
-    from . import image
     from .files import refuse_overwrite
     from .device import resolve
     from .render import check_image_memory, render
@@ -376,12 +390,12 @@ def cmd_render(args):
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
     aovs = req.settings.aovs if req.kind == "volume" else ()
-    out_path = image.check_output(args.output, aovs)
+    out_path = image.check_output(args.output, aovs, create=True)    # made at the write
     refuse_overwrite(out_path, req.inputs, shown=args.output)
     dev = resolve(args.device)
     check_image_memory(*req.view.size, dev, len(aovs))
     try:
-        scene = req.load()
+        scene = req.load(device=dev)
     except MemoryError:
         raise UserError("out of host memory while reading it", path=args.input,
                         fix="render a smaller volume or cloud, or free memory") from None
@@ -520,11 +534,8 @@ COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "inf
             "bench": cmd_bench}
 
 
-def _warn_one_line(message, category, filename, lineno, file=None, line=None):
-    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
-
-
 _NUMBER = re.compile(r"^-[0-9.]")
+VIEW_CHOICES = ("filmic", "standard", "agx", "aces", "clamp")     # image.TONEMAPS
 
 
 def join_negative_values(argv):
@@ -541,131 +552,14 @@ def join_negative_values(argv):
     return out
 
 
-def handle_signals():
-    """SIGTERM and SIGHUP raise atomic.Interrupted, as SIGINT raises KeyboardInterrupt, so
-    every one of them unwinds (temporary files removed) and exits with 128 + the signal.
-    A signal ignored when the process started (nohup, a background job's SIGINT) stays
-    ignored, and so does a call from a thread other than the main one. Returns the
-    previous handlers (for restore_signals)."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-
-    def interrupted(signum, frame):
-        raise atomic.Interrupted(signum)
-    old = {}
-    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
-                          ("SIGHUP", interrupted)):
-        sig = getattr(signal, name, None)
-        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
-            old[sig] = signal.signal(sig, handler)
-    return old
-
-
-def restore_signals(old):
-    import signal
-    for sig, handler in old.items():
-        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-
-
-def _interrupted(exc) -> int:
-    """One line saying what really happened (after the rename, the output was written)."""
-    import signal
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):       # a second signal: no traceback
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
-    signum = getattr(exc, "signum", signal.SIGINT)
-    done = ", ".join(printable(p) for p in dict.fromkeys(map(str, atomic.WRITTEN[_written_from:])))
-    what = f"{done} was written before that" if done else "no output written"
-    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
-    return 128 + signum
-
-
-_written_from = 0          # atomic.WRITTEN's length when this command started
-
-
-class _Stream:
-    """stdout or stderr whose write errors (a closed pipe, a full disk or a closed file:
-    EPIPE, ENOSPC, EIO, EBADF) are recorded and drop every later write, instead of turning
-    a finished render into a failure (docs/robustness.md, "Streams"). After the first
-    error the descriptor is pointed at /dev/null, so that what the stream still buffers
-    cannot fail again at exit."""
-
-    def __init__(self, stream):
-        self._stream, self.error = stream, None
-
-    def write(self, text):
-        if self.error is None:
-            try:
-                return self._stream.write(text)
-            except (OSError, ValueError) as exc:
-                self._failed(exc)
-        return len(text)
-
-    def flush(self):
-        if self.error is None:
-            try:
-                self._stream.flush()
-            except (OSError, ValueError) as exc:
-                self._failed(exc)
-
-    def _failed(self, exc):
-        self.error = exc
-        try:
-            fd = self._stream.fileno()
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, fd)
-            os.close(null)
-        except (OSError, ValueError, AttributeError):
-            pass
-
-    def __getattr__(self, name):
-        return getattr(self._stream, name)
-
-
-def _guard_streams():
-    """Descriptors 0-2 that are closed are opened on /dev/null (else the first file opened
-    would become 'stderr', and a library's message would land in an image), and stdout and
-    stderr are wrapped in _Stream. Returns the streams to restore."""
-    closed = []
-    for fd in (0, 1, 2):
-        try:
-            os.fstat(fd)
-        except OSError:
-            os.open(os.devnull, os.O_RDWR)          # the lowest free descriptor: fd
-            closed.append(fd)
-    old = sys.stdout, sys.stderr
-    sys.stdout = _Stream(sys.stdout if sys.stdout is not None else open(os.devnull, "w"))
-    sys.stderr = _Stream(sys.stderr if sys.stderr is not None else open(os.devnull, "w"))
-    if 1 in closed:
-        sys.stdout.error = OSError(9, "it is closed")
-    return old
-
-
-def _stdout_failed(command) -> int | None:
-    """The exit status when stdout, the product of `volrender info`, could not be written:
-    2 for a full disk or an I/O error; none when the reader went away (EPIPE, `| head -1`:
-    it read what it wanted), nor for the other commands, whose product is a file."""
-    import errno
-    sys.stdout.flush()
-    exc = sys.stdout.error
-    if command != "info" or exc is None or getattr(exc, "errno", None) == errno.EPIPE:
-        return None
-    print(f"volrender: error: cannot write to standard output ({getattr(exc, 'strerror', None) or exc})",
-          file=sys.stderr)
-    return 2
-
-
 def main(argv=None) -> int:
-    global _written_from
-    _written_from = len(atomic.WRITTEN)
-    streams = _guard_streams()
+    written_from = len(atomic.WRITTEN)       # what this command writes: WRITTEN[written_from:]
+    streams = process.guard_streams()
     spelling = SPELLING.set("cli")            # errors name the flags, not Python keywords
     try:
-        code = _main(argv)
+        code, command = _main(argv, written_from)
         if code == 0:
-            code = _stdout_failed(_command) or 0
+            code = process.stdout_failed(command) or 0
         return code
     finally:
         SPELLING.reset(spelling)
@@ -675,51 +569,26 @@ def main(argv=None) -> int:
             sys.stdout, sys.stderr = streams
 
 
-_command = None
-
-
-def _main(argv) -> int:
-    global _command
-    _command = None
-    old = handle_signals()
+def _main(argv, written_from) -> tuple:
+    """(exit status, the command's name or None)."""
+    command = None
+    old = process.handle_signals()
     try:
         parser = build_parser()
         args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-        _command = args.command
+        command = args.command
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="volrender: %(message)s")
         with warnings.catch_warnings():
             if not args.debug:
-                warnings.showwarning = _warn_one_line
-            return _run(args)
+                warnings.showwarning = process.warn_one_line
+            return _run(args, written_from), command
     except KeyboardInterrupt as exc:        # start-up, option parsing, or --debug
         if argv is not None and "--debug" in argv:
             raise
-        return _interrupted(exc)
+        return process.interrupted(exc, atomic.WRITTEN[written_from:]), command
     finally:
-        restore_signals(old)
-
-
-_CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
-                     "INVALID_BUFFER_SIZE")
-
-
-def _opencl_message(exc) -> str | None:
-    """A one-line message for an OpenCL error (None when exc is not one)."""
-    cl = sys.modules.get("pyopencl")
-    if cl is None or not isinstance(exc, cl.Error):
-        return None
-    text = " ".join(str(exc).split())
-    try:
-        code = exc.code
-    except Exception:                       # an Error built without a status record
-        code = None
-    oom = {getattr(cl.status_code, n) for n in _CL_OUT_OF_MEMORY if hasattr(cl.status_code, n)}
-    if isinstance(exc, cl.MemoryError) or code in oom:
-        return (f"the OpenCL device ran out of memory ({text}); render a smaller --size, fewer "
-                "points or a smaller volume, or pick a device with more memory (--device)")
-    return (f"OpenCL failed ({text}); try another --device, or rerun with --debug and report "
-            "it as a volrender bug")
+        process.restore_signals(old)
 
 
 def _user_message(exc) -> str:
@@ -734,7 +603,7 @@ def _user_message(exc) -> str:
     return " ".join(text.split())
 
 
-def _run(args) -> int:
+def _run(args, written_from) -> int:
     try:
         return COMMANDS[args.command](args)
     except UserError as exc:
@@ -743,14 +612,14 @@ def _run(args) -> int:
         print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        return _interrupted(exc)
+        return process.interrupted(exc, atomic.WRITTEN[written_from:])
     except MemoryError:
         if args.debug:
             raise
         print("volrender: error: out of host memory; render a smaller image or volume", file=sys.stderr)
         return 2
     except Exception as exc:
-        message = _opencl_message(exc)
+        message = opencl_message(exc)
         if message is None or args.debug:
             raise
         print(f"volrender: error: {message}", file=sys.stderr)

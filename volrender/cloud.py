@@ -9,10 +9,10 @@ import numpy as np
 from .errors import UserError
 from .files import check_memory
 
-MAX_COORDINATE = 1e18       # |coordinate| accepted from files (glass.MAX_EXTENT: float32 squares)
+MAX_COORDINATE = 1e18       # |coordinate| accepted from files (spheres.MAX_EXTENT: float32 squares)
 
 
-_MEMORY_FIX = "load a smaller or decimated cloud, or free memory"
+MEMORY_FIX = "load a smaller or decimated cloud, or free memory"
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,8 @@ class PointCloud:
     colors: np.ndarray | None = None    # float32 (N, 3) in 0..1, or None
     source: str = ""
     notes: tuple = ()                   # what the reader chose or left out (said to the user)
+    up_axis: str | None = None          # the up axis the format defines (LAS: "z"), else None
+    up_axis_reason: str = ""
 
     def __post_init__(self):
         c = np.ascontiguousarray(self.centers, dtype=np.float64)
@@ -45,7 +47,7 @@ class PointCloud:
         return len(self.centers)
 
 
-def _finish(path, centers, radii, colors, notes=()) -> PointCloud:
+def finish_cloud(path, centers, radii, colors, notes=(), up_axis=None, up_axis_reason="") -> PointCloud:
     n = len(centers)
     if n == 0:
         raise UserError("the file holds zero points", path=path,
@@ -75,13 +77,13 @@ def _finish(path, centers, radii, colors, notes=()) -> PointCloud:
                             f"{np.nanmax(colors)})", path=path,
                             fix="store float colours in 0..1, or as uchar 0..255")
     return PointCloud(centers=centers, radii=radii, colors=colors, source=str(path),
-                      notes=tuple(notes))
+                      notes=tuple(notes), up_axis=up_axis, up_axis_reason=up_axis_reason)
 
 
-_CHUNK_LINES = 1 << 16      # text lines parsed at a time
+CHUNK_LINES = 1 << 16      # text lines parsed at a time
 
 
-class _Projection:
+class Projection:
     """Memory check of a reader that parses a stream in chunks: after each chunk the
     memory still to come is projected from what the chunks so far took per byte or row."""
 
@@ -95,4 +97,4 @@ class _Projection:
             more = self.used * (self.total - self.done) / self.done
             # the chunks still to come, then one copy of everything (np.concatenate)
             check_memory(int(more + self.used + more), self.path, "reading this point cloud",
-                         _MEMORY_FIX)
+                         MEMORY_FIX)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from .errors import UserError
 from .paths import cl_dir
+from .process import signals_held
 
 log = logging.getLogger("volrender")
 ENV_DEVICE = "VOLRENDER_DEVICE"
@@ -195,7 +196,6 @@ class Device:
             return self._programs[key]
         start = time.perf_counter()
         failure = None
-        from .atomic import signals_held
         # held: a signal inside the compiler (PoCL's in-process clang) breaks the build
         # ("1 error generated.") instead of ending the render cleanly after it
         with signals_held(), _compiler_output() as noise:

@@ -7,6 +7,7 @@ flags a message was written with). `suggest` adds difflib's close matches ("did 
 import contextvars
 import difflib
 import re
+import sys
 
 
 def printable(text) -> str:
@@ -63,11 +64,38 @@ def option_name(key: str) -> str:
 
 
 def suggest(word: str, known, spell_as=str) -> str:
-    """"did you mean X?" for the close matches of `word` among `known` ('' for none)."""
+    """"did you mean X?" for the close matches of `word` among `known` ('' for none); a
+    peer's spelling of an option (PEER_NAMES) names volrender's instead."""
+    peer = peer_hint(word, spell_as)
+    if peer:
+        return peer
     close = difflib.get_close_matches(word, list(dict.fromkeys(known)), n=2, cutoff=0.6)
     if not close:
         return ""
     return "did you mean " + " or ".join(spell_as(c) for c in close) + "?"
+
+
+# What peers call volrender's options (vdb_render's -res, -samples, -lookat, -translate;
+# pbrt's pixelsamples and Mitsuba's sample_count; Blender's resolution): the option key each
+# means here, and whose spelling it is. `suggest` names the option for them.
+PEER_NAMES = {
+    "res": ("size", "vdb_render's -res"), "resolution": ("size", "Blender's resolution"),
+    "samples": ("spp", "vdb_render's -samples"), "pixelsamples": ("spp", "pbrt's pixelsamples"),
+    "sample_count": ("spp", "Mitsuba's sample_count"), "samplecount": ("spp", "Mitsuba's sample_count"),
+    "lookat": ("target", "vdb_render's -lookat"), "look_at": ("target", "a look-at point"),
+    "translate": ("origin", "vdb_render's -translate"), "eye": ("origin", "a camera's eye"),
+    "camera_position": ("origin", "a camera position"),
+}
+
+
+def peer_hint(word: str, spell_as=str) -> str:
+    """"did you mean --size (vdb_render's -res)?" for a peer's spelling of an option ('' for
+    none); `word` with or without dashes, in any case, with dashes or underscores."""
+    key = word.lstrip("-").lower().replace("-", "_")
+    hit = PEER_NAMES.get(key)
+    if hit is None:
+        return ""
+    return f"did you mean {spell_as(hit[0])} ({hit[1]})?"
 
 
 class UserError(ValueError):
@@ -108,7 +136,6 @@ def one_line_if_uncaught(exc: BaseException) -> BaseException:
     """Make `exc`, should it reach the top of a script uncaught, print as the CLI prints
     errors (`volrender: error: ...`, no traceback); any other exception keeps the hook that
     was there. Returns exc (raise it)."""
-    import sys
     previous = sys.excepthook
 
     def hook(kind, value, tb):
@@ -118,3 +145,26 @@ def one_line_if_uncaught(exc: BaseException) -> BaseException:
             previous(kind, value, tb)
     sys.excepthook = hook
     return exc
+
+
+CL_OUT_OF_MEMORY = ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
+                    "INVALID_BUFFER_SIZE")
+
+
+def opencl_message(exc) -> str | None:
+    """A one-line message for an OpenCL error (None when exc is not one; pyopencl is not
+    imported here: an error of it exists only once something else has imported it)."""
+    cl = sys.modules.get("pyopencl")
+    if cl is None or not isinstance(exc, cl.Error):
+        return None
+    text = " ".join(str(exc).split())
+    try:
+        code = exc.code
+    except Exception:                       # an Error built without a status record
+        code = None
+    oom = {getattr(cl.status_code, n) for n in CL_OUT_OF_MEMORY if hasattr(cl.status_code, n)}
+    if isinstance(exc, cl.MemoryError) or code in oom:
+        return (f"the OpenCL device ran out of memory ({text}); render a smaller --size, fewer "
+                "points or a smaller volume, or pick a device with more memory (--device)")
+    return (f"OpenCL failed ({text}); try another --device, or rerun with --debug and report "
+            "it as a volrender bug")

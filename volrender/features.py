@@ -95,7 +95,7 @@ class GlassFeatures:
 
     @classmethod
     def from_scene(cls, scene, packed, dispatch, variant=None) -> "GlassFeatures":
-        """What a glass Scene compiles in. packed: its glass.PackedSpheres; dispatch: the
+        """What a glass Scene compiles in. packed: its spheres.PackedSpheres; dispatch: the
         resolved Dispatch; variant "uber": everything, light counts and feature bits read
         at run time instead; "stats": count the field's work."""
         from .lights import counts

@@ -34,7 +34,17 @@ from .errors import UserError
 from .files import check_input
 
 SUFFIXES = ('.exr', '.npy', '.png')
-TONEMAPS = ('filmic', 'clamp')
+# View transforms (--view; --tonemap is its older name). 'filmic': volrender's own shoulder
+# (below), the default; 'standard' and 'aces' through OpenColorIO's built-in ACES config
+# (OCIO_VIEWS); 'agx' through the config $OCIO names (Blender's has it: the built-in
+# configs do not); 'clamp': 'standard' computed here exactly (the older name).
+VIEWS = ('filmic', 'standard', 'agx', 'aces')
+TONEMAPS = VIEWS + ('clamp',)
+OCIO_CONFIG = 'cg-config-v2.2.0_aces-v1.3_ocio-v2.4'
+OCIO_SOURCE = 'Linear Rec.709 (sRGB)'
+OCIO_DISPLAY = 'sRGB - Display'
+OCIO_VIEWS = {'standard': 'Un-tone-mapped', 'aces': 'ACES 1.0 - SDR Video'}
+OCIO_LARGEST = 65504.0            # inputs are clipped here (half float's largest; ACES's too)
 PNG_BITS = (8, 16)
 PNG_ALPHAS = ('opaque', 'straight')
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
@@ -55,12 +65,12 @@ def _aov_channel(name: str) -> str:
     return AOV_CHANNELS.get(name, name)
 
 
-def check_output(path, aovs=()) -> Path:
+def check_output(path, aovs=(), create: bool = False) -> Path:
     """Validate an output path before a render starts; return the file a write replaces
     (absolute, symlinks followed: see ``atomic.destination``).
 
     Checks that the suffix is one of ``SUFFIXES``, that the parent directory exists and
-    is writable, that ``path`` is no directory, FIFO, device, symlink loop or read-only
+    is writable (with ``create``: that the folders missing above it can be made there), that ``path`` is no directory, FIFO, device, symlink loop or read-only
     file, and that AOVs (extra layers such as ``'depth'``, ``'transmittance'``; names or a
     dict keyed by name) are only asked of ``.exr`` and map to distinct channels other
     than R, G, B, A. Raises ``UserError``.
@@ -72,9 +82,11 @@ def check_output(path, aovs=()) -> Path:
                         fix=f"use one of {', '.join(SUFFIXES)}")
     out = atomic.destination(path)
     parent = out.parent
+    if create and not parent.exists():       # made by the write: check where it would go
+        parent = next(p for p in parent.parents if p.exists())
     if not parent.is_dir():
-        raise UserError(f"output directory {str(parent)!r} does not exist", path=out,
-                        fix=f"create it first (mkdir -p {parent})")
+        raise UserError(f"output directory {str(out.parent)!r} does not exist", path=out,
+                        fix=f"create it first (mkdir -p {out.parent})")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"output directory {str(parent)!r} is not writable", path=out,
                         fix="choose another directory or fix its permissions")
@@ -113,15 +125,77 @@ def _srgb_oetf(v):
 
 def _check_tonemap(tonemap: str) -> None:
     if tonemap not in TONEMAPS:
-        raise UserError(f"unknown tone map {tonemap!r}", fix=f"use one of {', '.join(TONEMAPS)}")
+        raise UserError(f"unknown view transform {tonemap!r}", fix=f"use one of {', '.join(VIEWS)}")
+
+
+def check_view(view: str) -> None:
+    """Refuse an unknown view, or one OpenColorIO cannot provide here, before a render
+    starts (UserError)."""
+    _check_tonemap(view)
+    if view not in ('filmic', 'clamp'):
+        ocio_processor(view)
+
+
+_PROCESSORS = {}
+
+
+def ocio_processor(view: str):
+    """OpenColorIO's CPU processor from linear Rec.709 to sRGB display codes (0..1) for
+    `view`: 'standard' and 'aces' from the built-in config OCIO_CONFIG, 'agx' from the
+    config $OCIO names (its display's 'AgX' view, from its scene_linear role)."""
+    if view in _PROCESSORS:
+        return _PROCESSORS[view]
+    try:
+        import PyOpenColorIO as ocio
+    except ImportError as exc:
+        raise UserError(f"the view {view!r} needs OpenColorIO ({exc})",
+                        fix="pip install opencolorio (bash run.sh setup installs it)") from None
+    if view == 'agx':
+        path = os.environ.get('OCIO')
+        if not path:
+            raise UserError("the view 'agx' is in none of OpenColorIO's built-in configs",
+                            fix="point $OCIO at a config that has it (Blender's: "
+                                "datafiles/colormanagement/config.ocio), or use filmic, "
+                                "standard or aces")
+        try:
+            cfg = ocio.Config.CreateFromFile(path)
+            display = cfg.getDefaultDisplay()
+            name = next((v for v in cfg.getViews(display) if v.lower() == 'agx'), None)
+            if name is None:
+                raise UserError(f"the OpenColorIO config has no AgX view on display {display!r}",
+                                path=path, fix="use Blender's config.ocio")
+            proc = cfg.getProcessor(ocio.ROLE_SCENE_LINEAR, display, name,
+                                    ocio.TRANSFORM_DIR_FORWARD)
+        except ocio.Exception as exc:
+            raise UserError(f"OpenColorIO cannot use it ({exc})", path=path,
+                            fix="point $OCIO at a valid config") from None
+    else:
+        cfg = ocio.Config.CreateFromBuiltinConfig(OCIO_CONFIG)
+        proc = cfg.getProcessor(ocio.DisplayViewTransform(src=OCIO_SOURCE, display=OCIO_DISPLAY,
+                                                          view=OCIO_VIEWS[view]))
+    _PROCESSORS[view] = proc.getDefaultCPUProcessor()
+    return _PROCESSORS[view]
+
+
+def _ocio_codes(x, view):
+    """Display codes in [0, 1] of linear values >= 0 (last axis R, G, B; any other shape
+    is grey) through OpenColorIO."""
+    grey = x.shape[-1:] != (3,)
+    rgb = np.repeat(x[..., None], 3, axis=-1) if grey else x
+    flat = np.ascontiguousarray(np.minimum(rgb, OCIO_LARGEST), np.float32).reshape(-1, 3)
+    ocio_processor(view).applyRGB(flat)
+    out = np.clip(flat.reshape(rgb.shape).astype(np.float64), 0.0, 1.0)
+    return out[..., 0] if grey else out
 
 
 def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) -> np.ndarray:
     """Linear values -> sRGB codes of `bits` (8: uint8, 16: uint16), same shape.
 
-    Multiplies by ``2**exposure``, clips negatives to 0, applies ``tonemap`` (``'filmic'``:
-    identity up to 0.5, then a smooth exponential shoulder towards 1, see ``_filmic``;
-    ``'clamp'``: clip to 1), then the exact sRGB OETF, and rounds to the nearest code.
+    Multiplies by ``2**exposure``, clips negatives to 0, applies the view transform
+    ``tonemap`` (``'filmic'``: identity up to 0.5, then a smooth exponential shoulder
+    towards 1, see ``_filmic``, then the exact sRGB OETF; ``'clamp'``: clip to 1, then the
+    OETF; ``'standard'``, ``'aces'``, ``'agx'``: OpenColorIO, see ``ocio_processor``,
+    clipped to 0..1), and rounds to the nearest code.
     NaN becomes 0 and +Inf white, with a ``RuntimeWarning`` naming how many values were
     not finite.
     """
@@ -139,10 +213,14 @@ def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) 
                       "+Inf as white, -Inf as 0", RuntimeWarning, stacklevel=2)
     x = np.nan_to_num(x, nan=0.0, posinf=np.inf, neginf=0.0)
     x = np.maximum(x, 0.0)
-    x = _filmic(x) if tonemap == 'filmic' else np.minimum(x, 1.0)
-    x = np.minimum(x, 1.0)  # +Inf under 'filmic' is exactly 1 already; keep it safe
     top = (1 << bits) - 1
-    return np.floor(_srgb_oetf(x) * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)
+    if tonemap in ('filmic', 'clamp'):
+        x = _filmic(x) if tonemap == 'filmic' else np.minimum(x, 1.0)
+        x = np.minimum(x, 1.0)  # +Inf under 'filmic' is exactly 1 already; keep it safe
+        codes = _srgb_oetf(x)
+    else:
+        codes = _ocio_codes(x, tonemap)
+    return np.floor(codes * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)
 
 
 def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
@@ -289,7 +367,7 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
     temporary file remains (``volrender.atomic``).
     """
     aovs = dict(aovs or {})
-    out = check_output(path, aovs)
+    out = check_output(path, aovs, create=True)
     _check_tonemap(tonemap)
     if png_bits not in PNG_BITS:
         raise UserError(f"PNG bit depth {png_bits!r} is not supported", fix="use 8 or 16")
@@ -309,9 +387,33 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
         channels[_aov_channel(name)] = data
     options = dict(exposure=exposure, tonemap=tonemap, camera=camera, png_bits=png_bits,
                    background=background, png_alpha=png_alpha)
+    if not out.parent.exists():                  # as sequences do: -o new/x.png
+        try:
+            out.parent.mkdir(parents=True)
+        except OSError as exc:
+            raise UserError(f"cannot create the output folder ({exc.strerror or exc})",
+                            path=out.parent, fix="write somewhere you can") from None
+    if png_alpha == 'straight' and out.suffix.lower() == '.png':
+        _warn_if_invisible(rgba, png_bits)
     with atomic.replace(out, "image") as f:
         _WRITERS[out.suffix.lower()](f, rgba, channels, options)
     return out
+
+
+def _warn_if_invisible(rgba, bits):
+    """A straight-alpha PNG whose alpha rounds to at most 2 codes where light was rendered
+    (fire, whose emission has almost no opacity): viewers show it (nearly) invisible."""
+    from .errors import ImageWarning
+    a = np.asarray(rgba[..., 3], np.float64)
+    lit = np.nan_to_num(np.asarray(rgba[..., :3], np.float64)).max(axis=-1) > 1e-3
+    top = (1 << bits) - 1
+    if lit.any():
+        most = float(np.nanmax(np.clip(a[lit], 0.0, 1.0)))
+        if np.floor(most * top + 0.5) <= 2 * (top // 255):
+            warnings.warn(f"the transparent PNG's alpha is at most {most:.2g} where the image "
+                          "has light (emission with almost no opacity, as fire): viewers will "
+                          "show it (nearly) invisible; drop --transparent for the opaque picture, "
+                          "or write .exr", ImageWarning, stacklevel=3)
 
 
 # ---------------------------------------------------------------------------- readers

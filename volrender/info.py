@@ -43,15 +43,17 @@ def suggested_density_scale(bricks, device=None, size=(64, 48)) -> float | None:
 
 
 def _box(lo, hi) -> str:
-    return "(" + ", ".join(f"{v:.4g}" for v in lo) + ")..(" + ", ".join(f"{v:.4g}" for v in hi) + ")"
+    """Coordinates with 10 significant digits: survey offsets (5e5, 4e6) keep their
+    centimetres."""
+    return "(" + ", ".join(f"{v:.10g}" for v in lo) + ")..(" + ", ".join(f"{v:.10g}" for v in hi) + ")"
 
 
 def describe_points(path) -> list[str]:
     """Lines describing a point file: count, bounds, radii, colours, the nearest-neighbour
-    spacing, and the radius and blend a render would choose (scene._scan_defaults)."""
+    spacing, and the radius and blend a render would choose (spheres.scan_defaults)."""
     from . import glass
     from .points import load_points
-    from .scene import _scan_defaults
+    from .spheres import scan_defaults
     cloud = load_points(path)
     n = len(cloud.centers)
     lo, hi = cloud.centers.min(axis=0), cloud.centers.max(axis=0)
@@ -62,7 +64,7 @@ def describe_points(path) -> list[str]:
         lines.append(f"  radii {r.min():.4g}..{r.max():.4g} (median {np.median(r):.4g}); "
                      f"a render's blend: {2 * np.median(r):.4g} (twice the median radius)")
     else:
-        settings, note = _scan_defaults(cloud, glass.GlassSettings())
+        settings, note = scan_defaults(cloud, glass.GlassSettings())
         lines.append(f"  no radii: {note}")
     lines.append(f"  colours: {'per point' if cloud.colors is not None else 'none'}")
     return lines
@@ -71,7 +73,7 @@ def describe_points(path) -> list[str]:
 def describe(path, device=None) -> list[str]:
     """Lines describing every grid of a .vdb (or the grid of a .npz cache), or a point
     file (describe_points)."""
-    from . import vdb
+    from . import vdb, vdb_header
     from .scene import POINT_SUFFIXES
     p = Path(path)
     suffix = p.suffix.lower()
@@ -87,7 +89,7 @@ def describe(path, device=None) -> list[str]:
     else:
         grids = vdb.list_grids(p)
         creator = next((g.creator for g in grids if g.creator), "")
-        axis, why = vdb.up_axis_hint(grids)
+        axis, why = vdb_header.up_axis_hint(grids)
         lines.append(f"{printable(p)}: OpenVDB, {len(grids)} grid(s)"
                      + (f", written by {printable(creator)}" if creator else "")
                      + f"; up axis {axis or 'y'}" + (f" ({why})" if why else " (the default)"))

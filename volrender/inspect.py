@@ -2,8 +2,8 @@
 
 Build blocks for a notebook::
 
-    from volrender import inspect, points, tree
-    cloud = points.generate("blob", 2000, seed=0)
+    from volrender import generators, inspect, tree
+    cloud = generators.generate("blob", 2000, seed=0)
     t = tree.build(cloud.centers, cloud.radii)
     boxes = inspect.tree_boxes(t)              # MultiBlock, one block per depth
     inspect.show_tree(t, cloud.centers, screenshot="tree.png")
@@ -27,7 +27,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError
-from .points import default_radius  # noqa: F401  (re-exported for notebooks)
+from .spheres import default_radius
 
 __all__ = ["tree_boxes", "points_mesh", "brick_boxes", "tree_stats", "n_boxes",
            "leaf_of_points", "show_tree", "show_bricks", "inspect_input", "cell_boxes",
@@ -46,12 +46,35 @@ _CORNER_BITS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dt
 
 
 def _pv():
+    """pyvista, with VTK's logger quiet: errors only on stderr (its off-screen warnings,
+    such as "bad X server connection", said nothing a user can act on), and without
+    colour codes when stderr is no terminal (VTK's loguru decides its colours from $TERM
+    when it loads)."""
+    if "vtkmodules.vtkCommonCore" not in sys.modules and not _isatty(sys.stderr):
+        term = os.environ.get("TERM")
+        os.environ["TERM"] = "dumb"
+    else:
+        term = False
     try:
         import pyvista
+        from vtkmodules.vtkCommonCore import vtkLogger
     except ImportError as exc:
         raise UserError(f"pyvista is not installed ({exc})",
                         fix="bash run.sh setup --inspect (or pip install 'volrender[inspect]')") from None
+    finally:
+        if term is None:
+            os.environ.pop("TERM", None)
+        elif term:
+            os.environ["TERM"] = term
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
     return pyvista
+
+
+def _isatty(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError, OSError):
+        return False
 
 
 # --------------------------------------------------------------------------- meshes
@@ -204,7 +227,7 @@ def brick_boxes(bricks):
         One box per slot in slot order (8 points, 12 line cells each), with cell
         arrays ``majorant`` (float32, the slot's maximum density) and ``slot``.
     """
-    from .vdb import BRICK
+    from .layout import BRICK
     dims = np.asarray(bricks.dims, np.int64)
     table = np.asarray(bricks.table)
     flat = np.flatnonzero(table >= 0)
@@ -421,7 +444,7 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
 
     Parameters
     ----------
-    bricks : volrender.vdb.Bricks
+    bricks : volrender.bricks.Bricks
     screenshot, export, show, window_size
         As in :func:`show_tree`; a ``.vtm`` export holds one block, ``bricks``.
 
@@ -486,7 +509,7 @@ def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export
     centers : (N, 3) array
         The sphere centres (world).
     centre : (3,) array
-        The render frame's origin in world space (glass.PackedSpheres.centre).
+        The render frame's origin in world space (spheres.PackedSpheres.centre).
     screenshot, export, show, window_size, point_size
         As in :func:`show_tree`; a ``.vtm`` export holds one block, ``cells``. Beyond
         MAX_CELL_BOXES cells the view draws each cell as a point at its centre (the
@@ -596,10 +619,10 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
 
     Returns
     -------
-    volrender.tree.Tree, volrender.cells.Cells or volrender.vdb.Bricks
+    volrender.tree.Tree, volrender.cells.Cells or volrender.bricks.Bricks
         What was shown.
     """
-    from .glass import sphere_radii
+    from .spheres import sphere_radii
     from .scene import load_scene
     _check_outputs(screenshot, export, show)      # fail before loading a large file
     scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid,
@@ -612,7 +635,7 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     cloud, settings = scene.content.cloud, scene.content.settings
     if cells:
         import dataclasses
-        from .glass import pack_scene
+        from .spheres import pack_scene
         packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"))
         if packed.cells is None:
             raise UserError(packed.note or "no support cells for this cloud",

@@ -245,44 +245,39 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data)
     return LightCache(out, choice, 1e3 * (time.perf_counter() - t0))
 
 
-def _scene_cache(scene, device):
-    """(LightCache, bricks, occupied slots) of a volume scene on `device` (tests)."""
-    from . import device as device_mod, volume
-    dev = device_mod.resolve(device)
-    plan = volume.plan(scene, dev)
-    cache = scene.content.store[("light_cache", dev.device.int_ptr)][1]
-    return dev, plan, cache
+def cached(content, device) -> LightCache:
+    """The content's latest cache on `device` (baked by a render or volume.plan)."""
+    return content.store[("light_cache", device.device.int_ptr)][1]
 
 
-def read_back(scene, device):
-    """The baked nodes of a volume scene, (slots, n, n, n, channels) float32, and its
-    occupied bricks (occupied_slots); tests and diagnostics."""
+def read_back(content, device):
+    """The baked nodes, (slots, n, n, n, channels) float32, and the occupied bricks
+    (occupied_slots); tests and diagnostics."""
     import pyopencl as cl
-    dev, _, cache = _scene_cache(scene, device)
+    cache = cached(content, device)
     n = layout.BRICK // cache.choice.cell + 1
-    out = np.empty((int(scene.content.bricks.n_slots), n, n, n, cache.choice.channels),
-                   np.float32)
-    cl.enqueue_copy(dev.queue, out, cache.buffer)
-    dev.queue.finish()
-    return out, occupied_slots(scene.content.bricks)
+    out = np.empty((int(content.bricks.n_slots), n, n, n, cache.choice.channels), np.float32)
+    cl.enqueue_copy(device.queue, out, cache.buffer)
+    device.queue.finish()
+    return out, occupied_slots(content.bricks)
 
 
-def probe(scene, device, local):
+def probe(content, device, flags, local):
     """The cache's channels as the marcher reads them (cl/light_cache.h) at local points
-    (n, 3) inside occupied bricks: (n, channels); tests."""
+    (n, 3) inside occupied bricks: (n, channels); flags: the marcher's (its plan's
+    features); tests."""
     import pyopencl as cl
     from .dispatch import upload
-    dev, plan, cache = _scene_cache(scene, device)
-    flags = dict(plan.features.flags())
-    kernel = dev.kernel("bake_light", flags, "probe_light_cache")
+    cache = cached(content, device)
+    kernel = device.kernel("bake_light", dict(flags), "probe_light_cache")
     pts = np.zeros((len(local), 4), np.float32)
     pts[:, :3] = local
-    out = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, 4 * len(local) * cache.choice.channels)
-    kernel(dev.queue, (len(local),), None, upload(dev.context, pts),
-           scene.content.buffer(dev, "table"), np.asarray(scene.content.bricks.dims.tolist() + [0],
-                                                          np.int32).view(cl.cltypes.int4)[0],
-           cache.buffer, out)
+    out = cl.Buffer(device.context, cl.mem_flags.WRITE_ONLY, 4 * len(local) * cache.choice.channels)
+    dims = np.zeros(1, cl.cltypes.int4)
+    dims[0] = tuple(int(d) for d in content.bricks.dims) + (0,)
+    kernel(device.queue, (len(local),), None, upload(device.context, pts),
+           content.buffer(device, "table"), dims[0], cache.buffer, out)
     host = np.empty((len(local), cache.choice.channels), np.float32)
-    cl.enqueue_copy(dev.queue, host, out)
-    dev.queue.finish()
+    cl.enqueue_copy(device.queue, host, out)
+    device.queue.finish()
     return host

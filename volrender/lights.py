@@ -79,6 +79,45 @@ def sky_texels(up=(0.0, 1.0, 0.0), size=SKY_SIZE, scale=SKY_SCALE) -> np.ndarray
     return out.astype(np.float32)
 
 
+GLASS_SKY_SIZE = (1024, 512)
+
+
+def glass_sky_texels(frame, size=GLASS_SKY_SIZE) -> np.ndarray:
+    """float32 (H, W, 3) equirectangular texels of glass's procedural sky (cl/glass.h,
+    glass_sky: a horizon-to-zenith gradient over a grey checker ground fading into haze)
+    in a world whose frame is `frame` (camera.up_frame: the y-up frame's axes as columns),
+    for a z-up world: the kernel's sky is y-up."""
+    w, h = size
+    v = (np.arange(h) + 0.5) / h
+    u = (np.arange(w) + 0.5) / w
+    theta, phi = np.pi * v[:, None], (u[None, :] - 0.5) * 2.0 * np.pi
+    world = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta) * np.ones_like(phi),
+                      -np.sin(theta) * np.cos(phi)], axis=-1)
+    d = world @ np.asarray(frame, np.float64)          # frame^T world: the y-up direction
+    hor, zen = np.array(SKY_HORIZON), np.array(SKY_ZENITH)
+    up = d[..., 1]
+    sky = hor + (zen - hor) * np.sqrt(np.clip(up, 0.0, 1.0))[..., None]
+    dn = np.maximum(-up, 1e-6)
+    q = np.clip(d[..., [0, 2]] / dn[..., None], -1e6, 1e6)
+    check = np.abs(np.fmod(np.floor(q[..., 0]) + np.floor(q[..., 1]), 2.0)) > 0.5
+    ground = np.where(check[..., None], (0.35, 0.33, 0.3), (0.12, 0.11, 0.1))
+    ground = hor + (ground - hor) * (1.0 - np.exp(-12.0 * np.maximum(-up, 0.0)))[..., None]
+    return np.where((up >= 0)[..., None], sky, ground).astype(np.float32)
+
+
+def default_sky(frame=None, dim: float = 1.0) -> np.ndarray:
+    """The default volume sky's texels (sky_texels at SKY_SCALE * dim), its zenith along the
+    second column of `frame` (camera.up_frame: world from y-up; None: y is up)."""
+    up = (0.0, 1.0, 0.0) if frame is None else tuple(frame[:, 1])
+    return sky_texels(up, scale=SKY_SCALE * dim)
+
+
+def default_suns(frame=None, dim: float = 1.0) -> tuple:
+    """DEFAULT_LIGHTS turned by `frame` (as default_sky) and dimmed by `dim`."""
+    return tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
+                     else l.direction, l.irradiance * dim, l.color) for l in DEFAULT_LIGHTS)
+
+
 def counts(lights) -> tuple[int, int]:
     return (sum(isinstance(l, Sun) for l in lights), sum(isinstance(l, PointLight) for l in lights))
 

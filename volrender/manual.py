@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from . import scene
+from . import scene_file
 from .settings import knobs
 
 GROUPS = (("view", "Camera and image"), ("common", "Every render"),
@@ -45,13 +45,13 @@ def _owners():
 
 def options_markdown() -> str:
     """docs/options.md: every render option, by what reads it."""
-    opts = scene.options()
+    opts = scene_file.options()
     by_field = {(o.owner, o.field): o for o in opts.values()}
     out = [HEADER, "# volrender render: every option\n",
            "Each option is a command-line flag, a keyword of `volrender.load_scene` (the flag "
            "with underscores) and, where a key is given, a scene-file key. An option the "
            "input's kind does not read is an error. `volrender render --help` lists these "
-           "and the output options (`-o`, `--exposure`, `--tonemap`, `--png-bits`, "
+           "and the output options (`-o`, `--exposure`, `--view`, `--png-bits`, "
            "`--camera-out`, sequences' `--frames`, `--workers`, ...).\n"]
     for owner, title in GROUPS:
         out += [f"\n## {title}\n", "| flag | Python keyword | scene key | default | meaning |",
@@ -82,14 +82,14 @@ def options_markdown() -> str:
 
 def scene_markdown() -> str:
     """docs/scene_format.md: every section and key of a scene file, with its kind."""
-    opts = {o.meta["toml"]: o for o in scene.options().values() if o.meta["toml"]}
+    opts = {o.meta["toml"]: o for o in scene_file.options().values() if o.meta["toml"]}
     kinds = {bool: "true/false", int: "integer", str: "string"}
     out = [HEADER, "# Scene files (TOML)\n",
            "A scene file names one volume (`[volume]`) or one point cloud (`[points]`) and "
            "sets any option below; command-line options win over it, and it wins over the "
            "defaults. Paths are relative to the file. Unknown sections and keys are errors "
            "naming them (`[material].iro`).\n"]
-    for section, keys in scene.SCHEMA.items():
+    for section, keys in scene_file.SCHEMA.items():
         title = "[[lights]]" if section == "lights" else f"[{section}]"
         out += [f"\n## `{title}`\n", "| key | value | meaning |", "|---|---|---|"]
         for key, kind in keys.items():

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cloud import _CHUNK_LINES, _MEMORY_FIX, _Projection
+from .cloud import CHUNK_LINES, MEMORY_FIX, Projection
 from .errors import UserError
 from .files import check_memory
 
@@ -139,7 +139,7 @@ def _parse_ply_header(path, data: bytes):
     return fmt, elements, pos, lineno
 
 
-def _read_ply(f, size, path):
+def read_ply(f, size, path):
     fmt, elements, body, nheader = _read_ply_header(path, f)
     names = [e.name for e in elements]
     if "vertex" not in names:
@@ -206,7 +206,7 @@ def _ply_ascii_vertices(path, f, nbytes, before, vertex, nheader):
     # each value takes at least 2 bytes (a digit and a space or a newline): more rows
     # than that cannot be there, whatever the header says
     rows_possible = min(vertex.count, max(nbytes, 0) // (2 * nprop))
-    projection = _Projection(path, rows_possible)
+    projection = Projection(path, rows_possible)
     parts, got = [], 0
     lines, numbers = [], []
     want = vertex.count if not skip else 0
@@ -217,7 +217,7 @@ def _ply_ascii_vertices(path, f, nbytes, before, vertex, nheader):
             continue
         lines.append(line)
         numbers.append(lineno)
-        if len(lines) == _CHUNK_LINES or got + len(lines) == want:
+        if len(lines) == CHUNK_LINES or got + len(lines) == want:
             part = _ply_ascii_chunk(path, lines, numbers, vertex)
             parts.append(part)
             got += len(lines)
@@ -312,7 +312,7 @@ def _ply_binary_vertices(path, f, size, offset, before, vertex, endian):
                             f"file holds {holds}", path=path,
                             fix="re-export or re-download the file")
         check_memory(need + _cloud_bytes(vertex.count, vertex), path,
-                     f"a cloud of {vertex.count} points", _MEMORY_FIX)
+                     f"a cloud of {vertex.count} points", MEMORY_FIX)
         arr = np.empty(vertex.count, dt)
         f.seek(offset)
         got = f.readinto(arr.view(np.uint8)) if need else 0
@@ -322,7 +322,7 @@ def _ply_binary_vertices(path, f, size, offset, before, vertex, endian):
                             fix="re-export or re-download the file")
         return {name: arr[name] for name in dt.names}
     rest = max(0, size - offset)
-    check_memory(rest * 8, path, "reading this point cloud (rows with lists)", _MEMORY_FIX)
+    check_memory(rest * 8, path, "reading this point cloud (rows with lists)", MEMORY_FIX)
     f.seek(offset)
     data = f.read(rest)
     pos = 0

@@ -18,14 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .cloud import _CHUNK_LINES, MAX_COORDINATE, _MEMORY_FIX, _Projection, _finish, PointCloud  # noqa: F401
+from .cloud import CHUNK_LINES, MEMORY_FIX, PointCloud, Projection, finish_cloud
 from .errors import UserError
 from .files import check_input, check_memory, npy_header
-from .generators import GENERATORS, blob, generate, glass_gather, uniform_box  # noqa: F401
-from .ply import _read_ply
+from .ply import read_ply
 
-__all__ = ["PointCloud", "load_points", "read_points", "blob", "uniform_box", "glass_gather",
-           "generate", "GENERATORS"]
+__all__ = ["load_points", "read_points"]
 
 
 
@@ -58,7 +56,8 @@ def load_points(path) -> PointCloud:
               normals, and 9 are x y z with colours and normals in either order.
     ``.npy``  an (N,3) array of centres or (N,4) with the radius as 4th column.
     ``.las`` / ``.laz``  LiDAR point records through laspy (the `las` extra): the
-              scaled x, y, z and, where the format has them, 16-bit colours.
+              scaled x, y, z and, where the format has them, 16-bit colours. Z-up
+              (ASPRS LAS defines z as elevation): the cloud's up_axis is "z".
 
     Raises UserError on a missing file, an unsupported suffix, a malformed or
     truncated file, zero points, NaN/Inf coordinates, or negative/non-finite radii.
@@ -70,9 +69,9 @@ def load_points(path) -> PointCloud:
                         path=path, fix="use .ply, .xyz, .csv, .txt, .npy, .las or .laz")
     check_input(path, "point-cloud file")
     if suffix == ".npy":
-        return _finish(path, *_read_npy(path))
+        return finish_cloud(path, *_read_npy(path))
     if suffix in (".las", ".laz"):
-        return _finish(path, *_read_las(path))
+        return finish_cloud(path, *_read_las(path))
     with open(path, "rb") as f:
         return read_points(f, suffix, path)
 
@@ -85,7 +84,7 @@ def read_points(f, suffix: str, label="<stream>") -> PointCloud:
         raise UserError(f"unsupported suffix '{suffix or '(none)'}' for a point-cloud stream",
                         path=label, fix="use .ply, .xyz, .csv or .txt")
     size = _stream_size(f)
-    return _finish(label, *_READERS[suffix](f, size, label))
+    return finish_cloud(label, *_READERS[suffix](f, size, label))
 
 
 def _stream_size(f) -> int:
@@ -157,11 +156,11 @@ def _read_text(f, size, path):
     text); the columns from a header's names (x, y, z, radius, red/green/blue or r/g/b,
     nx/ny/nz) or the count (_TEXT_LAYOUT). Returns centres, radii, colours and notes."""
     fix = "give one point per line: x y z [radius] [r g b], or a header naming the columns"
-    projection = _Projection(path, size)
+    projection = Projection(path, size)
     parts, ncols, header_checked, nonblank, header = [], None, False, False, None
     lineno = 0
     while True:
-        chunk = f.readlines(_CHUNK_LINES * 32)
+        chunk = f.readlines(CHUNK_LINES * 32)
         if not chunk:
             break
         raw = b"".join(chunk)
@@ -280,11 +279,11 @@ def load_npy_checked(path, fix: str):
         raise UserError(f"not a readable .npy array ({exc})", path=path, fix=fix) from None
 
 
-_READERS = {".ply": _read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _read_text}
+_READERS = {".ply": read_ply, ".xyz": _read_text, ".csv": _read_text, ".txt": _read_text}
 
 
 def _read_las(path):
-    """(centres, radii, colours, notes) of a LAS/LAZ file through laspy."""
+    """(centres, radii, colours, notes, up axis, why) of a LAS/LAZ file through laspy."""
     try:
         import laspy
     except ImportError:
@@ -293,7 +292,7 @@ def _read_las(path):
     try:
         with laspy.open(path) as reader:
             n = int(reader.header.point_count)
-            check_memory(n * (3 * 8 + 3 * 4) * 3, path, "reading this point cloud", _MEMORY_FIX)
+            check_memory(n * (3 * 8 + 3 * 4) * 3, path, "reading this point cloud", MEMORY_FIX)
             las = reader.read()
     except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
         raise UserError(f"not a readable LAS/LAZ file ({str(exc).splitlines()[0][:160]})",
@@ -306,7 +305,9 @@ def _read_las(path):
         rgb = np.column_stack([las.red, las.green, las.blue]).astype(np.float64)
         if rgb.max() > 0:
             colors = (rgb / (65535.0 if rgb.max() > 255 else 255.0)).astype(np.float32)
-    return centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id})",)
+    offset = ", ".join(f"{v:.10g}" for v in reader.header.offsets)
+    return (centers, None, colors, (f"{path}: {n} LAS points (format {las.point_format.id}, "
+                                    f"offset {offset})",), "z", "ASPRS LAS is Z-up")
 
 
 def _read_npy(path):
@@ -332,17 +333,3 @@ def nn_distances(centers) -> np.ndarray:
     d, _ = cKDTree(centers).query(centers, k=2, workers=-1)
     nn = d[:, 1]
     return nn[np.isfinite(nn) & (nn > 0)]
-
-
-def nn_spacing(centers, percentile=50) -> float:
-    """A percentile (default: the median) of nn_distances, 0 when no two points differ."""
-    nn = nn_distances(centers)
-    return float(np.percentile(nn, percentile)) if nn.size else 0.0
-
-
-def default_radius(centers, fallback: float = 0.5) -> float:
-    """Half the median nearest-neighbour spacing of the points (nn_spacing), or
-    ``fallback`` when no spacing can be measured (a single point, or all points
-    coincident)."""
-    med = nn_spacing(centers)
-    return 0.5 * med if med > 0 else float(fallback)

@@ -52,12 +52,14 @@ class Image:
     def height(self) -> int:
         return self.rgba.shape[0]
 
-    def save(self, path, *, exposure: float = 0.0, tonemap: str = "filmic",
-             png_bits: int = 8, transparent: bool | None = None) -> Path:
-        """Write .exr (linear RGBA plus the AOVs), .npy or .png (tone-mapped sRGB: opaque,
-        or with transparent (default: the scene's --transparent) straight alpha:
+    def save(self, path, *, exposure: float = 0.0, view: str | None = None,
+             tonemap: str = "filmic", png_bits: int = 8, transparent: bool | None = None) -> Path:
+        """Write .exr (linear RGBA plus the AOVs), .npy or .png (sRGB through the view
+        transform `view`, image.VIEWS; `tonemap` is its older name: opaque, or with
+        transparent (default: the scene's --transparent) straight alpha:
         image.png_pixels), atomically."""
         from .image import write_image
+        tonemap = view or tonemap
         if transparent is None:
             transparent = bool(self.info.get("transparent", False))
         return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
@@ -65,17 +67,50 @@ class Image:
                            background=self.info.get("background"),
                            png_alpha="straight" if transparent else "opaque")
 
-    def _repr_png_(self) -> bytes:
-        """The image as PNG bytes (Jupyter shows an Image with it): tone-mapped sRGB as
-        `save` writes a .png (opaque unless the scene is transparent)."""
-        import io
+    @property
+    def seconds(self) -> float:
+        """The render's time as the CLI reports it: set-up (packing, program, uploads)
+        plus the launches up to the read-back."""
+        return (self.info.get("setup_ms", 0.0) + self.wall_ms) / 1e3
+
+    def __repr__(self) -> str:
+        """One line: `<volrender.Image 320x240, 4 spp, pthread-..., 1.23 s>`."""
+        spp = self.info.get("spp")
+        return (f"<volrender.Image {self.width}x{self.height}"
+                + (f", {spp} spp" if spp is not None else "")
+                + f", {self.device}, {self.seconds:.2f} s>")
+
+    def __array__(self, dtype=None, copy=None):
+        """np.asarray(image): the H x W x 4 linear premultiplied RGBA (float32)."""
+        import numpy as np
+        out = self.rgba if dtype is None else self.rgba.astype(dtype, copy=False)
+        return out.copy() if copy else out
+
+    def to_pil(self, *, exposure: float = 0.0, view: str | None = None, tonemap: str = "filmic"):
+        """A PIL.Image (RGBA, 8-bit sRGB): what `save` writes to a .png (opaque unless the
+        scene is transparent)."""
         from PIL import Image as PILImage
         from .image import png_pixels
+        tonemap = view or tonemap
         alpha = "straight" if self.info.get("transparent") else "opaque"
-        codes = png_pixels(self.rgba, background=self.info.get("background"), alpha=alpha)
+        codes = png_pixels(self.rgba, exposure, tonemap, background=self.info.get("background"),
+                           alpha=alpha)
+        return PILImage.fromarray(codes, "RGBA")
+
+    def _repr_png_(self) -> bytes:
+        """The image as PNG bytes (Jupyter shows an Image with it): `to_pil`'s pixels."""
+        import io
         buf = io.BytesIO()
-        PILImage.fromarray(codes, "RGBA").save(buf, format="PNG")
+        self.to_pil().save(buf, format="PNG")
         return buf.getvalue()
+
+    def _repr_html_(self) -> str:
+        """The picture with the repr's line under it (Jupyter prefers it to the PNG)."""
+        import base64
+        import html
+        data = base64.b64encode(self._repr_png_()).decode("ascii")
+        return (f'<div><img src="data:image/png;base64,{data}" width="{self.width}" '
+                f'height="{self.height}"/><br/><code>{html.escape(repr(self))}</code></div>')
 
     def as_dict(self) -> dict:
         """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
@@ -158,7 +193,8 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=scene.settings.spp, launch=launch)
+                   dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
+                   launch=launch)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -176,7 +212,7 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
     return Image(rgba=rgba, aovs=aovs, kernel_ms=run.kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
-                       **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                       "spp": scene.settings.spp, **plan.info, "setup_ms": setup_ms, "launches": run.launches,
                        "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 
 

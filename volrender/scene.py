@@ -13,7 +13,7 @@ file, whose values win over the defaults, which live once, in the settings class
 (VolumeSettings, GlassSettings, camera.View). An option the scene's kind does not read is
 an error naming it (pbrt's unused-parameter rule).
 
-Scene files (TOML) are validated in two steps: `read`/`parse` check each key's type and
+Scene files (TOML) are validated in two steps: `scene_file.read`/`parse` check each key's type and
 reject unknown keys and sections by full path (`[material].iro`); `load_scene` then checks
 ranges and kinds, naming the file and `[section].key`. Paths resolve relative to the file.
 
@@ -35,22 +35,21 @@ ranges and kinds, naming the file and `[section].key`. Paths resolve relative to
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
+from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError, option_name, suggest
-from .settings import (ENV, NUM, PATH, SIZE, STRS, VEC, VEC3, CommonSettings, check_value,
-                       knobs, override_key)
+from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value, coerce
+from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, finite, options, read
+from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
-MAX_COUNT = 50_000_000          # [points].count and GENERATOR:COUNT
 VOLUME_SUFFIXES = (".vdb", ".npz")
 POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy", ".las", ".laz")
 KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
@@ -62,13 +61,18 @@ KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 class VolumeContent:
     """A volume's bricks and settings. The bricks' arrays are uploaded on the first render
     on a device and kept there (`buffer`): later renders of the scene upload none of them."""
-    bricks: object                    # vdb.Bricks
+    bricks: object                    # bricks.Bricks
     settings: object                  # volume.VolumeSettings
     store: dict = field(default_factory=dict, compare=False, repr=False)
     kind: ClassVar[str] = "volume"
 
     def bounds(self):
         return self.bricks.world_bounds()
+
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the corners of the boxes
+        of its non-zero voxels (bricks.Bricks.occupied_corners)."""
+        return self.bricks.occupied_corners(), 0.0
 
     def buffer(self, device, name):
         """The device copy of bricks.<name> ("table", "data", "emission" or
@@ -80,42 +84,107 @@ class VolumeContent:
             self.store[key] = upload(device.context, np.asarray(getattr(self.bricks, name), dtype))
         return self.store[key]
 
+    @classmethod
+    def load(cls, req, reuse=None, timings=None, device=None):
+        """(content, notes, fire) of a volume Request: the bricks (those of `reuse`, a
+        Scene, when they are what req would read), the fire defaults of a Mantaflow cache
+        (its exposure, or smoke for an all-zero flame grid) and the automatic estimator
+        (for the request's pixels on `device`)."""
+        from . import vdb
+        from .volume import auto_estimator
+        settings, notes, fire = req.settings, [], False
+        if req.origin != "array":
+            path = req.doc["volume"]["file"] if req.doc else Path(req.source)
+            settings, note = _fire_defaults(path, settings, req.given)
+            fire = note is not None
+            notes += [note] if note else []
+        old = req._reusable(reuse, settings)
+        if old is not None:
+            bricks = old.bricks
+        elif req.origin == "array":
+            bricks = _array_content(req.array, "volume")
+        else:
+            bricks = vdb.load_volume(path, grid=settings.grid,
+                                     emission_grid=settings.emission_grid,
+                                     temperature_grid=settings.temperature_grid)
+        if fire:
+            bricks, settings, more, fire = _fire_loaded(bricks, settings, req.given)
+            notes = (notes if fire else [n for n in notes if not n.startswith("fire:")]) + more
+        w, h = req.view.size
+        settings, note = auto_estimator(bricks, settings, int(w) * int(h), device)
+        notes += [note] if note else []
+        return cls(bricks, settings, **({"store": old.store} if old else {})), notes, fire
+
 
 @dataclass(frozen=True, eq=False)
 class GlassContent:
     """A point cloud and its glass settings. The packed spheres, tree and support cells
     are built on the first render on a device and kept (`prepare`): renders with another
     camera, size, spp or lights reuse them; `dataclasses.replace` keeps the store, so
-    settings the acceleration does not read (glass.ACCEL_FIELDS) reuse it too."""
-    cloud: object                     # points.PointCloud
+    settings the acceleration does not read (spheres.ACCEL_FIELDS) reuse it too."""
+    cloud: object                     # cloud.PointCloud
     settings: object                  # glass.GlassSettings
-    store: dict = field(default_factory=dict, compare=False, repr=False)
+    store: BuildCache = field(default_factory=BuildCache, compare=False, repr=False)
     kind: ClassVar[str] = "glass"
 
     def bounds(self):
-        from .glass import sphere_bounds, sphere_radii
         return sphere_bounds(self.cloud, sphere_radii(self.cloud, self.settings))
 
+    def extent(self):
+        """(points, radii) the default camera fits (framing.fit): the spheres, each grown by
+        how far the smooth union's surface reaches beyond them (framing.blend_growth)."""
+        from .framing import blend_growth
+        from .spheres import blend_width
+        centres = np.asarray(self.cloud.centers, np.float64)
+        radii = sphere_radii(self.cloud, self.settings)
+        k = blend_width(radii, self.settings) if len(radii) else 0.0
+        return centres, radii + blend_growth(centres, radii, k)
+
     def prepare(self, device=None, samples=None, max_runs=None, tree_on="auto"):
-        """The glass.PackedSpheres of this cloud and settings on `device`, built once (the
+        """The spheres.PackedSpheres of this cloud and settings on `device`, built once (the
         first call's samples, pixels x spp, set the automatic cell edge's budget, and its
         max_runs caps the cells' list runs: cells.build, and its tree_on where the tree is
-        built: glass.pack_scene); later calls return it."""
-        from . import device as device_mod, glass
+        built: spheres.pack_scene); later calls return it."""
         dev = device_mod.resolve(device)
-        key = (dev.device.int_ptr, *(getattr(self.settings, f) for f in glass.ACCEL_FIELDS))
-        hit = self.store.get(key)
-        if hit is not None and hit[0] is self.cloud:
-            return hit[1]
-        packed = glass.pack_scene(self.cloud, self.settings, dev, samples, max_runs, tree_on)
-        self.store[key] = (self.cloud, packed)
-        self.store["builds"] = self.store.get("builds", 0) + 1
-        return packed
+        return self.store.packed_for(self.cloud, self.settings, dev, lambda: pack_scene(
+            self.cloud, self.settings, dev, samples, max_runs, tree_on))
 
     @property
     def builds(self) -> int:
         """How many times `prepare` built the acceleration."""
-        return self.store.get("builds", 0)
+        return self.store.builds
+
+    @classmethod
+    def load(cls, req, reuse=None, timings=None, device=None):
+        """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
+        when it is what req would read) and, for a cloud without radii, the radius and
+        blend of its spacing (spheres.scan_defaults; its time in timings["radii"])."""
+        import time
+        from . import generators, points
+        settings = req.settings
+        old = req._reusable(reuse, settings)
+        if old is not None:
+            cloud = old.cloud
+        elif req.origin == "array":
+            cloud = _array_content(req.array, "glass")
+        elif req.origin == "scene":
+            pts = req.doc["points"]
+            if "file" in pts:
+                cloud = points.load_points(pts["file"])
+            else:
+                cloud = generators.generate(pts["generator"], pts["count"], pts.get("seed", 0))
+        elif req.origin == "generator":
+            cloud = generated_cloud(req.source, settings.seed)
+        else:
+            cloud = points.load_points(req.source)
+        notes = list(cloud.notes)
+        if cloud.radii is None and (settings.radius is None or settings.blend is None):
+            t1 = time.perf_counter()
+            settings, note = scan_defaults(cloud, settings, old.store if old else None)
+            if timings is not None:
+                timings["radii"] = time.perf_counter() - t1
+            notes.append(note)
+        return cls(cloud, settings, **({"store": old.store} if old else {})), notes, False
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,205 +247,11 @@ class Scene:
         return dataclasses.replace(self, content=content)
 
 
-# --------------------------------------------------------------------------- options
-
-@dataclass(frozen=True)
-class Option:
-    key: str                          # override keyword (CLI flag with underscores)
-    field: str                        # settings field it sets
-    owner: str                        # "common", "volume", "glass" or "view"
-    meta: dict
-
-    @property
-    def flag(self) -> str:
-        return "--" + self.key.replace("_", "-")
-
-
-def _options() -> dict[str, Option]:
-    from .glass import GlassSettings
-    from .volume import VolumeSettings
-    out = {}
-    common = {f.name for f, _ in knobs(CommonSettings)}
-    for cls, owner in ((View, "view"), (CommonSettings, "common"), (VolumeSettings, "volume"),
-                       (GlassSettings, "glass")):
-        for f, meta in knobs(cls):
-            if owner != "common" and f.name in common:
-                continue
-            key = override_key(f, meta)
-            out[key] = Option(key, f.name, owner, meta)
-    return out
-
-
-LIGHT_KEYS = ("sun", "point_light", "no_lights", "lights")
-EXTRA_KEYS = LIGHT_KEYS + ("camera",)     # override keys that are not settings fields
-
-
-@functools.lru_cache(maxsize=None)
-def options() -> dict[str, Option]:
-    """Every override key -> Option (the CLI builds its render options from these)."""
-    return _options()
-
-
-# --------------------------------------------------------------------------- scene files
-
-def _schema() -> dict:
-    """Scene-file sections -> key -> value kind (bool, int, str or settings.NUM ...)."""
-    schema = {"points": {"file": PATH, "generator": str, "count": int, "seed": int},
-              "volume": {"file": PATH}, "material": {}, "camera": {},
-              "lights": {"type": str, "direction": VEC3, "irradiance": NUM, "position": VEC3,
-                         "intensity": NUM, "color": VEC3},
-              "environment": {}, "render": {}}
-    for opt in options().values():
-        if opt.meta["toml"]:
-            section, key = opt.meta["toml"]
-            schema[section][key] = opt.meta["kind"]
-    return schema
-
-
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _check_type(value, kind, where, base: Path):
-    def bad(want):
-        raise UserError(f"{where} must be {want}, got {value!r}")
-    if kind is bool:
-        return value if isinstance(value, bool) else bad("true or false")
-    if kind is int:
-        return value if isinstance(value, int) and not isinstance(value, bool) else bad("an integer")
-    if kind is str:
-        return value if isinstance(value, str) else bad("a string")
-    if kind == NUM:
-        return float(value) if _finite(value) else bad("a finite number")
-    if kind == ENV:              # a uniform R,G,B or a map file
-        return _check_type(value, VEC if isinstance(value, (list, int, float)) else PATH,
-                           where, base)
-    if kind == VEC and _finite(value):
-        value = [value]          # one number = one value (e.g. albedo = 0.9)
-    if kind in (VEC3, VEC):
-        n = (3,) if kind == VEC3 else (1, 2, 3)
-        if not (isinstance(value, list) and len(value) in n and all(map(_finite, value))):
-            bad("a list of 3 finite numbers" if kind == VEC3 else "a list of 1 to 3 finite numbers")
-        return tuple(float(v) for v in value)
-    if kind == SIZE:
-        if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32768
-                           for v in value)):
-            bad("[width, height] with integers 1..32768")
-        return tuple(value)
-    if kind == STRS:
-        if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
-            bad("a list of strings")
-        return tuple(value)
-    if kind == PATH:
-        if not isinstance(value, str) or not value:
-            bad("a file path")
-        try:        # a NUL byte or an over-long name raise ValueError / OSError here
-            path = (base / value).resolve()        # a loop raises RuntimeError on 3.11
-            exists, is_dir = path.exists(), path.is_dir()
-        except (OSError, ValueError, RuntimeError) as exc:
-            reason = getattr(exc, "strerror", None) or str(exc)
-            raise UserError(f"{where} is not a usable file path ({reason}): {value[:80]!r}",
-                            fix="give the path of an existing file") from None
-        if not exists:
-            raise UserError(f"{where} names {value!r}, which does not exist (paths are relative "
-                            f"to the scene file)")
-        if is_dir:
-            raise UserError(f"{where} names {value!r}, which is a directory",
-                            fix="give the path of a file")
-        from .files import check_input
-        try:
-            check_input(path, "file")
-        except UserError as exc:             # a FIFO, a device, an unreadable file
-            raise UserError(f"{where} names {value!r}: {str(exc).split(': ', 1)[-1]}") from None
-        return path
-    raise AssertionError(kind)
-
-
-def _section(table, name, where, base):
-    if not isinstance(table, dict):
-        raise UserError(f"{where} must be a table")
-    schema = SCHEMA[name]
-    out = {}
-    for key, value in table.items():
-        if key not in schema:
-            close = suggest(key, schema, lambda k: f"{where}.{k}")
-            raise UserError(f"unknown key {where}.{key}" + (f"; {close}" if close else ""),
-                            fix=f"known keys: {', '.join(sorted(schema))}")
-        out[key] = _check_type(value, schema[key], f"{where}.{key}", base)
-    return out
-
-
-def read(path) -> dict:
-    """Parse and type-check a scene file: {section: {key: value}}, 'lights' a list, paths
-    resolved relative to the file."""
-    from .files import check_input
-    from .files import read_toml
-    path = check_input(path, "scene file")
-    raw = read_toml(path, "scene file")
-    try:
-        return parse(raw, path.parent)
-    except UserError as exc:
-        raise UserError(str(exc), path=path) from None
-
-
-def parse(raw: dict, base: Path = Path(".")) -> dict:
-    scene = {}
-    for name, table in raw.items():
-        if name not in SCHEMA:
-            close = suggest(name, SCHEMA, lambda k: f"[{k}]")
-            raise UserError(f"unknown section [{name}]" + (f"; {close}" if close else ""),
-                            fix=f"known sections: {', '.join(sorted(SCHEMA))}")
-        if name == "lights":
-            if not isinstance(table, list):
-                raise UserError("lights must be an array of tables: write [[lights]]")
-            scene[name] = [_light(_section(t, name, f"[[lights]] #{i + 1}", base), i)
-                           for i, t in enumerate(table)]
-        else:
-            scene[name] = _section(table, name, f"[{name}]", base)
-    pts, vol = scene.get("points"), scene.get("volume")
-    if pts is None and vol is None:
-        raise UserError("the scene has no [points] or [volume] section",
-                        fix="add [points] with file = ... or generator = ..., or [volume] with file = ...")
-    if pts is not None and vol is not None:
-        raise UserError("the scene has both [points] and [volume]; a scene renders one of them")
-    if vol is not None:
-        if "file" not in vol:
-            raise UserError("[volume] needs file = ...")
-        for section in ("material",):
-            if section in scene:
-                raise UserError(f"[{section}] applies to point clouds (molten glass), not to "
-                                "a [volume]", fix=f"remove [{section}]")
-        return scene
-    if ("file" in pts) == ("generator" in pts):
-        raise UserError("[points] needs exactly one of file = ... or generator = ...")
-    if "generator" in pts and "count" not in pts:
-        raise UserError("[points].generator needs count = N")
-    if "count" in pts and not 1 <= pts["count"] <= MAX_COUNT:
-        raise UserError(f"[points].count must be in [1, 5e7], got {pts['count']}")
-    return scene
-
-
-def _light(d, i):
-    where = f"[[lights]] #{i + 1}"
-    kind = d.get("type")
-    need = {"sun": ("direction",), "point": ("position",)}
-    if kind not in need:
-        raise UserError(f"{where}.type must be \"sun\" or \"point\", got {kind!r}")
-    for key in need[kind]:
-        if key not in d:
-            raise UserError(f"{where} ({kind}) needs {key}")
-    extra = {"sun": {"position", "intensity"}, "point": {"direction", "irradiance"}}[kind] & set(d)
-    if extra:
-        raise UserError(f"{where}: a {kind} light has no {', '.join(sorted(extra))}")
-    return d
-
-
 # --------------------------------------------------------------------------- resolving
 
 def source_kind(source) -> str:
     """'volume', 'points', 'scene' or 'generator' for a render input."""
-    from . import points
+    from . import generators
     if isinstance(source, np.ndarray):
         return "array"
     if not isinstance(source, (str, Path)) and not hasattr(source, "__fspath__"):
@@ -390,12 +265,12 @@ def source_kind(source) -> str:
         return "points"
     if suffix == ".toml":
         return "scene"
-    if ":" in text and text.split(":", 1)[0] in points.GENERATORS:
+    if ":" in text and text.split(":", 1)[0] in generators.GENERATORS:
         return "generator"
     raise UserError(f"unsupported input type {suffix or '(none)'!r}", path=text,
                     fix=f"give a volume ({', '.join(VOLUME_SUFFIXES)}), points "
                         f"({', '.join(POINT_SUFFIXES)}), a scene (.toml) or GENERATOR:COUNT "
-                        f"with GENERATOR one of {', '.join(points.GENERATORS)}")
+                        f"with GENERATOR one of {', '.join(generators.GENERATORS)}")
 
 
 def check_array(a) -> str:
@@ -414,13 +289,13 @@ def check_array(a) -> str:
 def _array_content(a, kind):
     """Bricks of a dense volume (voxel (i, j, k) at world (i, j, k)) or the PointCloud of
     an (N, 3) / (N, 4) array."""
-    from .cloud import _finish
+    from .cloud import finish_cloud
     label = f"array {'x'.join(map(str, a.shape))}"
     if kind == "volume":
-        from .vdb import Bricks
+        from .bricks import Bricks
         return Bricks.from_dense(np.asarray(a, np.float32))
     a = np.asarray(a, np.float64)
-    return _finish(label, a[:, :3], a[:, 3].copy() if a.shape[1] == 4 else None, None)
+    return finish_cloud(label, a[:, :3], a[:, 3].copy() if a.shape[1] == 4 else None, None)
 
 
 def generated_cloud_count(text: str) -> int:
@@ -438,8 +313,8 @@ def generated_cloud_count(text: str) -> int:
 
 def generated_cloud(text: str, seed: int = 0):
     """PointCloud from GENERATOR:COUNT."""
-    from . import points
-    return points.generate(text.partition(":")[0], generated_cloud_count(text), seed)
+    from . import generators
+    return generators.generate(text.partition(":")[0], generated_cloud_count(text), seed)
 
 
 def _explicit(overrides) -> set:
@@ -473,9 +348,9 @@ def _python_value(opt, value, where):
             raise UserError(str(exc)) from None
     if kind == STRS and isinstance(value, str):
         return (value,)
-    if kind == ENV and _finite(value):
+    if kind == ENV and finite(value):
         return (float(value),)               # env=0.5: a grey uniform radiance
-    if kind in (VEC, VEC3) and _finite(value) and check is not None and check((value,)) is None:
+    if kind in (VEC, VEC3) and finite(value) and check is not None and check((value,)) is None:
         return (float(value),)
     return value
 
@@ -486,11 +361,11 @@ def _light_values(key, value, where):
     from .lights import PointLight, Sun
     value = _plain(value) if key != "lights" else value
     if key in ("sun", "point_light"):
-        if isinstance(value, tuple) and value and all(_finite(v) for v in value):
+        if isinstance(value, tuple) and value and all(finite(v) for v in value):
             value = (value,)                 # one light given as one tuple
         what = "DX,DY,DZ,E" if key == "sun" else "X,Y,Z,I"
         if not isinstance(value, tuple) or not all(
-                isinstance(v, tuple) and len(v) == 4 and all(map(_finite, v)) for v in value):
+                isinstance(v, tuple) and len(v) == 4 and all(map(finite, v)) for v in value):
             raise UserError(f"{where} takes 4 finite numbers ({what}) or a list of such "
                             f"tuples, got {value!r}")
         value = tuple(tuple(float(c) for c in v) for v in value)
@@ -569,6 +444,7 @@ def _field_values(given, owners):
             continue
         opt = options()[key]
         if opt.owner in owners:
+            value = coerce(opt.meta, value)
             check_value(opt.meta, value, where)
             out[opt.field] = value
     return out
@@ -626,57 +502,59 @@ def _lights(given, doc, path=None):
     return None                           # the defaults, turned to the up axis by load()
 
 
-def _scan_defaults(cloud, settings, store=None):
-    """Radius and blend of a cloud without radii (a scan), from its exact nearest-neighbour
-    spacings: radius half the median, blend glass.SCAN_BLEND times the SCAN_PERCENTILE-th
-    percentile (neighbours melt into one surface, also where the scan is sparser). Returns
-    (settings, note)."""
-    from . import points
-    from .glass import SCAN_BLEND, SCAN_PERCENTILE
-    if store is not None and "spacing" in store:      # Scene.replace: the same cloud
-        s, far = store["spacing"]
-    else:
-        nn = points.nn_distances(cloud.centers)
-        s, far = (np.percentile(nn, [50, SCAN_PERCENTILE]) if nn.size else (0.0, 0.0))
-        if store is not None:
-            store["spacing"] = (s, far)
-    radius = settings.radius if settings.radius is not None else (0.5 * s if s > 0 else 0.5)
-    blend = settings.blend if settings.blend is not None else \
-        (SCAN_BLEND * far if far > 0 else 2.0 * radius)
-    settings = dataclasses.replace(settings, radius=radius, blend=blend)
-    return settings, (f"{len(cloud.centers)} points without radii, nearest-neighbour spacing "
-                      f"{s:.4g} (median), {far:.4g} ({SCAN_PERCENTILE}th percentile): radius "
-                      f"{radius:.4g}, blend {blend:.4g}; set --radius, --blend")
-
-
 def _fire_defaults(path, settings, given):
-    """(settings, note): a Blender Mantaflow cache (vdb.mantaflow_cache, by its grid set)
+    """(settings, note): a Blender Mantaflow cache (vdb_header.mantaflow_cache, by its grid set)
     with non-empty `flame` and `temperature` grids renders as fire unless told otherwise:
     emission from flame, each voxel's blackbody colour and brightness (the intensity law,
     blackbody.py) at 1000 K per temperature unit, Blender's Principled Volume default (the
-    cache stores temperature in units of it; it carries no kelvin of its own).
-    --emission-grid none turns it off."""
-    from . import vdb
+    cache stores temperature in units of it; it carries no kelvin of its own). Naming
+    either grid yourself on such a cache gives the same (issue 33): the other grid and the
+    1000 K are filled in unless given. --emission-grid none turns it off. The exposure
+    and an all-zero flame grid are decided once the grids are read (_fire_loaded)."""
+    from . import vdb, vdb_header
     if settings.emission_grid in ("", "none"):
         return dataclasses.replace(settings, emission_grid=None), None
-    if Path(path).suffix.lower() != ".vdb" or settings.emission_grid is not None \
-            or settings.temperature_grid is not None:
+    if Path(path).suffix.lower() != ".vdb":
         return settings, None
     grids = vdb.list_grids(path)
-    why = vdb.mantaflow_cache(grids)
+    why = vdb_header.mantaflow_cache(grids)
     by = {g.name: g for g in grids}
-    if not why or "flame" not in by or "temperature" not in by \
-            or by["flame"].value_type != "float" or by["temperature"].value_type != "float" \
-            or not by["flame"].active_voxels:
+    emission = settings.emission_grid or "flame"
+    temperature = settings.temperature_grid or "temperature"
+    if not why or emission not in by or temperature not in by \
+            or by[emission].value_type != "float" or by[temperature].value_type != "float" \
+            or not by[emission].active_voxels:
         return settings, None
-    changes = {"emission_grid": "flame", "temperature_grid": "temperature"}
+    if settings.emission_grid is not None and settings.temperature_grid is None:
+        return settings, None          # an emission grid named alone: coloured, as asked
+    changes = {"emission_grid": emission, "temperature_grid": temperature}
     if "temperature_scale" not in given:
         changes["temperature_scale"] = 1000.0
     settings = dataclasses.replace(settings, **changes)
-    return settings, (f"fire: {why}; emission from grid 'flame', blackbody colour and "
+    return settings, (f"fire: {why}; emission from grid {emission!r}, blackbody colour and "
                       f"brightness (T^4) of {settings.temperature_offset:g} + "
-                      f"{settings.temperature_scale:g} K x 'temperature'; --emission-grid none "
+                      f"{settings.temperature_scale:g} K x {temperature!r}; --emission-grid none "
                       "turns it off")
+
+
+def _fire_loaded(bricks, settings, given):
+    """(bricks, settings, notes, fire) once the grids are read: an emission grid of zeros
+    is smoke (the emission dropped, the normal sky); else, unless --emission-scale is
+    given, the exposure chosen from the emission's statistics (volrender/fire.py)."""
+    from . import fire
+    if fire.is_empty(bricks):
+        bricks = dataclasses.replace(bricks, emission=None, emission_max=None, temperature=None,
+                                     emission_grid_name=None, temperature_grid_name=None)
+        note = (f"fire: none: grid {settings.emission_grid!r} holds only zeros: rendered as "
+                "smoke under the normal sky")
+        settings = dataclasses.replace(settings, emission_grid=None, temperature_grid=None)
+        return bricks, settings, [note], False
+    if "emission_scale" in given:
+        return bricks, settings, [], True
+    scale, note = fire.exposure(bricks, settings)
+    if scale is None:
+        return bricks, settings, [], True
+    return bricks, dataclasses.replace(settings, emission_scale=scale), [note], True
 
 
 def _environment(path, where):
@@ -744,89 +622,47 @@ class Request:
             out.append(self.camera_file)
         return tuple(dict.fromkeys(p.resolve() for p in out))
 
-    def load(self, reuse=None) -> Scene:
+    def load(self, reuse=None, device=None) -> Scene:
         """The Scene; `reuse`: a Scene whose bricks or cloud (and device builds) serve this
-        one when they are what it would read (Scene.replace)."""
+        one when they are what it would read (Scene.replace); `device`: the one it will
+        render on, which --estimator auto weighs (None: a CPU)."""
         import time
         t0 = time.perf_counter()
         timings = {}
         notes = []
-        settings = self.settings
         environment = None
-        fire = False
-        if self.kind == "volume":
-            from . import vdb
-            if self.origin != "array":
-                path = self.doc["volume"]["file"] if self.doc else Path(self.source)
-                settings, note = _fire_defaults(path, settings, self.given)
-                fire = note is not None
-                notes += [note] if note else []
-            old = self._reusable(reuse, settings)
-            if old is not None:
-                bricks = old.bricks
-            elif self.origin == "array":
-                bricks = _array_content(self.array, "volume")
-            else:
-                bricks = vdb.load_volume(path, grid=settings.grid,
-                                         emission_grid=settings.emission_grid,
-                                         temperature_grid=settings.temperature_grid)
-            from .volume import auto_estimator
-            settings, note = auto_estimator(bricks, settings)
-            notes += [note] if note else []
-            content = VolumeContent(bricks, settings, **({"store": old.store} if old else {}))
-        else:
-            from . import points
-            old = self._reusable(reuse, settings)
-            if old is not None:
-                cloud = old.cloud
-            elif self.origin == "array":
-                cloud = _array_content(self.array, "glass")
-            elif self.origin == "scene":
-                pts = self.doc["points"]
-                if "file" in pts:
-                    cloud = points.load_points(pts["file"])
-                else:
-                    cloud = points.generate(pts["generator"], pts["count"], pts.get("seed", 0))
-            elif self.origin == "generator":
-                cloud = generated_cloud(self.source, settings.seed)
-            else:
-                cloud = points.load_points(self.source)
-            notes += list(cloud.notes)
-            if cloud.radii is None and (settings.radius is None or settings.blend is None):
-                t1 = time.perf_counter()
-                settings, note = _scan_defaults(cloud, settings, old.store if old else None)
-                timings["radii"] = time.perf_counter() - t1
-                notes.append(note)
-            content = GlassContent(cloud, settings, **({"store": old.store} if old else {}))
+        cls = VolumeContent if self.kind == "volume" else GlassContent
+        content, load_notes, fire = cls.load(self, reuse, timings, device)
+        notes += load_notes
+        settings = content.settings
         if settings.env is not None:
             environment = _environment(settings.env, self.given["env"][1])
         lo, hi = content.bounds()
-        hint, why = (content.bricks.up_axis, content.bricks.up_axis_reason) \
-            if self.kind == "volume" else (None, "")
+        held = content.bricks if self.kind == "volume" else content.cloud
+        hint, why = getattr(held, "up_axis", None), getattr(held, "up_axis_reason", "")
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
-        camera = self.view.camera(lo, hi, hint)
+        camera = self.view.camera(lo, hi, hint, extent=content.extent())
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
-            from .lights import FIRE_LIGHT, SKY_SCALE, sky_texels
-            frame = up_frame(self.view.axis(hint))
+            from .lights import FIRE_LIGHT, default_sky
             dim = FIRE_LIGHT if fire and self.lights is None else 1.0
-            environment = Environment(sky_texels((0.0, 1.0, 0.0) if frame is None
-                                                 else tuple(frame[:, 1]), scale=SKY_SCALE * dim),
+            environment = Environment(default_sky(up_frame(self.view.axis(hint)), dim),
                                       "default sky")
             if self.lights is None:
                 notes.append("lights: the default sun and sky" + (f" at {dim:g} (dusk: the fire's "
                              "own light dominates)" if dim != 1.0 else "") + " (--env 0 for no "
                              "sky, --sun or --no-lights for other lights)")
+        if environment is None and self.kind == "glass" and self.view.axis(hint) != "y":
+            from .camera import up_frame     # glass's procedural sky, turned to the up axis
+            from .lights import glass_sky_texels
+            environment = Environment(glass_sky_texels(up_frame(self.view.axis(hint))),
+                                      "default sky (z up)")
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             from .camera import up_frame
-            from .lights import DEFAULT_LIGHTS, FIRE_LIGHT, Sun
-            frame = up_frame(self.view.axis(hint))
-            dim = FIRE_LIGHT if fire else 1.0
-            lights = tuple(Sun(tuple(frame @ np.asarray(l.direction)) if frame is not None
-                               else l.direction, l.irradiance * dim, l.color)
-                           for l in DEFAULT_LIGHTS)
+            from .lights import FIRE_LIGHT, default_suns
+            lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
         timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes), timings, request=self)
@@ -887,7 +723,6 @@ def load_scene(source, **overrides) -> Scene:
     return request(source, **overrides).load()
 
 
-SCHEMA = _schema()
 # the flags errors.spell writes as Python keywords: the options, the lights and the
 # keywords of render_sequence and Image.save that the CLI has as flags
 KEYWORDS.update(options(), EXTRA_KEYS, ("frames", "workers", "scheduler", "chunk",

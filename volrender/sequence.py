@@ -4,9 +4,11 @@
     volrender render 'particles_####.ply' -o 'out/glass_####.png' --frames 1-48
     volrender.render_sequence("smoke_####.vdb", "out/smoke_####.exr", frames="1-240")
 
-Patterns: `####` (any number of #: zero-padded to that width), `%04d` / `%d` (printf),
-or a glob (`smoke_*.vdb`: the frame number is the last run of digits in each name).
-`--frames A-B[:STEP]` (also `N`, and comma-separated lists) picks frames; missing input
+Patterns: `####` or `@@@@` (any number: zero-padded to that width), `$F4` (Houdini),
+`%04d` / `%d` (printf), or a glob (`smoke_*.vdb`: the frame number is the last run of
+digits in each name); fileseq reads the padding. `--frames A-B[:STEP]` (also `A-BxSTEP`
+and `A-BySTEP` as VFX tools write them, `N`, and comma-separated lists; fileseq expands
+them) picks frames; missing input
 frames are named before anything renders. The camera is resolved once, from the union
 of every frame's bounds (volumes: read from the files' metadata, no voxels loaded; point
 clouds: each frame read once), or from the options / `--camera`; the other options
@@ -41,6 +43,10 @@ from .errors import UserError, one_line_if_uncaught
 
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
+# padding as VFX tools write it (fileseq reads its width): @@@@ (one digit each, as
+# Houdini and Nuke), $F4 (Houdini); names an existing file does not count as a pattern
+_VFX = re.compile(r"@+|\$F\d*")
+_TOKEN = re.compile(r"#+|%0?\d*d|@+|\$F\d*")
 _GLOB = re.compile(r"[*?\[]")
 MAX_WIDTH = 32                  # digits a frame number is padded to, at most
 CPU_CORES_PER_WORKER = 8        # default LocalCluster size on CPUs: one worker per 8 cores
@@ -106,24 +112,42 @@ def _glob_regex(pattern: str) -> str:
 
 
 def is_pattern(text: str) -> bool:
+    if _VFX.search(text) and not _is_file(text):
+        return True
     return bool(_HASHES.search(text) or _PRINTF.search(text) or _GLOB.search(Path(text).name))
 
 
+def _is_file(text) -> bool:
+    try:
+        return Path(text).is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def _padding(token: str) -> int:
+    """The digits a frame token pads to, as fileseq reads it (one per # or @, $F4: 4,
+    %04d: 4); widths of more than 4 digits are refused before they are read."""
+    import fileseq
+    digits = re.sub(r"\D", "", token)
+    if len(digits) > 4:
+        return MAX_WIDTH + 1
+    if token.startswith("%") and not digits:
+        return 0                       # %d: no padding
+    return fileseq.getPaddingNum(token, pad_style=fileseq.PAD_STYLE_HASH1)
+
+
 def parse_pattern(text: str, *, output=False) -> Pattern:
-    """A Pattern from `####`, `%04d` or (inputs only) a glob; one frame token only."""
+    """A Pattern from `####`, `%04d`, `@@@@`, `$F4` (fileseq reads the padding) or (inputs
+    only) a glob; one frame token only (a file's own name with @ in it is no pattern)."""
     text = str(text)
-    tokens = _HASHES.findall(text) + [m.group(0) for m in _PRINTF.finditer(text)]
+    rx = _TOKEN if not (_VFX.search(text) and _is_file(text)) else re.compile(r"#+|%0?\d*d")
+    tokens = [m.group(0) for m in rx.finditer(text)]
     if len(tokens) > 1:
         raise UserError(f"the pattern {text!r} has {len(tokens)} frame numbers",
-                        fix="use one #### (or one %04d) per pattern")
+                        fix="use one #### (or one %04d, @@@@, $F4) per pattern")
     if tokens:
-        m = _HASHES.search(text)
-        if m:
-            width = len(m.group(0))
-        else:
-            m = _PRINTF.search(text)
-            digits = m.group(2) or "0"
-            width = int(digits) if len(digits) <= 4 else MAX_WIDTH + 1
+        m = rx.search(text)
+        width = _padding(m.group(0))
         if width > MAX_WIDTH:
             raise UserError(f"the pattern {_short(text)!r} pads frame numbers to {width} digits, "
                             f"more than {MAX_WIDTH}", fix="use fewer # (or a smaller %0Nd)")
@@ -140,28 +164,33 @@ MAX_FRAMES = 1_000_000          # frames one --frames may name, all its parts to
 
 
 def parse_frames(text: str) -> list[int]:
-    """`A-B[:STEP]`, `N`, or comma-separated lists of those -> sorted frame numbers (at most
-    MAX_FRAMES, each of at most 18 digits)."""
+    """`A-B[:STEP]` (also `A-BxSTEP` as VFX tools write it, and `A-BySTEP`: the frames
+    that step skips), `N`, or comma-separated lists of those -> sorted frame numbers (at
+    most MAX_FRAMES, each of at most 18 digits). Each part is checked here, then expanded
+    by fileseq.FrameSet (volrender's `:` is fileseq's `x`)."""
+    import fileseq
     frames, count = [], 0
     for part in str(text).split(","):
-        m = re.fullmatch(r"\s*(-?[0-9]+)\s*(?:-\s*(-?[0-9]+)\s*(?::\s*([0-9]+)\s*)?)?", part)
+        m = re.fullmatch(r"\s*(-?[0-9]+)\s*(?:-\s*(-?[0-9]+)\s*(?:([:xy])\s*([0-9]+)\s*)?)?",
+                         part)
         if not m:
             raise UserError(f"--frames: cannot read {_short(part.strip())!r}",
-                            fix="give A-B[:STEP], N, or a comma-separated list, e.g. 1-240:2")
+                            fix="give A-B[xSTEP], N, or a comma-separated list, e.g. 1-240x2")
         if max(len(g.lstrip("-")) for g in m.groups() if g is not None) > 18:
             raise UserError(f"--frames: {_short(part.strip())!r} has a number of more than 18 "
                             "digits", fix="give frame numbers below 10^18")
         a = int(m.group(1))
         b = int(m.group(2)) if m.group(2) is not None else a
-        step = int(m.group(3) or 1)
+        kind, step = m.group(3) or "x", int(m.group(4) or 1)
         if b < a or step < 1:
             raise UserError(f"--frames: {_short(part.strip())!r} is empty",
                             fix="give A-B with A <= B and STEP >= 1")
-        count += (b - a) // step + 1
+        count += (b - a) // step + 1 if kind != "y" else b - a + 1
         if count > MAX_FRAMES:
             raise UserError(f"--frames {_short(str(text).strip())!r} names more than a million "
                             "frames", fix="render at most a million frames per run")
-        frames.extend(range(a, b + 1, step))
+        spec = f"{a}-{b}{'y' if kind == 'y' else 'x'}{step}" if m.group(2) is not None else str(a)
+        frames.extend(int(f) for f in fileseq.FrameSet(spec))
     return sorted(set(frames))
 
 
@@ -246,10 +275,12 @@ def frame_inputs(pattern: Pattern, frames=None) -> dict[int, Path]:
 
 # --------------------------------------------------------------------------- one camera
 
-def sequence_camera(paths, overrides):
+def sequence_camera(paths, overrides, device=None):
     """(camera, {frame: error}, options for every frame, notes): the options' camera
     framed on the union of every frame's bounds, so nothing jumps from frame to frame.
-    Volumes: bounds from the files' metadata (no voxels loaded). Point clouds: each frame
+    Volumes: bounds from the files' metadata; the middle frame is loaded once for the
+    options every frame shares (_frame_defaults: the fire's exposure, auto's estimator).
+    `device`: a device.Device auto weighs (else a CPU's model). Point clouds: each frame
     is read once for its bounds, and the radius and blend are one for the whole sequence,
     given or chosen from the first frame (said in the notes). Frames whose bounds cannot
     be read are left out of the union and returned as failed."""
@@ -264,7 +295,7 @@ def sequence_camera(paths, overrides):
     extra, notes = {}, []
     if req.kind == "glass":
         from . import points
-        from .glass import blend_width, sphere_bounds, sphere_radii
+        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
@@ -278,10 +309,11 @@ def sequence_camera(paths, overrides):
 
         def bounds(path):
             cloud = scene0.content.cloud if path == first else points.load_points(path)
-            return (*sphere_bounds(cloud, sphere_radii(cloud, settings)), None)
+            return (*sphere_bounds(cloud, sphere_radii(cloud, settings)), cloud.up_axis)
     else:
         def bounds(path):
             return vdb.world_bounds(path, req.settings.grid, req.settings.emission_grid)
+        extra, notes = _frame_defaults(paths, overrides, device)
     lo, hi, hint, bad = np.full(3, np.inf), np.full(3, -np.inf), None, {}
     for frame, path in paths.items():
         try:
@@ -294,6 +326,43 @@ def sequence_camera(paths, overrides):
     if not bad.keys() < paths.keys():
         raise UserError(f"no frame of the sequence can be read (frame {min(bad)}: {bad[min(bad)]})")
     return req.view.camera(lo, hi, hint), bad, extra, notes
+
+
+def _frame_defaults(paths, overrides, device=None):
+    """(options for every frame, notes) from the sequence's middle frame, loaded once: the
+    fire's exposure (volrender/fire.py) unless --emission-scale is given, and auto's
+    estimator (with its octave bands or samples) unless --estimator is given, so that
+    neither the brightness nor the estimator changes from frame to frame; ({}, [])
+    when neither applies or the frame cannot be read."""
+    from .scene import request
+    fire = "emission_scale" not in overrides
+    auto = overrides.get("estimator", "auto") == "auto"
+    if not (fire or auto):
+        return {}, []
+    frames = list(paths.items())
+    frame, mid = frames[len(frames) // 2]
+    try:          # a device spec is not opened here (workers open their own): a CPU's model
+        scene = request(mid, **overrides).load(
+            device=device if hasattr(device, "device") else None)
+    except UserError:
+        return {}, []
+    st, extra, notes = scene.content.settings, {}, []
+    where = f"(from frame {frame}, the middle one)"
+    if fire and any(n.startswith("fire exposure:") for n in scene.notes):
+        extra["emission_scale"] = st.emission_scale
+        notes.append(f"fire exposure x{st.emission_scale:.3g} for every frame {where}; set "
+                     "--emission-scale")
+    if auto:
+        extra["estimator"] = st.estimator
+        what = st.estimator
+        if st.estimator == "path":
+            extra["spp"] = st.spp
+            what += f", {st.spp} spp"
+        else:
+            extra["ms_octaves"] = st.octaves
+            what += f", {st.octaves} octave band{'s' if st.octaves > 1 else ''}"
+        notes.append(f"estimator auto for every frame: {what} {where}; set --estimator")
+    return extra, notes
 
 
 def camera_overrides(camera) -> dict:
@@ -526,7 +595,7 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     if clash:
         raise UserError(f"an output frame is also an input: {sorted(clash)[0]}",
                         fix="write the frames somewhere else")
-    camera, bad, extra, notes = sequence_camera(paths, overrides)
+    camera, bad, extra, notes = sequence_camera(paths, overrides, device)
     for note in notes if say else ():
         say(note)
     if verbose and say:

@@ -82,8 +82,13 @@ def check_value(meta, value, where: str):
 
 
 def check_fields(obj):
-    """Run every field check of a settings object (errors name the CLI flag)."""
+    """Run every field check of a settings object (errors name the CLI flag). An integral
+    float where an integer is expected (spp=2.0, as numpy and JSON hand them over) becomes
+    that integer first."""
     for f, meta in knobs(type(obj)):
+        value = getattr(obj, f.name)
+        if coerce(meta, value) is not value:
+            object.__setattr__(obj, f.name, coerce(meta, value))
         flag = flag_of(f, meta)
         check_value(meta, getattr(obj, f.name), flag if flag and not _is_switch(f) else f.name)
 
@@ -176,6 +181,27 @@ def _int(v) -> bool:
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
+def _integral(v) -> bool:
+    """A float (Python or numpy) that holds an integer exactly: 2.0, not 2.5 nor inf."""
+    import numpy as np
+    return isinstance(v, (float, np.floating)) and math.isfinite(v) and float(v).is_integer()
+
+
+def coerce(meta, value):
+    """`value` as the field holds it: an integral float as an int where the check wants an
+    integer, a size's integral floats as ints; anything else unchanged (the check judges)."""
+    if getattr(meta["check"], "integer", False) and _integral(value):
+        return int(value)
+    if meta["kind"] == SIZE and isinstance(value, tuple):
+        return integers(value)
+    return value
+
+
+def integers(values):
+    """`values` (a tuple) with each integral float as an int (size=(320.0, 240.0))."""
+    return tuple(int(v) if _integral(v) else v for v in values)
+
+
 def in_range(lo, hi, *, integer=False, allow_none=False):
     """Finite number (an integer with integer=True) in [lo, hi]."""
     def check(v):
@@ -187,6 +213,7 @@ def in_range(lo, hi, *, integer=False, allow_none=False):
             return f"must be {kind} in [{lo:g}, {hi:g}]"
         return None
     check.range = f"{lo}..{hi}" if integer else f"{lo:g}..{hi:g}"
+    check.integer = integer
     return check
 
 

@@ -26,15 +26,10 @@ import numpy as np
 from .errors import UserError
 from .files import check_memory
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
-# the layout and cache, and the header parser, live in their own modules; their names stay
-# importable from here (volrender.vdb.Bricks, vdb.parse_vdb_header, ...)
-from .bricks import (MAX_BRICKS, MAX_ORIGIN, NPZ_FORMAT, NPZ_VERSION, NPZ_VERSIONS,  # noqa: F401
-                     Bricks, _ZIP_ERRORS, _build, _check_file, _check_npz_members, _layout,
-                     _max_per_slot, _one_line, _validate, _warn_sanitised, _zero_source,
-                     check_transform, load_npz, read_npz)
-from .vdb_header import (MANTAFLOW_GAS, MANTAFLOW_LIQUID, MANTAFLOW_ONLY,  # noqa: F401
-                         VDB_MAGIC, _MIN_DESCRIPTOR, GridInfo, _Reader, _parse_vdb,
-                         _read_metamap, mantaflow_cache, parse_vdb_header, up_axis_hint)
+from .bricks import (MAX_BRICKS, MAX_ORIGIN, ZIP_ERRORS, Bricks, brick_box, build_bricks,
+                     check_npz_members, check_transform, check_volume_file, load_npz,
+                     max_per_slot, one_line, warn_sanitised, zero_source)
+from .vdb_header import GridInfo, parse_vdb, up_axis_hint
 
 _NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
 
@@ -58,8 +53,8 @@ def import_openvdb():
 
 def list_grids(path) -> list[GridInfo]:
     """Every grid in a .vdb file, in file order (works where readAllGridMetadata fails)."""
-    p = _check_file(path)
-    grids = _parse_vdb(p)
+    p = check_volume_file(path)
+    grids = parse_vdb(p)
     if grids is not None:
         return grids
     vdb = import_openvdb()
@@ -67,7 +62,7 @@ def list_grids(path) -> list[GridInfo]:
         return [GridInfo(g.name, g.valueTypeName, g.gridClass, g.metadata.get("file_voxel_count"))
                 for g in vdb.readAllGridMetadata(str(p))]
     except Exception as e:
-        raise UserError(f"cannot list its grids ({_one_line(e)})", path=p,
+        raise UserError(f"cannot list its grids ({one_line(e)})", path=p,
                         fix="re-save it with a current OpenVDB") from None
 
 
@@ -141,7 +136,7 @@ def _read_grid(vdb, path: Path, info: GridInfo):
     try:
         grid = vdb.read(str(path), info.name)
     except Exception as e:
-        raise UserError(f"cannot read grid {info.name!r} ({_one_line(e)})", path=path,
+        raise UserError(f"cannot read grid {info.name!r} ({one_line(e)})", path=path,
                         fix="the file may be truncated or corrupt; re-export it") from None
     vt = getattr(grid, "valueTypeName", info.value_type)
     if vt != info.value_type:
@@ -209,7 +204,7 @@ def load_bricks(path, grid=None, emission_grid=None, progress=None, *, chunk=16,
     OpenVDB reads the file in a reader process of its own (`_Reader`), because OpenVDB
     10 dies (SIGSEGV, SIGABRT) on some corrupt files: then this raises a UserError and the
     caller lives on. `$VOLRENDER_VDB_READER=0` reads in this process instead."""
-    p = _check_file(path)
+    p = check_volume_file(path)
     if os.environ.get(READER_ENV, "") not in ("0", "1"):
         import_openvdb()                # here too: its absence is said without a reader
         return _READER.call(p, (p, grid, emission_grid, None),
@@ -241,7 +236,7 @@ def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
         if ebox is None:
             warnings.warn(f"{p}: emission grid {einfo.name!r} is empty; it adds no light",
                           stacklevel=2)
-            sources.append(_zero_source())
+            sources.append(zero_source())
         else:
             lo, hi = np.minimum(lo, ebox[0]), np.maximum(hi, ebox[1])
             sources.append(_vdb_source(eg, ebox))
@@ -251,9 +246,9 @@ def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
             raise UserError(f"temperature grid {tinfo.name!r} has a different transform from "
                             f"{info.name!r}, which is unsupported", path=p,
                             fix="resample it onto the density grid's transform")
-        sources.append(_zero_source() if tbox is None else _vdb_source(tg, tbox))
+        sources.append(zero_source() if tbox is None else _vdb_source(tg, tbox))
     try:
-        origin, dims, table, out, stats, vrange = _build(p, sources, lo, hi, chunk, progress,
+        origin, dims, table, out, stats, vrange = build_bricks(p, sources, lo, hi, chunk, progress,
                                                          passive=int(tinfo is not None))
     except (UserError, KeyboardInterrupt):
         raise
@@ -262,23 +257,23 @@ def _load_bricks(p, grid=None, emission_grid=None, progress=None, *, chunk=16,
                         fix="the file may be truncated or corrupt, or too large for this "
                             "machine (the memory check before reading passed)") from None
     except Exception as e:          # OpenVDB decompressing voxels as they are read
-        raise UserError(f"cannot read the voxels of grid {info.name!r} ({_one_line(e)})",
+        raise UserError(f"cannot read the voxels of grid {info.name!r} ({one_line(e)})",
                         path=p, fix="the file may be truncated or corrupt; re-export it") from None
-    _warn_sanitised(p, info.name, stats[0])
+    warn_sanitised(p, info.name, stats[0])
     if len(out[0]) == 0:
         warnings.warn(f"{p}: grid {info.name!r} holds only zeros; it renders as empty space",
                       stacklevel=2)
     axis, why = up_axis_hint(grids)
-    b = Bricks(origin, dims, table, out[0], _max_per_slot(out[0]), m, grid_name=info.name,
+    b = Bricks(origin, dims, table, out[0], max_per_slot(out[0]), m, grid_name=info.name,
                source=str(p), background=float(g.background), value_range=vrange,
                active_voxels=int(g.activeVoxelCount()), up_axis=axis, up_axis_reason=why,
                index_box=(tuple(int(v) for v in box[0]), tuple(int(v) for v in box[1])))
     if einfo is not None:
-        _warn_sanitised(p, einfo.name, stats[1])
-        b.emission, b.emission_max = out[1], _max_per_slot(out[1])
+        warn_sanitised(p, einfo.name, stats[1])
+        b.emission, b.emission_max = out[1], max_per_slot(out[1])
         b.emission_grid_name = einfo.name
     if tinfo is not None:
-        _warn_sanitised(p, tinfo.name, stats[-1])
+        warn_sanitised(p, tinfo.name, stats[-1])
         b.temperature, b.temperature_grid_name = out[-1], tinfo.name
     return b
 
@@ -485,7 +480,7 @@ def _cbrt_det(m):
 
 def load_volume(path, grid=None, emission_grid=None, temperature_grid=None) -> Bricks:
     """A .vdb grid or a .npz brick cache, by file suffix."""
-    p = _check_file(path)
+    p = check_volume_file(path)
     suffix = p.suffix.lower()
     if suffix == ".vdb":
         return load_bricks(p, grid, emission_grid, temperature_grid=temperature_grid)
@@ -525,20 +520,20 @@ def world_bounds(path, grid=None, emission_grid=None):
     """(lo, hi, up-axis hint) of the brick layout a file would load into, read from grid
     metadata (a .vdb's active boxes and transforms, a .npz's small arrays) without
     loading any voxels: the same box Bricks.world_bounds() gives after loading."""
-    p = _check_file(path)
+    p = check_volume_file(path)
     if p.suffix.lower() == ".npz":
         fix = "convert the .vdb again (volrender convert)"
         try:
             with np.load(p, allow_pickle=False) as z:
                 if not isinstance(z, np.lib.npyio.NpzFile):
                     raise ValueError("a bare .npy array")
-                problem = _check_npz_members(z, p.stat().st_size)
+                problem = check_npz_members(z, p.stat().st_size)
                 if problem:
                     raise ValueError(problem)
                 origin, dims, m = z["origin"], z["dims"], z["index_to_world"]
                 axis = str(z["up_axis"]) or None if "up_axis" in z.files else None
-        except (KeyError, TypeError, SyntaxError, *_ZIP_ERRORS) as e:
-            raise UserError(f"not a readable brick cache ({_one_line(e)})", path=p,
+        except (KeyError, TypeError, SyntaxError, *ZIP_ERRORS) as e:
+            raise UserError(f"not a readable brick cache ({one_line(e)})", path=p,
                             fix=fix) from None
         problem = (check_transform(m) if origin.shape == (3,) == dims.shape
                    and origin.dtype.kind in "iu" and dims.dtype.kind in "iu"
@@ -559,7 +554,7 @@ def world_bounds(path, grid=None, emission_grid=None):
         try:
             g = ov.readGridMetadata(str(p), info.name)
         except Exception as e:
-            raise UserError(f"cannot read grid {info.name!r} ({_one_line(e)})", path=p,
+            raise UserError(f"cannot read grid {info.name!r} ({one_line(e)})", path=p,
                             fix="the file may be truncated or corrupt; re-export it") from None
         meta = g.metadata
         if "file_bbox_min" not in meta:
@@ -573,6 +568,6 @@ def world_bounds(path, grid=None, emission_grid=None):
     if box_lo is None:
         raise UserError(f"grid {names[0].name!r} is empty (0 active voxels)", path=p,
                         fix="nothing to render; choose another grid or frame")
-    origin, dims = _layout(box_lo, box_hi)
+    origin, dims = brick_box(box_lo, box_hi)
     lo, hi = _layout_world_bounds(origin, dims, m)
     return lo, hi, up_axis_hint(grids)[0]

@@ -99,7 +99,7 @@ def _value_type(tree_type: str) -> str:
     return m.group(1) if m else tree_type
 
 
-def _parse_vdb(path: Path) -> list[GridInfo] | None:
+def parse_vdb(path: Path) -> list[GridInfo] | None:
     """Grid descriptors straight from the file; None when only OpenVDB can tell."""
     with open(path, "rb") as f:
         return parse_vdb_header(f, os.fstat(f.fileno()).st_size, path)

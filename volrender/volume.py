@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +27,24 @@ PIXELS_PER_LAUNCH = 1 << 16
 # unused); path: path tracing, the same walks, up to max_depth scattering events.
 ESTIMATORS = ("auto", "march", "track", "path")
 CACHE_MODES = ("auto", "on", "off")       # --light-cache (light_cache.py)
-# auto: the march with AUTO_OCTAVES octave bands where multiple scattering matters (a
-# scattered photon scatters again with probability >= AUTO_MS_PROBABILITY, auto_estimator),
-# else single scattering
+# auto (auto_estimator): single scattering where a scattered photon scatters again with
+# probability < AUTO_MS_PROBABILITY; else the path estimator or the march with AUTO_OCTAVES
+# octave bands, by auto_model's predicted error within AUTO_BUDGET_MS
 AUTO_OCTAVES = 4
 AUTO_MS_PROBABILITY = 0.2
+# auto's model of error and cost (auto_model; fitted in docs/error_time.md, "auto", on the
+# H200 run of bench/ms_refs.py and bench/auto_cost.py on 2-core PoCL)
+AUTO_TARGET = 0.08                  # the path estimator's samples aim at this error
+AUTO_BUDGET_MS = 3000.0             # ... within this much kernel time
+AUTO_PATH_NOISE = 1.0               # its relative RMSE on covered pixels at 1 spp
+# the path estimator only where its predicted error is at most this times the march's:
+# the march's own cost is not modelled (it is far cheaper per image), so path tracing must
+# buy a clear gain (0190 at 320x240 on a CPU: 9 % in ~7 s of kernel against 12 % in 0.3 s)
+AUTO_PATH_GAIN = 0.5
+AUTO_MARCH_ERROR = (-2.361, 0.691, 0.162)
+AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
+AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
+AUTO_PATH_SLOPE = 0.512
 EMISSION_LAWS = ("auto", "colour", "blackbody")
 ADAPTIVE_MIN_PASSES = 4      # passes before the noise estimate is trusted
 ADAPTIVE_MAX_SPP = 1 << 20   # samples per pixel at most, over all passes
@@ -39,8 +53,15 @@ RR_DEPTH = 4           # path roulette from the 5th scattering event on
 MS_OCTAVES_MAX = 16
 # octave parameters D, G, C (cl/march.h): the closing band's depth scale is
 # A_inf = min(1, D sqrt(3 (1 - albedo) (1 - g_mean))), a light's bands weigh G albedo and
-# scatter with g C^(u_k), the environment's weigh albedo; fitted by bench error --fit-octaves (docs/error_time.md)
+# scatter with g C^(u_k), the environment's weigh albedo. D and C: fitted by bench error
+# --fit-octaves; G by default from OCTAVE_GAIN (octave_gain; docs/error_time.md)
 MS_SCALES = (0.5, 2.8, 0.2)
+# G = exp(c . (1, g, g^2, L, L g, L n, L g n)) / (1 - A_inf), g the phase's mean cosine,
+# L = ln(1 + tau) (optical_size), n = -ln(1 - albedo) (largest channel, albedo <= 0.999):
+# least squares in ln G on the gains that best match the path estimator (issue 33,
+# bench/ms_refs.py on the H200: 96 sun-lit synthetic media, tau 0.05-19, albedo 0.5-0.99,
+# g 0-0.8, and the four scattering real files at their defaults, weighted 6 each)
+OCTAVE_GAIN = (0.0109, 1.6805, -2.9341, 0.1176, -0.2697, 0.0309, 0.178)
 # the shadow march stops once every band's transmittance is below this
 MS_CUTOFF = 1e-4
 AOVS = ("depth", "transmittance")
@@ -115,10 +136,13 @@ class VolumeSettings(CommonSettings):
                        check=in_range(MIN_STEP, 1e4), toml=("volume", "step"))
     shadow_step: float = knob(1.0, "shadow-ray march step, voxels",
                               check=in_range(MIN_STEP, 1e4), toml=("volume", "shadow_step"))
-    estimator: str = knob("auto", "auto: the march, with --ms-octaves 4 where albedo and optical "
-                          "depth make multiple scattering matter, else single scattering (the "
-                          "choice is printed); march: ray marching with --step/--shadow-step "
-                          "(biased by the step, low noise; single scattering, or --ms-octaves); "
+    estimator: str = knob("auto", "auto: single scattering where albedo and optical depth "
+                          "make multiple scattering small; else the path estimator where a model "
+                          "of error and cost (depth, albedo, pixels, device) predicts it at "
+                          "half the error of the march with --ms-octaves 4 within 3 s, else "
+                          "that march (the choice and its predicted error are printed); march: "
+                          "ray marching with --step/--shadow-step (biased by the step, low "
+                          "noise; single scattering, or --ms-octaves); "
                           "track: delta/"
                           "ratio tracking on the brick majorants, single scattering (unbiased, "
                           "noisier; the march's reference); path: path tracing, multiple "
@@ -132,14 +156,19 @@ class VolumeSettings(CommonSettings):
                                   "1 with --estimator march, auto's choice with auto)",
                                   check=in_range(1, MS_OCTAVES_MAX, integer=True, allow_none=True),
                                   toml=("volume", "ms_octaves"), kind=int, show_default=False)
-    ms_octave_scales: tuple = knob(MS_SCALES, "octave bands (cl/march.h): D scales the last band's "
-                                   "diffusion depth sqrt(3(1-albedo)(1-g)); a light's bands "
-                                   "weigh G x albedo and scatter with g C^(k/(N-1)); a white furnace "
-                                   "returns its light at any D, G, C (fitted by bench error to "
-                                   "path-traced images)",
-                                   metavar="D,G,C",
-                                   parse=floats(3, name="--ms-octave-scales"),
-                                   check=rgb(0, 100, n=(3,)), toml=("volume", "ms_octave_scales"))
+    ms_octave_scales: tuple | None = knob(None, "octave bands (cl/march.h): D scales the last "
+                                          "band's diffusion depth sqrt(3(1-albedo)(1-g)); a "
+                                          "light's bands weigh G x albedo and scatter with g "
+                                          "C^(k/(N-1)); a white furnace returns its light at any "
+                                          "D, G, C (default: D 0.5, C 0.2, G from the medium's "
+                                          "optical depth, albedo and phase, fitted to path-traced "
+                                          "images and printed)",
+                                          metavar="D,G,C",
+                                          parse=floats(3, name="--ms-octave-scales"),
+                                          check=lambda v: None if v is None
+                                          else rgb(0, 100, n=(3,))(v),
+                                          toml=("volume", "ms_octave_scales"), kind=VEC,
+                                          show_default=False)
     light_cache: str = knob("auto", "march: bake the light reaching the medium once per scene "
                             "and lights on a coarse grid and read it instead of a shadow march "
                             "per sample per light (volrender/light_cache.py); auto: where the "
@@ -237,43 +266,101 @@ def emission_color(settings: VolumeSettings) -> np.ndarray:
     return settings.emission_scale * blackbody.rgb(settings.emission_temperature)
 
 
+_NONZERO = {}        # id(bricks) -> (id(data), count, mean) of the non-zero voxels
+
+
 def optical_size(bricks, settings: VolumeSettings) -> dict:
     """A typical optical depth of the medium: the mean sigma_t over its non-zero voxels
     (largest channel) times the edge of a cube of their volume (world units), and the
     chance that a photon scattered inside scatters again, albedo (1 - exp(-tau))."""
-    own = np.asarray(bricks.data)[:, :-1, :-1, :-1]
-    nz = own[own > 0]
-    if nz.size == 0:
+    key = id(bricks.data)
+    if _NONZERO.get(id(bricks), (None,))[0] != key:
+        own = np.asarray(bricks.data)[:, :-1, :-1, :-1]
+        nz = own[own > 0]
+        _NONZERO[id(bricks)] = (key, int(nz.size), float(nz.mean()) if nz.size else 0.0)
+        weakref.finalize(bricks, _NONZERO.pop, id(bricks), None)
+    _, count, mean = _NONZERO[id(bricks)]
+    if count == 0:
         return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo)}
-    sigma = settings.density_scale * max(settings.sigma_t_scale) * float(nz.mean())
-    size = float(nz.size) ** (1.0 / 3.0) * bricks.voxel_size
+    sigma = settings.density_scale * max(settings.sigma_t_scale) * mean
+    size = float(count) ** (1.0 / 3.0) * bricks.voxel_size
     tau = sigma * size
     alb = max(settings.albedo)
     return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
 
 
-def auto_estimator(bricks, settings: VolumeSettings):
-    """(settings, note): --estimator auto resolved for this volume. Multiple scattering
-    (the march with AUTO_OCTAVES energy-conserving octave bands, or --ms-octaves) where a
-    scattered photon scatters again with probability >= AUTO_MS_PROBABILITY (then it adds
-    >= 25% to single scattering's light), else single scattering. Other estimators pass
+def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
+               compute_units: int | None = None) -> dict:
+    """auto's model of error and cost (docs/error_time.md, "auto"): for a medium of
+    typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
+    n = -ln(1 - a):
+    * the march's error with the octave bands (relative RMSE on covered pixels):
+      AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1] e^(AUTO_MARCH_ERROR[2] n);
+    * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
+    * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
+      (CPU: per AUTO_CPU_UNITS compute units);
+    the path's samples: enough for AUTO_TARGET, at most what AUTO_BUDGET_MS allows."""
+    o = optical_size(bricks, settings)
+    big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
+    c0, c1, c2 = AUTO_MARCH_ERROR
+    march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
+    per = AUTO_PATH_MS["gpu" if gpu else "cpu"]
+    if not gpu and compute_units:
+        per *= AUTO_CPU_UNITS / compute_units
+    sample_ms = pixels * per * (1.0 + o["tau"]) ** AUTO_PATH_SLOPE
+    want = math.ceil((AUTO_PATH_NOISE / AUTO_TARGET) ** 2)
+    spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
+    return {**o, "march_error": march_error, "path_sample_ms": sample_ms, "path_spp": spp,
+            "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
+            "device": "GPU" if gpu else "CPU", "pixels": pixels}
+
+
+def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, device=None):
+    """(settings, note): --estimator auto resolved for this volume, `pixels` (default
+    640x480) on `device` (None: a CPU). Single scattering (the march, one band) where a
+    scattered photon scatters again with probability < AUTO_MS_PROBABILITY (it adds < 25 %
+    to single scattering's light); else the path estimator where auto_model predicts it
+    at most AUTO_PATH_GAIN x the march's error within AUTO_BUDGET_MS (dense bright clouds,
+    GPUs, small images), at the samples that reach AUTO_TARGET (or --spp if more; its --spp per pass
+    with --noise-target / --time-limit); else the march with AUTO_OCTAVES octave bands
+    (their gain G printed; also whenever --step or --shadow-step are not the defaults: the
+    march was tuned). --ms-octaves N given: the march with N bands. Other estimators pass
     unchanged (no note)."""
     from dataclasses import replace
     if settings.estimator != "auto":
         return settings, None
-    o = optical_size(bricks, settings)
-    why = (f"albedo {o['albedo']:.3g}, typical optical depth {o['tau']:.3g}: a scattered "
-           f"photon scatters again with probability {o['probability']:.2f}")
-    if o["probability"] >= AUTO_MS_PROBABILITY or (settings.ms_octaves or 1) > 1:
-        n = settings.ms_octaves or AUTO_OCTAVES
+    gpu = False
+    units = None
+    if device is not None and hasattr(device, "device"):
+        gpu, units = is_gpu(device), int(device.device.max_compute_units)
+    m = auto_model(bricks, settings, pixels or 640 * 480, gpu, units)
+    why = (f"albedo {m['albedo']:.3g}, typical optical depth {m['tau']:.3g}: a scattered "
+           f"photon scatters again with probability {m['probability']:.2f}")
+    if settings.ms_octaves is not None:
+        n = settings.ms_octaves
         out = replace(settings, estimator="march", ms_octaves=n)
-        if n > 1:
-            return out, (f"estimator auto: multiple scattering (march, {n} octave bands; "
-                         f"{why}); --estimator path for the unbiased image")
-        return out, f"estimator auto: single scattering (march; --ms-octaves 1 given; {why})"
-    return (replace(settings, estimator="march", ms_octaves=1),
-            f"estimator auto: single scattering (march; {why}, below "
-            f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
+        what = f"{n} octave bands" if n > 1 else "single scattering"
+        return out, f"estimator auto: march, {what} (--ms-octaves {n} given; {why})"
+    if m["probability"] < AUTO_MS_PROBABILITY:
+        return (replace(settings, estimator="march", ms_octaves=1),
+                f"estimator auto: single scattering (march; {why}, below "
+                f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
+    gain = octave_gain(settings, m["tau"])
+    march = (f"march with {AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted error "
+             f"{m['march_error']:.0%}")
+    fields = VolumeSettings.__dataclass_fields__
+    tuned = (settings.step, settings.shadow_step) != (fields["step"].default,
+                                                      fields["shadow_step"].default)
+    if m["path_error"] <= AUTO_PATH_GAIN * m["march_error"] and not tuned:
+        spp = settings.spp if adaptive(settings) else max(settings.spp, m["path_spp"])
+        return (replace(settings, estimator="path", spp=spp),
+                f"estimator auto: path, {spp} spp: predicted error {m['path_error']:.0%} on "
+                f"covered pixels in ~{m['path_ms'] / 1e3:.2g} s of kernel on a {m['device']} "
+                f"({march}; {why})")
+    return (replace(settings, estimator="march", ms_octaves=AUTO_OCTAVES),
+            f"estimator auto: multiple scattering ({march} on covered pixels; the path "
+            f"estimator: {m['path_error']:.0%} in ~{m['path_ms'] / 1e3:.2g} s of kernel on a "
+            f"{m['device']}; {why}); --estimator path for the unbiased image")
 
 
 def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
@@ -303,11 +390,33 @@ def mean_cosine(settings: VolumeSettings) -> float:
     return w * g1 + (1.0 - w) * g2
 
 
+def octave_gain(settings: VolumeSettings, tau: float) -> float:
+    """The lights' band gain G (OCTAVE_GAIN) for a medium of typical optical depth tau
+    (optical_size), or the G of --ms-octave-scales when given."""
+    if settings.ms_octave_scales is not None:
+        return float(settings.ms_octave_scales[1])
+    g = mean_cosine(settings)
+    alb = min(max(settings.albedo), 0.999)
+    big_l, n = math.log1p(max(tau, 0.0)), -math.log1p(-alb)
+    f = (1.0, g, g * g, big_l, big_l * g, big_l * n, big_l * g * n)
+    a_inf = float(np.max(octave_decay(settings)))
+    return math.exp(sum(c * x for c, x in zip(OCTAVE_GAIN, f))) / max(1.0 - a_inf, 1e-3)
+
+
+def octave_scales(settings: VolumeSettings, bricks=None) -> tuple:
+    """(D, G, C): --ms-octave-scales, or the defaults with G from octave_gain (the medium's
+    optical size from `bricks`; without them, MS_SCALES' G)."""
+    if settings.ms_octave_scales is not None:
+        return tuple(settings.ms_octave_scales)
+    g = MS_SCALES[1] if bricks is None else octave_gain(settings, optical_size(bricks, settings)["tau"])
+    return MS_SCALES[0], g, MS_SCALES[2]
+
+
 def octave_decay(settings: VolumeSettings) -> np.ndarray:
     """A_inf per channel: the closing octave band's optical-depth scale (cl/march.h),
     min(1, D sqrt(3 (1 - albedo) (1 - g_mean))): the decay rate of diffuse light deep in
     the medium relative to sigma_t (diffusion theory); 0 for albedo 1."""
-    d = settings.ms_octave_scales[0]
+    d = (settings.ms_octave_scales or MS_SCALES)[0]
     alb = np.asarray(settings.albedo, np.float64)
     one_g = max(1.0 - mean_cosine(settings), 0.0)
     return np.minimum(1.0, d * np.sqrt(3.0 * np.clip(1.0 - alb, 0.0, 1.0) * one_g))
@@ -358,8 +467,7 @@ def volume_params(bricks, settings: VolumeSettings | None = None, environment=No
         phase=[g1, g2, w, 0], dims=[*bricks.dims, 0],
         albedo_rgb=[*settings.albedo, 0], extinction=[*settings.sigma_t_scale, 0],
         env_radiance=[*(environment.uniform if mode == 1 else (0, 0, 0)), 0],
-        ms=[settings.ms_octave_scales[1], settings.ms_octave_scales[2], 0.0,
-            octave_tau_stop(settings)],
+        ms=[*octave_scales(settings, bricks)[1:], 0.0, octave_tau_stop(settings)],
         ms_decay=[*octave_log_decay(settings), 0],
         density_scale=settings.density_scale, albedo=settings.albedo[0],
         step=settings.step * vs, shadow_step=settings.shadow_step * vs,
@@ -374,11 +482,12 @@ def volume_params(bricks, settings: VolumeSettings | None = None, environment=No
 ENTRIES = {"march": "render_volume", "track": "path_volume", "path": "path_volume"}
 
 
-def resolved(scene):
-    """The scene with --estimator auto resolved (auto_estimator), and the note saying so
-    (None when nothing was to resolve)."""
+def resolved(scene, device=None):
+    """The scene with --estimator auto resolved (auto_estimator, for its pixels on
+    `device`), and the note saying so (None when nothing was to resolve)."""
     import dataclasses
-    settings, note = auto_estimator(scene.content.bricks, scene.content.settings)
+    settings, note = auto_estimator(scene.content.bricks, scene.content.settings,
+                                    scene.camera.width * scene.camera.height, device)
     if note is None:
         return scene, None
     return scene.replace(content=dataclasses.replace(scene.content, settings=settings)), note
@@ -404,7 +513,7 @@ def plan(scene, device, variant=None, launch=None):
     tracer (track = path at max depth 1)."""
     if variant is not None:
         raise UserError(f"the {variant!r} variant exists for glass only")
-    scene, note = resolved(scene)
+    scene, note = resolved(scene, device)
     bricks, settings = scene.content.bricks, scene.content.settings
     check_steps(bricks, settings)
     if settings.temperature_grid is not None and bricks.temperature is None:
@@ -446,7 +555,7 @@ def plan(scene, device, variant=None, launch=None):
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
                 info={"background": tuple(settings.background), "estimator": settings.estimator,
-                      "ms_octaves": settings.octaves, **cache_info,
+                      "ms_octaves": settings.octaves, "spp": settings.spp, **cache_info,
                       **({"estimator_note": note} if note else {})})
 
 

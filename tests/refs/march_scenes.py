@@ -34,13 +34,14 @@ def _noise(shape, seed):
 def scenes():
     """[(name, bricks, camera, lights, VolumeSettings kwargs)]."""
     from volrender import vdb
+    from volrender.bricks import Bricks
     from volrender.camera import Camera, frame_bounds
     from volrender.lights import PointLight, Sun
     m = np.eye(4)
     m[:3, :3] *= 0.1
     m[:3, 3] = (-1.2, -0.9, -1.0)
     v = _noise((24, 18, 20), 3)
-    grid = vdb.Bricks.from_dense(v, m, emission=np.where(v > 0.5, v, 0).astype(np.float32))
+    grid = Bricks.from_dense(v, m, emission=np.where(v > 0.5, v, 0).astype(np.float32))
     demo = vdb.load_volume(ROOT / "scenes" / "demo_cloud.npz") if not _has_vdb() else \
         vdb.load_volume(ROOT / "scenes" / "demo_cloud.vdb")
     cam = Camera((1.5, 1.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 24, 18)

@@ -1,0 +1,171 @@
+"""The process around a command: terminating signals, the standard streams and warnings.
+
+One home for signal handling. SIGINT raises KeyboardInterrupt and, while the CLI runs
+(`handle_signals`), SIGTERM and SIGHUP raise `Interrupted`, so every one of them unwinds
+(atomic.py removes its temporary files) and the command exits with 128 + the signal and one
+line (`interrupted`). `signals_held` holds them back around steps that must not be cut in
+two (atomic.py's create and rename, device.py's program builds). Streams: a closed pipe or
+a full disk on stdout/stderr does not turn a finished render into a failure (`Stream`).
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import signal
+import sys
+import threading
+
+from .errors import printable
+
+SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP"))
+                if s is not None)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A terminating signal other than SIGINT (SIGTERM, SIGHUP), raised like Ctrl-C."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Hold SIGINT/SIGTERM/SIGHUP back for the block (they are delivered after it)."""
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    except (AttributeError, ValueError, OSError):      # no pthreads, or not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def exit_on_signals_during_startup():
+    """For the CLI's first moments (imports, before cli.main installs its handlers): a
+    terminating signal ends the process at once with one line and status 128 + signal;
+    nothing has been written yet."""
+    def leave(signum, frame):
+        os.write(2, f"volrender: interrupted ({signal.Signals(signum).name}) while starting; "
+                    "no output written\n".encode())
+        os._exit(128 + signum)
+    for sig in SIGNALS:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, leave)
+
+
+def handle_signals():
+    """SIGTERM and SIGHUP raise Interrupted, as SIGINT raises KeyboardInterrupt, so
+    every one of them unwinds (temporary files removed) and exits with 128 + the signal.
+    A signal ignored when the process started (nohup, a background job's SIGINT) stays
+    ignored, and so does a call from a thread other than the main one. Returns the
+    previous handlers (for restore_signals)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def interrupted(signum, frame):
+        raise Interrupted(signum)
+    old = {}
+    for name, handler in (("SIGINT", signal.default_int_handler), ("SIGTERM", interrupted),
+                          ("SIGHUP", interrupted)):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
+def restore_signals(old):
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def interrupted(exc, written=()) -> int:
+    """One line saying what really happened (after the rename, the output was written):
+    `written`, the outputs this command completed (atomic.WRITTEN's new entries). Returns
+    the exit status, 128 + the signal."""
+    for sig in SIGNALS:                                # a second signal: no traceback
+        signal.signal(sig, signal.SIG_IGN)
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = ", ".join(printable(p) for p in dict.fromkeys(map(str, written)))
+    what = f"{done} was written before that" if done else "no output written"
+    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
+    return 128 + signum
+
+
+def warn_one_line(message, category, filename, lineno, file=None, line=None):
+    """warnings.showwarning for the CLI: one line, no source excerpt."""
+    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
+
+
+class Stream:
+    """stdout or stderr whose write errors (a closed pipe, a full disk or a closed file:
+    EPIPE, ENOSPC, EIO, EBADF) are recorded and drop every later write, instead of turning
+    a finished render into a failure (docs/robustness.md, "Streams"). After the first
+    error the descriptor is pointed at /dev/null, so that what the stream still buffers
+    cannot fail again at exit."""
+
+    def __init__(self, stream):
+        self._stream, self.error = stream, None
+
+    def write(self, text):
+        if self.error is None:
+            try:
+                return self._stream.write(text)
+            except (OSError, ValueError) as exc:
+                self._failed(exc)
+        return len(text)
+
+    def flush(self):
+        if self.error is None:
+            try:
+                self._stream.flush()
+            except (OSError, ValueError) as exc:
+                self._failed(exc)
+
+    def _failed(self, exc):
+        self.error = exc
+        try:
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def guard_streams():
+    """Descriptors 0-2 that are closed are opened on /dev/null (else the first file opened
+    would become 'stderr', and a library's message would land in an image), and stdout and
+    stderr are wrapped in Stream. Returns the streams to restore."""
+    closed = []
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.open(os.devnull, os.O_RDWR)          # the lowest free descriptor: fd
+            closed.append(fd)
+    old = sys.stdout, sys.stderr
+    sys.stdout = Stream(sys.stdout if sys.stdout is not None else open(os.devnull, "w"))
+    sys.stderr = Stream(sys.stderr if sys.stderr is not None else open(os.devnull, "w"))
+    if 1 in closed:
+        sys.stdout.error = OSError(9, "it is closed")
+    return old
+
+
+def stdout_failed(command) -> int | None:
+    """The exit status when stdout, the product of `volrender info`, could not be written:
+    2 for a full disk or an I/O error; none when the reader went away (EPIPE, `| head -1`:
+    it read what it wanted), nor for the other commands, whose product is a file."""
+    sys.stdout.flush()
+    exc = sys.stdout.error
+    if command != "info" or exc is None or getattr(exc, "errno", None) == errno.EPIPE:
+        return None
+    print(f"volrender: error: cannot write to standard output ({getattr(exc, 'strerror', None) or exc})",
+          file=sys.stderr)
+    return 2
