@@ -405,6 +405,8 @@ def cmd_render(args):
         from .camera import describe as describe_camera
         print(f"volrender: {describe_camera(scene.camera)}", file=sys.stderr)
     img = render(scene, dev, progress=args.progress)
+    if img.info.get("light_cache"):          # the light cache's cost model (issue 33)
+        print(f"volrender: {img.info['light_cache']}", file=sys.stderr)
     if img.info.get("adaptive"):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
     t_write = time.perf_counter()
