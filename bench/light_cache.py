@@ -66,6 +66,9 @@ def main(argv=None):
     ap.add_argument("--ref-size", type=size, default=(160, 120))
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--no-reference", action="store_true")
+    ap.add_argument("--march", type=int, default=None, metavar="N",
+                    help="render with the march and N octave bands whatever auto picks "
+                         "(auto may pick the path estimator, which has no cache)")
     ap.add_argument("--out", default=None, help="tag in the result file name")
     args = ap.parse_args(argv)
     import volrender
@@ -76,8 +79,10 @@ def main(argv=None):
         path = find_volume(name)
         if path is None:
             sys.exit(missing_data(name))
-        scene = volrender.load_scene(path, size=args.size)
-        row = {"file": name, "size": list(args.size), "notes": list(scene.notes)}
+        extra = {"estimator": "march", "ms_octaves": args.march} if args.march else {}
+        from volrender.scene import request
+        scene = request(path, size=args.size, **extra).load(device=dev)   # as the CLI
+        row = {"file": name, "size": list(args.size), "notes": list(scene.notes), **extra}
         # build the programs first (a tiny render of each variant: PoCL compiles are
         # cached, but their first build is not the renderer's cost)
         from volrender.volume import light_cache_choice, resolved
