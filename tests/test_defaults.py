@@ -226,6 +226,10 @@ def test_auto_weighs_error_per_second(monkeypatch):
     assert s.estimator == "path" and s.spp == want
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2, noise_target=0.05), 64 * 48, None)
     assert (s.estimator, s.spp) == ("path", 2)            # passes keep their own samples
+    s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2), 64 * 48, None)
+    assert s.spp == 2                                     # a count the user chose is kept
+    m2 = volume.auto_model(dense, VolumeSettings(spp=2), 64 * 48)
+    assert m2["path_error"] == pytest.approx(volume.AUTO_PATH_NOISE / math.sqrt(2))
     # the model's shape: path error 1/sqrt(spp), cost linear in pixels, more on a CPU
     m1, m4 = (volume.auto_model(dense, VolumeSettings(), n) for n in (1000, 4000))
     assert m4["path_sample_ms"] == pytest.approx(4 * m1["path_sample_ms"])

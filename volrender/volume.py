@@ -299,7 +299,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
       (CPU: per AUTO_CPU_UNITS compute units);
-    the path's samples: enough for AUTO_TARGET, at most what AUTO_BUDGET_MS allows."""
+    the path's samples: enough for AUTO_TARGET, at most what AUTO_BUDGET_MS allows, or
+    --spp where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
     c0, c1, c2 = AUTO_MARCH_ERROR
@@ -310,6 +311,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     sample_ms = pixels * per * (1.0 + o["tau"]) ** AUTO_PATH_SLOPE
     want = math.ceil((AUTO_PATH_NOISE / AUTO_TARGET) ** 2)
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
+    if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
+        spp = settings.spp
     return {**o, "march_error": march_error, "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
