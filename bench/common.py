@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"     # $VOLRENDER_BENCH_RESULTS instead (tests)
 CONVERTED = ROOT / "bench" / "data"          # .npz conversions (git-ignored), e.g. for the GPU
@@ -96,16 +98,76 @@ def device_tag(dev) -> str:
         else "pocl"
 
 
-def render_points(cloud, camera, lights, settings, device, variant=None) -> dict:
-    """A PointCloud rendered through the public path (Scene.of, render): Image.as_dict()."""
+def render_points(cloud, camera, lights, settings, device, progress=None, variant=None,
+                  launch=None) -> dict:
+    """A PointCloud rendered through the public path (Scene.of, render): Image.as_dict().
+    The one render wrapper of bench/ and tests/ (tests/helpers.py imports it)."""
     from volrender.render import render
     from volrender.scene import GlassContent, Scene
     scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, variant=variant).as_dict()
+    return render(scene, device, progress=progress, variant=variant, launch=launch).as_dict()
 
 
-def render_volume(bricks, camera, lights, settings, device) -> dict:
+def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None) -> dict:
     """Bricks rendered through the public path (Scene.of, render): Image.as_dict()."""
     from volrender.render import render
     from volrender.scene import Scene, VolumeContent
-    return render(Scene.of(camera, lights, VolumeContent(bricks, settings)), device).as_dict()
+    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
+    return render(scene, device, progress=progress, launch=launch).as_dict()
+
+
+# The tiled volume kernel's culling alone (cl/volume_tile.h vr_tile_cull), per tile: how
+# many occupied bricks its list keeps and, where asked, which. bench volume reports the
+# list lengths; tests/test_dispatch_volume.py checks the lists against the rays.
+CULL_SRC = r'''
+#include "common.h"
+#include "structs.h"
+#include "volume.h"
+#include "volume_tile.h"
+__kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
+void tile_lists(__constant Camera* cam, __constant VolumeParams* vp,
+                __global const int4* occ, int n_occ, __global int* counts,
+                __global float4* lists, int keep, int y0)
+{
+    __local float4 list[VR_TILE_CAP];
+    __local volatile int n_list;
+    vr_tile_cull(cam, vp, occ, n_occ, y0, 0.0f, list, &n_list);
+    int tile = get_group_id(1) * get_num_groups(0) + get_group_id(0);
+    int lid = get_local_id(1) * VR_TILE_W + get_local_id(0);
+    if (lid == 0)
+        counts[tile] = n_list;
+    for (int i = lid; keep && i < min(n_list, VR_TILE_CAP); i += VR_TILE_W * VR_TILE_H)
+        lists[tile * VR_TILE_CAP + i] = list[i];
+}
+'''
+
+
+def tile_lists(dev, b, cam, tile, cap=None, lists=True):
+    """Per tile of a tiled launch over Bricks b: (counts (ny, nx): the bricks vr_tile_cull
+    keeps, above cap where the list overflowed; lists (ny, nx, cap, 4): which (brick
+    coordinates), None without `lists`; the number of occupied bricks). cap: the list's
+    capacity (default the renderer's, features.VOLUME_TILE_CAP)."""
+    import pyopencl as cl
+    from volrender.dispatch import upload
+    from volrender.features import VOLUME_TILE_CAP, VolumeFeatures
+    from volrender.volume import occupied_bricks, volume_params
+    f = VolumeFeatures(tiled=True, tile_w=int(tile[0]), tile_h=int(tile[1]),
+                       tile_cap=int(cap or VOLUME_TILE_CAP))
+    k = cl.Kernel(dev.build(CULL_SRC, f.flags(), "tile_lists"), "tile_lists")
+    params, w2l = volume_params(b)
+    occ = occupied_bricks(b)
+    nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
+    counts = np.zeros(nx * ny, np.int32)
+    out = np.zeros((nx * ny, f.tile_cap, 4) if lists else (1, 1, 4), np.float32)
+    ctx = dev.context
+    d_counts = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, counts.nbytes)
+    d_lists = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    k(dev.queue, (nx * tile[0], ny * tile[1]), tuple(tile), upload(ctx, cam.pack(w2l)),
+      upload(ctx, params), upload(ctx, occ), np.int32(len(occ)), d_counts, d_lists,
+      np.int32(bool(lists)), np.int32(0))
+    cl.enqueue_copy(dev.queue, counts, d_counts)
+    if lists:
+        cl.enqueue_copy(dev.queue, out, d_lists)
+    dev.queue.finish()
+    return (counts.reshape(ny, nx), out.reshape(ny, nx, f.tile_cap, 4) if lists else None,
+            len(occ))

@@ -27,6 +27,14 @@ relative RMSE per pixel and after a 2x2 box (the reference's noise removed), ima
 ratio; time: CPU ms / cores (median of --repeat). WDAS also at 320x240 for the issue's
 target (mean within 10%, 2x2 relative RMSE <= 15%, <= 3x single scattering's time).
 
+Denoising (issue 34; --denoise, or --denoise-only): WDAS and smoke as `volrender render FILE
+--estimator path` loads them, at --denoise-size, and the bunny as glass (bun_zipper.ply, at
+--denoise-glass-size on CPUs), against path at --denoise-ref-spp (glass:
+--denoise-glass-ref-spp) in 8 batches: the path estimator at 1..256 spp as rendered, denoised
+(render(..., denoise="on"): the guides and OIDN) and denoised from the colour alone; relative
+RMSE on the covered pixels (reference alpha > 0.05), the reference's noise removed; the time
+to 5 % with and without the denoiser (the issue's target: x8).
+
 Volumes (scenes/demo_cloud.vdb with the `run.sh demo` look, and smoke.vdb from
 ../shared/data/vdb when present): marching step (2, 1, 0.5, 0.25 voxels), shadow step
 (4, 2, 1, 0.5), samples per pixel (1, 4, 16), a small grid of combinations, and the
@@ -74,7 +82,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_points, render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
-from volrender import camera, device, generators, glass, scene as scene_mod, vdb  # noqa: E402
+from volrender import camera, denoise, device, generators, glass, scene as scene_mod, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.volume import VolumeSettings, octave_scales  # noqa: E402
 
@@ -590,6 +598,113 @@ def run_defaults(dev, args, record):
         sc["bench_s"] = time.perf_counter() - t0
 
 
+# --------------------------------------------------------------------------- denoising (issue 34)
+
+DENOISE_SPPS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
+DENOISE_TARGET = 0.05          # the issue's: within 5 % of path 1024 spp, covered pixels
+COVERED = 0.05                 # covered pixels: reference alpha above this
+
+
+def covered_errors(img, ref, var, covered) -> dict:
+    """Relative RMSE over the covered pixels (RGB), the reference's noise removed (its
+    variance of the mean, independent of the image's), and the covered mean's ratio."""
+    d = img[..., :3].astype(np.float64)[covered] - ref[..., :3][covered]
+    mse = max(float((d ** 2).mean()) - float(var[..., :3][covered].mean()), 0.0)
+    rms = float(np.sqrt((ref[..., :3][covered] ** 2).mean()))
+    return {"rel_rmse": mse ** 0.5 / max(rms, 1e-30),
+            "mean_ratio": float(img[..., :3][covered].mean() / max(ref[..., :3][covered].mean(), 1e-30))}
+
+
+def denoise_scenes(args, gpu):
+    """[(name, Scene)]: WDAS and smoke as `volrender render FILE --estimator path` loads them
+    (default sun and sky), the bunny as glass (the full model, defaults)."""
+    out = []
+    w, h = args.denoise_size
+    for stem in ("wdas_cloud_sixteenth", "smoke"):
+        if stem.split("_")[0] not in args.denoise_scenes:
+            continue
+        p = _find(stem)
+        if p is None:
+            print(f"bench/error.py: {stem} not found; skipping it", flush=True)
+            continue
+        out.append((stem, scene_mod.load_scene(p, size=(w, h), estimator="path")))
+    bunny = shared_data() / "points" / "bun_zipper.ply"
+    if "bunny" not in args.denoise_scenes:
+        pass
+    elif bunny.is_file():
+        gw, gh = (w, h) if gpu else args.denoise_glass_size
+        out.append(("bunny (glass)", scene_mod.load_scene(bunny, size=(gw, gh))))
+    else:
+        print(f"bench/error.py: {bunny} not found; skipping the bunny", flush=True)
+    return out
+
+
+def run_denoise(dev, args, record):
+    """Error against time with and without the denoiser (render(..., denoise="on"): the
+    guides and OIDN), on the covered pixels, against path (glass: the full model) at
+    --denoise-ref-spp in 8 batches. Time: the render's launches (kernel ms, or CPU ms /
+    cores with --time cpu) plus, denoised, the guides' and OIDN's time on the same basis."""
+    from volrender.dispatch import is_gpu
+    from volrender.render import render
+    cores = args.basis[1]
+    cpu = args.basis[0] == "cpu"
+    batches = 8
+    for name, scene in denoise_scenes(args, is_gpu(dev)):
+        t0 = time.perf_counter()
+        top = args.denoise_max_spp if scene.kind == "volume" else args.denoise_glass_max_spp
+        spps = [n for n in DENOISE_SPPS if n <= top]
+        ref_spp = args.denoise_ref_spp if scene.kind == "volume" else args.denoise_glass_ref_spp
+        imgs, ref_ms = [], 0.0
+        for k in range(batches):
+            r = render(scene.replace(spp=max(1, ref_spp // batches), seed=40_000 + k), dev)
+            imgs.append(r.rgba.astype(np.float64))
+            ref_ms += r.kernel_ms
+        imgs = np.stack(imgs)
+        ref, var = imgs.mean(0), imgs.var(0, ddof=1) / batches
+        covered = ref[..., 3] > COVERED
+        w, h = scene.camera.width, scene.camera.height
+        sc = {"scene": name, "size": [w, h], "covered": float(covered.mean()),
+              "reference": {"spp": batches * max(1, ref_spp // batches), "batches": batches,
+                            "kernel_ms_total": ref_ms,
+                            "se_rel": float(np.sqrt(var[..., :3][covered].mean()) /
+                                            np.sqrt((ref[..., :3][covered] ** 2).mean()))},
+              "rows": []}
+        record["denoise"].append(sc)
+        print(f"[{name} {w}x{h}] reference {sc['reference']['spp']} spp, covered "
+              f"{sc['covered']:.0%}, its noise {sc['reference']['se_rel']:.2%}", flush=True)
+        render(scene.replace(spp=1, denoise="on"), dev)          # builds, OIDN's first call
+        for n in spps:
+            img = render(scene.replace(spp=n, seed=n, denoise="on"), dev)
+            base = img.cpu_ms / cores if cpu else img.kernel_ms
+            extra = ((img.info["guides_cpu_ms"] + img.info["denoise_cpu_ms"]) / cores if cpu
+                     else img.info["guides_ms"] + img.info["denoise_ms"])
+            c1, t1 = time.process_time(), time.perf_counter()
+            plain = denoise.denoise(img.noisy)            # OIDN on the colour alone
+            alone = 1e3 * ((time.process_time() - c1) / cores if cpu else time.perf_counter() - t1)
+            for group, pic, t in (("path", img.noisy, base), ("path + OIDN", img.rgba, base + extra),
+                                  ("path + OIDN colour only", plain, base + alone)):
+                row = {"group": group, "label": f"{group} {n} spp", "spp": n, "time_ms": t,
+                       **covered_errors(pic, ref, var, covered)}
+                if group == "path + OIDN":
+                    row.update(guides_ms=img.info["guides_ms"], denoise_ms=img.info["denoise_ms"])
+                sc["rows"].append(row)
+                print(f"[{name}] {row['label']:34s} {t:9.1f} ms  rel rmse (covered) "
+                      f"{row['rel_rmse']:.2%}  mean x{row['mean_ratio']:.3f}", flush=True)
+        out = {}
+        for group in ("path", "path + OIDN", "path + OIDN colour only"):
+            pts = [r for r in sc["rows"] if r["group"] == group]
+            out[group] = time_to_error(pts, DENOISE_TARGET)
+        sc["time_to_5pct"] = out
+        sc["speedup_at_5pct"] = out["path"]["time_ms"] / out["path + OIDN"]["time_ms"]
+        sc["target_met"] = sc["speedup_at_5pct"] >= 8.0
+        print(f"[{name}] to {DENOISE_TARGET:.0%} (covered): path {out['path']['time_ms']:.0f} ms "
+              f"({out['path']['how']}), + OIDN {out['path + OIDN']['time_ms']:.0f} ms "
+              f"({out['path + OIDN']['how']}): x{sc['speedup_at_5pct']:.1f} "
+              f"(target x8: {'met' if sc['target_met'] else 'missed'})", flush=True)
+        pareto(sc["rows"], key="rel_rmse")
+        sc["bench_s"] = time.perf_counter() - t0
+
+
 # --------------------------------------------------------------------------- the command (issue 33)
 
 def run_command(dev, args, record):
@@ -738,6 +853,7 @@ def plot(record, path):
     panels = [("volume", s) for s in record["volume"]] + [("glass", s) for s in record["glass"]]
     panels += [("ms", s) for s in record.get("multiple_scattering", [])]
     panels += [("defaults", s) for s in record.get("defaults", [])]
+    panels += [("denoise", s) for s in record.get("denoise", [])]
     if not panels and record.get("command"):
         return plot_command(record, path)
     if not panels:
@@ -748,7 +864,7 @@ def plot(record, path):
     markers = "osD^v<>pPX*h"
     for ax, (kind, sc) in zip(axes.flat, panels):
         groups = list(dict.fromkeys(r["group"] for r in sc["rows"]))
-        key = {"ms": "rel_rmse", "defaults": "rel_rmse_box2"}.get(kind, "rmse")
+        key = {"ms": "rel_rmse", "defaults": "rel_rmse_box2", "denoise": "rel_rmse"}.get(kind, "rmse")
         for i, g in enumerate(groups):
             rows = [r for r in sc["rows"] if r["group"] == g]
             ax.loglog([r["time_ms"] for r in rows], [max(r[key], 1e-12) for r in rows],
@@ -764,7 +880,14 @@ def plot(record, path):
                 where="post", color="k", lw=1.2, alpha=0.6, label="Pareto front")
         ax.scatter([r["time_ms"] for r in front], [max(r[key], 1e-12) for r in front],
                    s=110, facecolors="none", edgecolors="k", lw=1.2)
-        if kind == "defaults":
+        if kind == "denoise":
+            w, h = sc["size"]
+            title = (f"denoising: {sc['scene']} {w}x{h}, covered pixels (ref {sc['reference']['spp']} "
+                     f"spp); to 5%: x{sc['speedup_at_5pct']:.1f}")
+            ax.axhline(DENOISE_TARGET, color="C3", ls="--", lw=0.6, alpha=0.5)
+            ax.axhline(sc["reference"]["se_rel"], color="grey", ls=":", lw=1,
+                       label="reference noise")
+        elif kind == "defaults":
             w, h = sc["size"]
             title = (f"defaults: {sc['scene']} {w}x{h} (ref: path {sc['reference']['spp']} spp, "
                      "same lights)")
@@ -790,7 +913,7 @@ def plot(record, path):
             axis.set_major_formatter(fmt)
             axis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(2.0, 5.0)))
             axis.set_minor_formatter(fmt)
-        ax.set_ylabel("relative RMSE vs path-traced reference" if kind == "ms" else
+        ax.set_ylabel("relative RMSE vs path-traced reference" if kind in ("ms", "denoise") else
                       "relative RMSE (2x2 box) vs path reference" if kind == "defaults" else
                       "RMSE (RGB) vs reference")
         ax.grid(True, which="both", alpha=0.3)
@@ -859,6 +982,22 @@ def main(argv=None):
     ap.add_argument("--defaults-size", default="160x120", help="defaults section image size")
     ap.add_argument("--defaults-ref-spp", type=int, default=None,
                     help="defaults section: path reference spp per batch (default 128; quick 16)")
+    ap.add_argument("--denoise", action="store_true",
+                    help="also measure error against time with and without the denoiser (issue 34)")
+    ap.add_argument("--denoise-only", action="store_true", help="only the denoising section")
+    ap.add_argument("--denoise-size", default="128x96", help="denoising section: volume image size")
+    ap.add_argument("--denoise-glass-size", default="48x36",
+                    help="denoising section: the bunny's size on CPUs (GPUs: --denoise-size)")
+    ap.add_argument("--denoise-ref-spp", type=int, default=1024,
+                    help="denoising section: the volumes' path reference spp (8 batches)")
+    ap.add_argument("--denoise-glass-ref-spp", type=int, default=128,
+                    help="denoising section: the bunny's reference spp (8 batches)")
+    ap.add_argument("--denoise-max-spp", type=int, default=256,
+                    help="denoising section: the curve's largest spp (powers of two from 1)")
+    ap.add_argument("--denoise-glass-max-spp", type=int, default=32,
+                    help="denoising section: the bunny's largest spp")
+    ap.add_argument("--denoise-scenes", default="wdas,smoke,bunny",
+                    help="denoising section: which of wdas, smoke, bunny")
     ap.add_argument("--command-refs", default=None,
                     help="only the command section (issue 33): `volrender render FILE` for the "
                          "five files against the references in this folder (bench/ms_refs.py)")
@@ -877,7 +1016,14 @@ def main(argv=None):
     if args.defaults_only or args.command_refs:
         args.defaults = not args.command_refs
         args.no_volume = args.no_ms = args.no_glass = True
+    if args.denoise_only:
+        args.denoise = args.no_volume = args.no_ms = args.no_glass = True
     args.command_size = tuple(int(v) for v in args.command_size.lower().split("x"))
+    for name in ("denoise_size", "denoise_glass_size"):
+        try:
+            setattr(args, name, tuple(int(v) for v in getattr(args, name).lower().split("x")))
+        except ValueError:
+            ap.error(f"--{name.replace('_', '-')} takes WxH, got {getattr(args, name)!r}")
     try:
         args.ms_size = tuple(int(v) for v in (args.ms_size or ("32x24" if args.quick else "96x72"))
                              .lower().split("x"))
@@ -898,13 +1044,16 @@ def main(argv=None):
               "time_label": ("kernel ms per frame (median of runs)" if args.time == "kernel" else
                              f"kernel-equivalent ms: CPU ms of the launches / {cores} cores (median)"),
               "load_average_start": os.getloadavg(), "volume": [], "glass": [],
-              "multiple_scattering": [], "defaults": [], "command": []}
+              "multiple_scattering": [], "defaults": [], "command": [], "denoise": []}
     t0 = time.perf_counter()
     if args.command_refs:
         run_command(dev, args, record)
         write_json(path, record)
     if args.defaults:
         run_defaults(dev, args, record)
+        write_json(path, record)
+    if args.denoise:
+        run_denoise(dev, args, record)
         write_json(path, record)
     if not args.no_volume:
         run_volume(dev, width, height, args, record)

@@ -34,12 +34,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import (render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
-                          shared_data, stats, write_json)
+                          shared_data, stats, tile_lists, write_json)
 from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.bricks import Bricks  # noqa: E402
-from volrender.dispatch import Dispatch, is_gpu, parse_tile, upload  # noqa: E402
+from volrender.dispatch import is_gpu, parse_tile  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
-from volrender.volume import VolumeSettings, occupied_bricks, volume_params  # noqa: E402
+from volrender.volume import VolumeSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # density scale per file, chosen so optical depths are cloud-like (see README)
@@ -67,44 +67,15 @@ def sparse_pair():
     return Bricks.from_dense(dense, m, name="sparse_pair")
 
 
-# The tiled kernel's culling alone, to report list lengths and overflows per tile.
-_CULL_SRC = r'''
-#include "common.h"
-#include "structs.h"
-#include "volume.h"
-#include "volume_tile.h"
-__kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
-void tile_counts(__constant Camera* cam, __constant VolumeParams* vp,
-                 __global const int4* occ, int n_occ, __global int* counts, int y0)
-{
-    __local float4 list[VR_TILE_CAP];
-    __local volatile int n_list;
-    vr_tile_cull(cam, vp, occ, n_occ, y0, 0.0f, list, &n_list);
-    if (get_local_id(0) == 0 && get_local_id(1) == 0)
-        counts[get_group_id(1) * get_num_groups(0) + get_group_id(0)] = n_list;
-}
-'''
-
-
 def tile_list_stats(dev, b, cam, tile) -> dict:
     """Occupied bricks per tile list (the frustum test without padding, one launch)."""
-    import pyopencl as cl
-    f = features.VolumeFeatures(**features.VolumeFeatures.dispatch_fields(Dispatch("tiled", tuple(tile))))
-    k = cl.Kernel(dev.build(_CULL_SRC, f.flags(), "bench tile_counts"), "tile_counts")
-    params, w2l = volume_params(b)
-    occ = occupied_bricks(b)
-    nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
-    counts = np.zeros(nx * ny, np.int32)
-    d = cl.Buffer(dev.context, cl.mem_flags.WRITE_ONLY, counts.nbytes)
-    k(dev.queue, (nx * tile[0], ny * tile[1]), tuple(tile), upload(dev.context, cam.pack(w2l)),
-      upload(dev.context, params), upload(dev.context, occ), np.int32(len(occ)), d, np.int32(0))
-    cl.enqueue_copy(dev.queue, counts, d)
-    dev.queue.finish()
+    cap = features.VOLUME_TILE_CAP
+    counts = tile_lists(dev, b, cam, tuple(tile), cap, lists=False)[0].ravel()
     seen = counts[counts > 0]
     return {"tiles": int(counts.size), "tiles_with_bricks": int(seen.size),
             "bricks_per_list_mean": float(seen.mean()) if seen.size else 0.0,
-            "bricks_per_list_max": int(counts.max()), "capacity": f.tile_cap,
-            "tiles_overflowed": int((counts > f.tile_cap).sum())}
+            "bricks_per_list_max": int(counts.max()), "capacity": cap,
+            "tiles_overflowed": int((counts > cap).sum())}
 
 
 def timed(b, cam, lights, s, dev, cpu: bool):

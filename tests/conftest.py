@@ -79,3 +79,25 @@ def pytest_runtest_makereport(item, call):
             rep.outcome = "skipped"
             rep.longrepr = (str(item.path), (item.location[1] or 0) + 1,
                             f"Skipped: needs a .vdb file read or written, and {reason}")
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A 2-worker Dask cluster of processes (one PoCL thread each), per test module."""
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=40,
+                                       env={"POCL_MAX_PTHREAD_COUNT": "1"})
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture
+def log(monkeypatch):
+    """The kernel launches' arguments and faked times (helpers.fake_cost)."""
+    from helpers import spy_args
+    d = {"launches": [], "clock": 0.0, "args": ()}
+    spy_args(monkeypatch, d)
+    return d

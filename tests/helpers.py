@@ -1,6 +1,7 @@
 """Shared helpers of the tests: renders through the public path (`render.render` of a
 `Scene.of(...)`) as an Image (volume_image, render_glass) or as Image.as_dict()
-(render_points, render_volume: 'rgba', each AOV by name, the timings and the info), and,
+(render_points, render_volume: 'rgba', each AOV by name, the timings and the info; the
+wrapper is bench/common.py's, shared with the benchmarks), and,
 for the closed-form tests (test_optics, test_depth, test_env_sampling), grids with a known
 world transform, cameras and reference formulas.
 
@@ -10,22 +11,35 @@ are Z = 5 standard errors: a false alarm has probability ~6e-7 per check for a n
 mean, and seeds are fixed, so a pass or a failure is reproducible."""
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
 
+import numpy as np
+from bench import common
+from bench.common import render_points  # noqa: F401  (the one render wrapper, shared)
+
+from volrender import dispatch
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Environment, GlassContent, Scene, VolumeContent
 from volrender.bricks import Bricks
+from volrender.volume import VolumeSettings
 
 Z = 5.0
+VOX = 0.1            # the voxel size of the synthetic volumes
+ENV = (0.6, 0.8, 1.0)    # a uniform bluish environment (test_path, test_defaults)
 
 
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    """index -> world: voxel size vox, voxel (0, 0, 0) at `offset`."""
+def scaled(vox, offset=(0.0, 0.0, 0.0), rot=None):
+    """index -> world: voxel size vox, voxel (0, 0, 0) at `offset`, axes turned by `rot`."""
     m = np.eye(4)
-    m[:3, :3] *= vox
+    m[:3, :3] = (np.eye(3) if rot is None else rot) * vox
     m[:3, 3] = offset
     return m
+
+
+def top_camera(n=16, fov=6.0):
+    """n x n pixels looking down -z from (0, 0, 5) at the origin."""
+    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), fov, n, n)
 
 
 def centred_bricks(values, vox, **kw):
@@ -198,19 +212,12 @@ def unprivileged_uid():
     return pwd.getpwnam("nobody").pw_uid
 
 
-def render_points(cloud, camera, lights, settings, device, progress=None, variant=None,
-                  launch=None):
-    scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, progress=progress, variant=variant, launch=launch).as_dict()
-
-
 def exact_march(settings):
     """Settings left at --estimator auto render as `march`, and --light-cache auto as
     off, here: these tests check the marcher's estimand (single scattering, or the octaves
     asked for) with its exact shadow marches; auto's choice has its own tests
     (test_defaults.py), through load_scene as the CLI renders, and the cache its own
     (test_light_cache.py)."""
-    import dataclasses
     if settings.estimator == "auto":
         settings = dataclasses.replace(settings, estimator="march")
     if settings.light_cache == "auto":
@@ -221,5 +228,89 @@ def exact_march(settings):
 def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
     """See exact_march."""
     settings = exact_march(settings)
-    scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
-    return render(scene, device, progress=progress, launch=launch).as_dict()
+    return common.render_volume(bricks, camera, lights, settings, device, progress, launch)
+
+
+def lumpy_ball(n=20, seed=4):
+    """A lumpy ball: smooth noise inside a sphere of radius n/2 - 1 voxels."""
+    rng = np.random.default_rng(seed)
+    v = rng.random((n, n, n))
+    for ax in range(3):
+        for _ in range(2):
+            v = (np.roll(v, 1, ax) + v + np.roll(v, -1, ax)) / 3
+    i = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt((i ** 2).sum(0))
+    v = np.where(r < n / 2 - 1.5, 0.4 + (v - v.mean()) / v.std() * 0.15, 0.0)
+    return Bricks.from_dense(np.clip(v, 0, None).astype(np.float32),
+                             scaled(VOX, (-(n - 1) / 2 * VOX,) * 3))
+
+
+def glowing_ball(n=20):
+    """A ball of density falling linearly from 1 at the centre, emitting half of it."""
+    i = np.indices((n, n, n)).astype(np.float64) - (n - 1) / 2
+    v = np.clip(1.0 - np.sqrt((i ** 2).sum(0)) / 8.0, 0.0, None).astype(np.float32)
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    m[:3, 3] = -(n - 1) / 2 * 0.1
+    return Bricks.from_dense(v, m, emission=v * 0.5)
+
+
+def sky(h=16, w=32, seed=3):
+    """A map with a bright sun-like spot, a blue sky and a dark ground."""
+    rng = np.random.default_rng(seed)
+    t = np.zeros((h, w, 3), np.float32)
+    t[: h // 2] = (0.3, 0.45, 0.8)
+    t[h // 2:] = (0.05, 0.04, 0.03)
+    t[3, 20] = (60.0, 55.0, 50.0)
+    t *= rng.uniform(0.8, 1.2, size=(h, w, 1)).astype(np.float32)
+    return t
+
+
+def chi2_sf(x, k):
+    """P(chi-square with k degrees of freedom > x), Wilson-Hilferty (error < 1e-3 in p
+    at these k)."""
+    from math import erfc, sqrt
+    z = ((x / k) ** (1 / 3) - (1 - 2 / (9 * k))) / sqrt(2 / (9 * k))
+    return 0.5 * erfc(z / sqrt(2))
+
+
+# ---- a faked kernel clock (test_cadence, test_eta): each launch 'takes' a cost by row
+
+CADENCE_W, CADENCE_H, CADENCE_SPP = 32, 240, 8   # the fake-clock scene (test_cadence, test_eta)
+
+
+def cadence_scene():
+    v = np.zeros((8, 8, 8), np.float32)
+    v[2:6, 2:6, 2:6] = 1.0
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    camera = Camera((0.4, 0.4, 3.0), (0.4, 0.4, 0.4), (0.0, 1.0, 0.0), 40.0, CADENCE_W, CADENCE_H)
+    return Scene(camera, (),
+                 VolumeContent(Bricks.from_dense(v, m), VolumeSettings(spp=CADENCE_SPP)))
+
+
+def fake_cost(monkeypatch, per_sample, log):
+    """Each launch 'takes' the sum of per_sample(row) over its rows x its samples x width."""
+    real = dispatch._enqueue
+
+    def enqueue(device, kernel, global_size, local_size):
+        ns, _ = real(device, kernel, global_size, local_size)
+        y0, s0, s1 = log["args"][-3:]
+        rows = min(global_size[1], CADENCE_H - int(y0))
+        took = CADENCE_W * int(s1 - s0) * sum(
+            per_sample(y) for y in range(int(y0), int(y0) + rows))
+        log["launches"].append((int(y0), rows, int(s1 - s0), took))
+        log["clock"] += took
+        return ns, took
+    monkeypatch.setattr(dispatch, "_enqueue", enqueue)
+
+
+def spy_args(monkeypatch, log):
+    """Record the last set_args of each kernel run (y0, s0, s1 are its last three)."""
+    import pyopencl as cl
+    real = cl.Kernel.set_args
+
+    def set_args(self, *a):
+        log["args"] = a
+        return real(self, *a)
+    monkeypatch.setattr(cl.Kernel, "set_args", set_args)

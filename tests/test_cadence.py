@@ -8,60 +8,15 @@ import numpy as np
 import pytest
 
 from volrender import dispatch
-from volrender.camera import Camera
-from volrender.dispatch import Launch
 from volrender.render import render
-from volrender.scene import Scene, VolumeContent
-from volrender.bricks import Bricks
-from volrender.volume import VolumeSettings
 
-W, H, SPP = 32, 240, 8
+from helpers import CADENCE_H as H, cadence_scene as scene, fake_cost
 
-
-def scene():
-    v = np.zeros((8, 8, 8), np.float32)
-    v[2:6, 2:6, 2:6] = 1.0
-    m = np.eye(4)
-    m[:3, :3] *= 0.1
-    return Scene(Camera((0.4, 0.4, 3.0), (0.4, 0.4, 0.4), (0.0, 1.0, 0.0), 40.0, W, H), (),
-                 VolumeContent(Bricks.from_dense(v, m), VolumeSettings(spp=SPP)))
-
-
-def fake_cost(monkeypatch, per_sample, log):
-    """Each launch 'takes' the sum of per_sample(row) over its rows x its samples x W."""
-    real = dispatch._enqueue
-
-    def enqueue(device, kernel, global_size, local_size):
-        ns, _ = real(device, kernel, global_size, local_size)
-        y0, s0, s1 = log["args"][-3:]
-        rows = min(global_size[1], H - int(y0))
-        took = W * int(s1 - s0) * sum(per_sample(y) for y in range(int(y0), int(y0) + rows))
-        log["launches"].append((int(y0), rows, int(s1 - s0), took))
-        log["clock"] += took
-        return ns, took
-    monkeypatch.setattr(dispatch, "_enqueue", enqueue)
-
-
-def spy_args(monkeypatch, log):
-    """Record the last set_args of each kernel run (y0, s0, s1 are its last three)."""
-    import pyopencl as cl
-    real = cl.Kernel.set_args
-
-    def set_args(self, *a):
-        log["args"] = a
-        return real(self, *a)
-    monkeypatch.setattr(cl.Kernel, "set_args", set_args)
+SPP = 8
 
 
 def cheap_then_dense(y):
     return 1e-8 if y < 40 else 2e-4       # empty rows above, then 0.05 s per row-sample
-
-
-@pytest.fixture
-def log(monkeypatch):
-    d = {"launches": [], "clock": 0.0, "args": ()}
-    spy_args(monkeypatch, d)
-    return d
 
 
 def test_cheap_band_does_not_make_one_launch_cover_the_image(cl_device, monkeypatch, log):

@@ -8,7 +8,9 @@ import pytest
 from glass_probe import Probe
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from volrender import cells, cli, generators, glass, reference, spheres
+import reference
+
+from volrender import cells, cli, generators, glass, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun
@@ -99,7 +101,7 @@ def test_lists_hold_the_support_and_bounds_hold(cl_device, case):
     for j in range(len(q)):
         pts = x[j]
         if code[j] >= 0:
-            need = cells.support(pts, c, r, blend)
+            need = reference.support(pts, c, r, blend)
             member = np.zeros(len(c), bool)
             member[lists[j]] = True
             assert (member[None] | ~need).all(), f"cell {q[j]} misses a sphere that matters"
@@ -128,8 +130,8 @@ def test_builder_matches_the_numpy_oracle(cl_device, rng, blend):
     c, r = p.spheres[:, :3].astype(np.float64), p.spheres[:, 3].astype(np.float64)
     q = rng.integers(0, g.dims, size=(150, 3))
     lo, hi = g.box(q)
-    member, lower, upper = cells.oracle(c, r, blend, lo, hi)
-    wide, _, _ = cells.oracle(c, r, blend + 2 * g.pad if blend else 0.0, lo, hi)
+    member, lower, upper = reference.oracle(c, r, blend, lo, hi)
+    wide, _, _ = reference.oracle(c, r, blend + 2 * g.pad if blend else 0.0, lo, hi)
     code, _, lists = g.lookup(q)
     assert (code >= 0).all()
     for j in range(len(q)):
@@ -155,7 +157,7 @@ def test_oracle_support_and_bounds_on_two_spheres():
     c = np.array([[-1.5, 0, 0], [1.5, 0, 0]])
     r = np.ones(2)
     lo = np.array([[-0.1, -0.1, -0.1], [-1.6, -0.1, -0.1], [-0.1, 3.0, -0.1]])
-    member, lower, upper = cells.oracle(c, r, 0.5, lo, lo + 0.2)
+    member, lower, upper = reference.oracle(c, r, 0.5, lo, lo + 0.2)
     assert member[0].all()
     assert member[1, 0] and not member[1, 1] and upper[1] < 0
     assert lower[2] > 0
@@ -366,8 +368,8 @@ def test_host_lists_agree_with_the_device(cl_device, rng):
     q = rng.integers(0, g.dims, size=(200, 3))
     lo, hi = g.box(q)
     args = (p.spheres, t.lo - p.centre, t.hi - p.centre, t.start, t.count, t.depth)
-    off, idx = cells.host_lists(*args, p.blend, lo, hi)
-    off2, idx2 = cells.host_lists(*args, p.blend + 4 * g.pad, lo - g.pad, hi + g.pad)
+    off, idx = reference.host_lists(*args, p.blend, lo, hi)
+    off2, idx2 = reference.host_lists(*args, p.blend + 4 * g.pad, lo - g.pad, hi + g.pad)
     _, _, lists = g.lookup(q)
     for j in range(len(q)):
         dev, host, wide = (set(lists[j].tolist()), set(idx[off[j]:off[j + 1]].tolist()),

@@ -16,15 +16,14 @@ from volrender.render import render
 from volrender.scene import Scene, VolumeContent
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
-from helpers import render_volume
-from test_path import ENV, soft_ball
+from helpers import ENV, lumpy_ball, render_volume
 
 CAM = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
 
 
 def furnace(cl_device, density, **kw):
     s = VolumeSettings(density_scale=density, albedo=1.0, env=ENV, phase=(0.5, -0.3, 0.7), **kw)
-    img = render(Scene.of(CAM, [], VolumeContent(soft_ball(), s)), cl_device)
+    img = render(Scene.of(CAM, [], VolumeContent(lumpy_ball(), s)), cl_device)
     rgba = img.rgba.astype(np.float64)
     hit = rgba[..., 3] > 0
     return rgba[..., :3][hit] / np.asarray(ENV), img

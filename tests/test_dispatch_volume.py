@@ -22,24 +22,15 @@ import pytest
 
 from volrender import camera as camera_mod, features, layout, volume as volume_mod, vdb
 from volrender.camera import Camera
-from volrender.dispatch import upload
 from volrender.errors import UserError
-from volrender.features import VolumeFeatures
 from volrender.lights import PointLight, Sun
-from volrender.volume import VolumeSettings, occupied_bricks, volume_params
+from volrender.volume import VolumeSettings
 from volrender.bricks import Bricks
 from volrender.dispatch import Launch
-from helpers import render_volume
+from bench.common import tile_lists
+from helpers import VOX, render_volume, scaled
 
-VOX = 0.1
 LIGHTS = [Sun((-1.0, -0.5, -0.3), 2.0), PointLight((0.3, 4.0, 0.2), 40.0)]
-
-
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
 
 
 def local_origin(b, cam):
@@ -185,7 +176,7 @@ def test_list_overflow_falls_back_to_the_full_march(cl_device, sparse):
     """With a local list of 5 bricks, some tiles of this view overflow (they march the
     whole box) and some do not: the image is the same."""
     cam = Camera((0.0, 1.5, 11.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 75.0, 40, 24)
-    counts = tile_lists(cl_device, sparse, cam, (8, 8))[0]
+    counts = tile_lists(cl_device, sparse, cam, (8, 8), cap=1024)[0]
     assert (counts > 5).sum() >= 2 and ((counts > 0) & (counts <= 5)).sum() >= 1
     ref, _ = compare(cl_device, sparse, cam, VolumeSettings(density_scale=6.0),
                      launch=Launch(tile_cap=5))
@@ -242,49 +233,6 @@ def test_fragment_compiles_no_local_memory(cl_device, dense):
 
 # ----------------------------------------------------------------- the culling itself
 
-CULL_SRC = r'''
-#include "common.h"
-#include "structs.h"
-#include "volume.h"
-#include "volume_tile.h"
-__kernel __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
-void tile_lists(__constant Camera* cam, __constant VolumeParams* vp,
-                __global const int4* occ, int n_occ, __global int* counts,
-                __global float4* lists, int y0)
-{
-    __local float4 list[VR_TILE_CAP];
-    __local volatile int n_list;
-    vr_tile_cull(cam, vp, occ, n_occ, y0, 0.0f, list, &n_list);
-    int tile = get_group_id(1) * get_num_groups(0) + get_group_id(0);
-    int lid = get_local_id(1) * VR_TILE_W + get_local_id(0);
-    if (lid == 0)
-        counts[tile] = n_list;
-    for (int i = lid; i < min(n_list, VR_TILE_CAP); i += VR_TILE_W * VR_TILE_H)
-        lists[tile * VR_TILE_CAP + i] = list[i];
-}
-'''
-
-
-def tile_lists(dev, b, cam, tile, cap=1024):
-    """Per tile: how many bricks vr_tile_cull keeps, and which (brick coordinates)."""
-    f = VolumeFeatures(tiled=True, tile_w=tile[0], tile_h=tile[1], tile_cap=cap)
-    k = cl.Kernel(dev.build(CULL_SRC, f.flags(), "tile_lists"), "tile_lists")
-    params, w2l = volume_params(b)
-    occ = occupied_bricks(b)
-    nx, ny = -(-cam.width // tile[0]), -(-cam.height // tile[1])
-    counts = np.zeros(nx * ny, np.int32)
-    lists = np.zeros((nx * ny, cap, 4), np.float32)
-    ctx = dev.context
-    d_counts = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, counts.nbytes)
-    d_lists = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, lists.nbytes)
-    k(dev.queue, (nx * tile[0], ny * tile[1]), tile, upload(ctx, cam.pack(w2l)), upload(ctx, params),
-      upload(ctx, occ), np.int32(len(occ)), d_counts, d_lists, np.int32(0))
-    cl.enqueue_copy(dev.queue, counts, d_counts)
-    cl.enqueue_copy(dev.queue, lists, d_lists)
-    dev.queue.finish()
-    return counts.reshape(ny, nx), lists.reshape(ny, nx, cap, 4), len(occ)
-
-
 def crossed_bricks(b, cam, x0, x1, y0, y1, n=6, samples=4000):
     """Occupied bricks that rays through the pixel rectangle [x0, x1] x [y0, y1] cross
     (an n x n grid of rays incl. the edges, each sampled densely), local coordinates."""
@@ -316,7 +264,7 @@ def test_culling_is_conservative_and_culls(cl_device, sparse, shared_data, case)
                if case == "sparse" else
                Camera((-8.3, 0.0, 0.0), (8.0, 0.3, 0.1), (0.0, 1.0, 0.0), 50.0, 32, 32))
     tile = (16, 8)
-    counts, lists, n_occ = tile_lists(cl_device, b, cam, tile)
+    counts, lists, n_occ = tile_lists(cl_device, b, cam, tile, cap=1024)
     assert counts.max() <= 1024
     assert counts.mean() < 0.5 * n_occ
     for ty in range(counts.shape[0]):

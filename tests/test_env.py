@@ -4,7 +4,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import reference
+import reference
 from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError
@@ -16,8 +16,7 @@ from volrender.scene import Scene, VolumeContent
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
-from test_phase import chi2_sf
-from helpers import render_points, render_volume
+from helpers import chi2_sf, render_points, render_volume, sky, top_camera
 
 SRC = """
 #include "common.h"
@@ -42,17 +41,6 @@ __kernel void lookup(__global const float4* env, int w, int h, __global const fl
     out[i] = (float4)(vr_env_map(env, w, h, dirs[i].xyz), 0.0f);
 }
 """
-
-
-def sky(h=16, w=32, seed=3):
-    """A map with a bright sun-like spot, a blue sky and a dark ground."""
-    rng = np.random.default_rng(seed)
-    t = np.zeros((h, w, 3), np.float32)
-    t[: h // 2] = (0.3, 0.45, 0.8)
-    t[h // 2:] = (0.05, 0.04, 0.03)
-    t[3, 20] = (60.0, 55.0, 50.0)
-    t *= rng.uniform(0.8, 1.2, size=(h, w, 1)).astype(np.float32)
-    return t
 
 
 def run(dev, name, size, *args, out_shape):
@@ -154,10 +142,6 @@ def thin_slab(n=24, k0=10, k1=13):
     return Bricks.from_dense(v, m)
 
 
-def top_camera(n=12):
-    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 4.0, n, n)
-
-
 @pytest.mark.parametrize("g", [0.0, 0.6])
 def test_march_env_single_scattering_in_a_thin_slab(cl_device, tmp_path, g):
     """An optically thin slab (tau 4e-3) under a map: the scattered light is
@@ -167,7 +151,7 @@ def test_march_env_single_scattering_in_a_thin_slab(cl_device, tmp_path, g):
     t = sky()
     write_image(tmp_path / "sky.exr", np.concatenate([t, np.ones_like(t[..., :1])], -1))
     b = thin_slab()
-    cam = top_camera()
+    cam = top_camera(12, fov=4.0)
     s = VolumeSettings(density_scale=0.01, albedo=0.8, phase=(g, 0.0, 1.0), env=str(tmp_path / "sky.exr"),
                        spp=256, seed=5, step=0.5, shadow_step=0.5, hide_env=True)
     rgba = render_volume(b, cam, [], s, cl_device)["rgba"].astype(np.float64)
@@ -278,6 +262,13 @@ def test_a_missing_env_map_is_a_user_error(tmp_path):
         scene.request(tmp_path / "v.npz", env=(1.0, 2.0))
 
 
+def needs_oiio():
+    """Skip where OpenImageIO (a dependency of `pip install volrender`, which reads .hdr) is
+    missing, e.g. where the package was installed with --no-deps."""
+    pytest.importorskip("OpenImageIO", reason="needs OpenImageIO (Radiance .hdr maps are read "
+                        "through it; pip install OpenImageIO)")
+
+
 def write_rgbe(path, texels):
     import OpenImageIO as oiio
     out = oiio.ImageOutput.create(str(path))
@@ -292,6 +283,7 @@ def test_a_radiance_hdr_environment_reads_as_the_map_it_holds(tmp_path, cl_devic
     its texel's largest; row 0 stays the top (the sun spot where it was); rendering with the
     .hdr equals rendering with the same texels as an .exr."""
     from volrender import render, scene
+    needs_oiio()
     t = sky()
     write_rgbe(tmp_path / "sky.hdr", t)
     got = load_environment(tmp_path / "sky.hdr")
@@ -307,7 +299,18 @@ def test_a_radiance_hdr_environment_reads_as_the_map_it_holds(tmp_path, cl_devic
 
 
 def test_a_broken_hdr_environment_is_a_user_error(tmp_path):
+    needs_oiio()
     p = tmp_path / "cut.hdr"
     p.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n\x02\x02")
     with pytest.raises(UserError, match=r"cut\.hdr: cannot read the Radiance HDR image"):
+        load_environment(p)
+
+
+def test_an_hdr_environment_without_openimageio_is_a_user_error(tmp_path, monkeypatch):
+    """Without OpenImageIO a .hdr map is one error line naming the missing package."""
+    import sys
+    monkeypatch.setitem(sys.modules, "OpenImageIO", None)        # import fails
+    p = tmp_path / "sky.hdr"
+    p.write_bytes(b"#?RADIANCE\n")
+    with pytest.raises(UserError, match=r"sky\.hdr: reading a Radiance HDR image needs OpenImageIO"):
         load_environment(p)

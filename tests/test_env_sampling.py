@@ -10,9 +10,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from helpers import Z, centred_bricks, look_at, volume_image
-from test_env import sky
-from test_phase import chi2_sf
+from helpers import Z, centred_bricks, chi2_sf, look_at, sky, volume_image
 from volrender.dispatch import upload
 from volrender.volume import VolumeSettings, env_distribution
 

@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from volrender import generators, glass, reference, spheres, tree as tree_mod
+import reference
+from volrender import generators, glass, spheres, tree as tree_mod, tree_device
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.image import write_image
@@ -19,16 +20,7 @@ from volrender.lights import PointLight, Sun
 from volrender.cloud import PointCloud
 from volrender.volume import G_MAX, VolumeSettings
 from volrender.bricks import Bricks
-from helpers import render_points, render_volume
-
-VOX = 0.1
-
-
-def scaled(vox, offset=(0.0, 0.0, 0.0)):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
+from helpers import VOX, render_points, render_volume, scaled
 
 
 def ball(n, radius, value=1.0):
@@ -40,7 +32,6 @@ def centred(values, vox=VOX, shift=(0.0, 0.0, 0.0)):
     """Bricks of `values` with the array's centre at world `shift`."""
     c = (np.array(values.shape) - 1) / 2 * vox
     return Bricks.from_dense(values, scaled(vox, np.asarray(shift) - c))
-
 
 
 def impact(cam, centre=(0.0, 0.0, 0.0)):
@@ -151,10 +142,13 @@ def lit_ball(cl_device, bricks, phase, shadows=False, cam=None):
 
 @pytest.mark.parametrize("g", [G_MAX, -G_MAX])
 def test_g_at_the_clamp_follows_hg_and_equals_g_one(cl_device, ball_bricks, g):
-    """|g| = 0.999 (no warning): the unshadowed closed form L = albedo HG(mu; g) E alpha
-    holds; |g| = 1 is clamped to exactly that image."""
+    """|g| = 0.999 (no clamp warning): the unshadowed closed form L = albedo HG(mu; g) E
+    alpha holds; |g| = 1 is clamped to exactly that image. Only the clamp's warning is an
+    error here: NVIDIA's compiler prints build notes, which pyopencl reports as a
+    CompilerWarning on a kernel's first (uncached) build, so erroring on every warning
+    failed on the H200 whenever this test built the kernel (issue 39)."""
     with warnings.catch_warnings():
-        warnings.simplefilter("error")
+        warnings.filterwarnings("error", message=".*clamped")
         r, cam, sun = lit_ball(cl_device, ball_bricks, (g, 0.0, 1.0))
     finite(r)
     mu = -cam.pixel_dirs() @ np.array(sun.direction)
@@ -528,6 +522,14 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
         return built[-1]
 
     monkeypatch.setattr(tree_mod, "build", spy)
+    built_on_device = []                # GPUs build the tree there (glass.pack_scene)
+    real_device_build = tree_device.build
+
+    def device_spy(*args, **kw):
+        built_on_device.append(real_device_build(*args, **kw))
+        return built_on_device[-1]
+
+    monkeypatch.setattr(tree_device, "build", device_spy)
     cloud = PointCloud(c, np.full(n, 0.3))
     cam = Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.5), (0.0, 1.0, 0.0), 20.0, 3, 3)
     r = render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32,
@@ -537,9 +539,17 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     assert r["accel"] == "tree" and "centres in one brick" in r["note"]   # cells give way
     finite(img)
     assert img[1, 1, 3] == 1.0
-    (t,) = built
-    tree_mod.check_invariants(t, c, 0.3)
-    lc = t.count[t.first_leaf:]
+    if built:                           # the numpy build (CPUs)
+        (t,) = built
+        tree_mod.check_invariants(t, c, 0.3)
+        count, first = t.count, t.first_leaf
+    else:                               # the device's (test_tree_device.py: the same tree)
+        (d,) = built_on_device
+        order, start, count = d[:3]
+        first = len(count) // 2
+        np.testing.assert_array_equal(np.sort(order), np.arange(n))
+        assert start[1] == 0 and count[1] == n
+    lc = count[first:]
     assert lc.max() - lc.min() <= 1 and lc.max() <= glass.GlassSettings.leaf_size
 
 

@@ -125,3 +125,23 @@ def test_a_huge_scene_file_is_refused_before_it_is_read(tmp_path):
         f.truncate(files.MAX_TOML + 1)
     with pytest.raises(UserError, match="a scene file is at most 16 MiB"):
         scene_file.read(p)
+
+
+def test_npy_format_versions_read_without_numpys_private_header_reader(tmp_path):
+    """Versions 1.0, 2.0 and 3.0 load; any other is one error line. The reader once called
+    numpy.lib.format._read_array_header for versions other than 1.0 and 2.0, which numpy 2
+    removed: a .npy of version 0.1 (a fuzz finding, tests/data/fuzz/npy/) raised
+    AttributeError there."""
+    import numpy as np
+    from volrender.errors import UserError
+    from volrender.points import load_points
+    a = np.arange(12, dtype=np.float64).reshape(4, 3)
+    for v in ((1, 0), (2, 0), (3, 0)):
+        p = tmp_path / f"v{v[0]}.npy"
+        with open(p, "wb") as f:
+            np.lib.format.write_array(f, a, version=v)
+        np.testing.assert_array_equal(load_points(p).centers, a)
+    bad = tmp_path / "v0.npy"
+    bad.write_bytes((tmp_path / "v1.npy").read_bytes().replace(b"NUMPY\x01\x00", b"NUMPY\x00\x01", 1))
+    with pytest.raises(UserError, match=r"v0\.npy: not a readable \.npy array \(unknown \.npy format version 0\.1\)"):
+        load_points(bad)

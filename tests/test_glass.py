@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from glass_probe import Probe, optics
 
-from volrender import generators, glass, reference, spheres
+import reference
+from volrender import generators, glass, spheres
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun

@@ -124,3 +124,40 @@ def test_the_private_import_finder_finds_both_forms(tmp_path):
     (tmp_path / "d.py").write_text("from . import a as m\nprint(m._x, m.y, m.__all__)\n")
     (tmp_path / "e.py").write_text("from . import a\nprint(a.y)\n")
     assert private_imports(tmp_path) == ["b: _x", "c: _x", "d: m._x"]
+
+
+LONG = 500          # lines; a module above it says why at its top ("Long file: ...")
+
+
+def long_files(pkg=PKG) -> list:
+    """'module (lines)' for each module of the package above LONG lines whose docstring
+    gives no reason."""
+    out = []
+    for p in sorted(pkg.glob("*.py")):
+        text = p.read_text()
+        n = text.count("\n")
+        doc = ast.get_docstring(ast.parse(text, str(p))) or ""
+        if n > LONG and "Long file:" not in doc:
+            out.append(f"{p.stem} ({n})")
+    return out
+
+
+def test_long_modules_say_why(tmp_path):
+    assert long_files() == [], "split the module, or write 'Long file: why' in its docstring"
+    (tmp_path / "a.py").write_text('"""A."""\n' + "x = 1\n" * (LONG + 1))
+    (tmp_path / "b.py").write_text('"""B.\n\nLong file: one idea."""\n' + "x = 1\n" * LONG)
+    assert long_files(tmp_path) == [f"a ({LONG + 2})"]
+
+
+def test_no_test_module_imports_another():
+    """Shared test code lives in tests/helpers.py, tests/reference.py and conftest.py
+    fixtures; a test module that imports another runs that module's fixtures and globals."""
+    tests = Path(__file__).resolve().parent
+    names = {p.stem for p in tests.glob("test_*.py")}
+    found = []
+    for p in sorted(tests.glob("test_*.py")):
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            mods = [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else \
+                [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            found += [f"{p.stem}: {m}" for m in mods if m in names]
+    assert found == []

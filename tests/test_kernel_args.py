@@ -7,7 +7,7 @@ import pytest
 from volrender import generators, glass, volume
 from volrender.lights import PointLight, Sun
 from volrender.scene import GlassContent, Scene, VolumeContent
-from test_launch import soft_ball
+from helpers import glowing_ball
 
 
 def kernel_names(dev, plan):
@@ -22,7 +22,7 @@ def kernel_names(dev, plan):
 
 def plans(dev):
     lights = (Sun((0.2, -1.0, -0.4), 2.0), PointLight((0.5, 0.5, 0.5), 1.0))
-    ball = soft_ball()
+    ball = glowing_ball()
     from volrender.camera import Camera
     cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8)
     for est in ("march", "track"):
@@ -36,8 +36,21 @@ def plans(dev):
         yield glass.plan(Scene(glass.default_camera(cloud, 8, 8), lights, content), dev)
 
 
+def guide_plans(dev):
+    """The denoising guides' launches (volrender.guides) beside a render plan of each kind."""
+    from volrender import guides
+    lights = (Sun((0.2, -1.0, -0.4), 2.0),)
+    from volrender.camera import Camera
+    cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8)
+    vs = Scene(cam, lights, VolumeContent(soft_ball(), volume.VolumeSettings(estimator="march")))
+    yield guides.plan(vs, volume.plan(vs, dev))
+    cloud = generators.blob(60, seed=1)
+    gs = Scene(glass.default_camera(cloud, 8, 8), lights, GlassContent(cloud, glass.GlassSettings()))
+    yield guides.plan(gs, glass.plan(gs, dev))
+
+
 def test_plans_pass_arguments_by_the_kernels_names(cl_device):
-    for plan in plans(cl_device):
+    for plan in [*plans(cl_device), *guide_plans(cl_device)]:
         names = kernel_names(cl_device, plan)
         want = plan.arg_names()
         assert len(names) == len(want), (plan.entry, names, want)

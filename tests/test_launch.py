@@ -4,26 +4,17 @@ and the progress bar counts every pixel-sample."""
 import numpy as np
 import pytest
 
+from helpers import glowing_ball
 from volrender import dispatch, generators, glass
 from volrender.dispatch import Launch
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.render import render
 from volrender.scene import GlassContent, Scene, VolumeContent
-from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
 # (rows, samples) per launch: every tile row and every sample its own launch; uneven
 SPLITS = [(1, 1), (9, 2), (40, 3)]
-
-
-def soft_ball(n=20):
-    i = np.indices((n, n, n)).astype(np.float64) - (n - 1) / 2
-    v = np.clip(1.0 - np.sqrt((i ** 2).sum(0)) / 8.0, 0.0, None).astype(np.float32)
-    m = np.eye(4)
-    m[:3, :3] *= 0.1
-    m[:3, 3] = -(n - 1) / 2 * 0.1
-    return Bricks.from_dense(v, m, emission=v * 0.5)
 
 
 def renders(cl_device, scene, variant=None):
@@ -43,7 +34,7 @@ def test_volume_splits_are_bit_identical(cl_device, estimator, dispatch_kind):
     s = VolumeSettings(density_scale=3.0, spp=5, seed=4, estimator=estimator, emission_grid="emission",
                        aovs=("depth",), dispatch=dispatch_kind, tile=(4, 4), background=(0.1, 0.2, 0.3))
     scene = Scene(cam, (Sun((0.2, -1.0, -0.4), 2.0), PointLight((0.5, 0.5, 0.5), 1.0)),
-                  VolumeContent(soft_ball(), s))
+                  VolumeContent(glowing_ball(), s))
     whole, split = renders(cl_device, scene)
     assert whole.rgba[..., 3].max() > 0.3
     for how, img in split:
@@ -66,7 +57,7 @@ def test_glass_splits_are_bit_identical(cl_device, variant):
 def test_progress_counts_every_sample(cl_device, monkeypatch, capsys):
     """The bar (forced on) ends at width x height x spp samples and all rows."""
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 24)
-    scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=3)))
+    scene = Scene(cam, (), VolumeContent(glowing_ball(), VolumeSettings(spp=3)))
     bars = []
     real = dispatch.Progress
 
@@ -93,7 +84,7 @@ def test_launches_adapt_to_the_target(cl_device, monkeypatch):
         return real(self, samples, rows, s1)
     monkeypatch.setattr(dispatch.Progress, "update", spy)
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 16, 64)
-    scene = Scene(cam, (), VolumeContent(soft_ball(), VolumeSettings(spp=4)))
+    scene = Scene(cam, (), VolumeContent(glowing_ball(), VolumeSettings(spp=4)))
     gpu = dispatch.is_gpu(cl_device)          # GPUs launch whole frames, splitting samples
     render(scene, cl_device, launch=Launch(first=16 * 8, target_s=1e-9))
     assert sizes == ([16 * 64] * 4 if gpu else [16 * 8] * (8 * 4))

@@ -34,7 +34,11 @@ def test_one_octave_is_single_scattering_bit_for_bit(cl_device, monkeypatch):
     monkeypatch.setattr(volume_mod, "emission_color",
                         lambda s: s.emission_scale * b93f561_blackbody(s.emission_temperature))
     same_device = cl_device.name == meta["device"]
+    missing = []
     for name, b, cam, lights, kw in march_scenes.scenes():
+        if b is None:
+            missing.append(name)
+            continue
         got = march_scenes.render(cl_device, name, b, cam, lights, kw, ms_octaves=1)
         for key, a in got.items():
             ref = np.load(REFS / f"march_{name}_{key}.npy")
@@ -42,6 +46,8 @@ def test_one_octave_is_single_scattering_bit_for_bit(cl_device, monkeypatch):
                 np.testing.assert_array_equal(a, ref, err_msg=f"{name} {key}")
             else:        # another CPU or GPU: its own float rounding, nothing more
                 np.testing.assert_allclose(a, ref, rtol=1e-4, atol=1e-6, err_msg=f"{name} {key}")
+    if missing:          # the others were checked above
+        pytest.skip(f"scene {', '.join(missing)} needs OpenVDB's Python binding (a .vdb file)")
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 from glass_probe import optics
 
 from helpers import env_lookup, fresnel, look_at, ray_sphere, render_glass, texel_dirs
-from volrender import reference
+import reference
 from volrender.glass import GlassSettings
 from volrender.lights import PointLight, Sun
 from volrender.cloud import PointCloud

@@ -10,34 +10,11 @@ import pytest
 from volrender import cli
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
-from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 from conftest import ROOT
-from helpers import render_volume
+from helpers import ENV, lumpy_ball, render_volume
 
-VOX = 0.1
 Z = 5.0
-
-
-def scaled(vox, offset):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
-
-
-def soft_ball(n=20, seed=4):
-    """A lumpy ball: smooth noise inside a sphere of radius n/2 - 1 voxels."""
-    rng = np.random.default_rng(seed)
-    v = rng.random((n, n, n))
-    for ax in range(3):
-        for _ in range(2):
-            v = (np.roll(v, 1, ax) + v + np.roll(v, -1, ax)) / 3
-    i = np.indices((n, n, n)) - (n - 1) / 2
-    r = np.sqrt((i ** 2).sum(0))
-    v = np.where(r < n / 2 - 1.5, 0.4 + (v - v.mean()) / v.std() * 0.15, 0.0)
-    return Bricks.from_dense(np.clip(v, 0, None).astype(np.float32),
-                             scaled(VOX, (-(n - 1) / 2 * VOX,) * 3))
 
 
 def batches(b, cam, lights, n, **kw):
@@ -55,14 +32,11 @@ def _device(cl_device):
     DEV[:] = [cl_device]
 
 
-ENV = (0.6, 0.8, 1.0)
-
-
 @pytest.mark.parametrize("density", [1.0, 12.0])
 def test_white_furnace(density):
     """Albedo 1, no lights, inside a uniform environment of radiance L: every pixel is L
     (optical depth across the ball ~0.7 and ~8). With albedo 0.6 no pixel exceeds L."""
-    b = soft_ball()
+    b = lumpy_ball()
     cam = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
     mean, se = batches(b, cam, [], 16, density_scale=density, albedo=1.0, env=ENV,
                        estimator="path", max_depth=100000, spp=16, phase=(0.5, -0.3, 0.7))
@@ -87,7 +61,7 @@ def test_white_furnace(density):
 def test_more_depth_never_darkens():
     """Without an environment the first k vertices of a path draw the same random numbers
     whatever max_depth is, so each extra depth only adds light: per pixel, exactly."""
-    b = soft_ball()
+    b = lumpy_ball()
     cam = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
     lights = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((0.8, 0.9, 0.5), 1.0)]
     prev = None
@@ -109,7 +83,7 @@ def test_depth_one_is_the_marchs_single_scattering():
     environment light is one phase-sampled direction per step, so it is averaged over
     spp too): per pixel within 6 path standard errors plus the march's own step error
     and noise (the difference between two march steps bounds both)."""
-    b = soft_ball(seed=7)
+    b = lumpy_ball(seed=7)
     cam = Camera((1.4, 0.8, 2.6), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 12, 12)
     sun = [Sun((0.7, -0.5, 0.45), 2.0)]
     base = dict(density_scale=3.0, albedo=0.8, phase=(0.6, -0.3, 0.8), env=(0.2, 0.25, 0.4),
@@ -131,7 +105,7 @@ def test_coloured_media_are_grey_media_channel_by_channel():
     """sigma_t scale s and albedo a per channel: channel c renders as a grey medium of
     density s_c and albedo a_c. The march: the same numbers, to rounding. The path
     estimator (spectral tracking, depth 6): within noise of the grey path renders."""
-    b = soft_ball(seed=9)
+    b = lumpy_ball(seed=9)
     cam = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 12, 12)
     sun = [Sun((-0.5, -1.0, -0.3), 3.0)]
     s_c, a_c = (0.5, 1.0, 2.0), (0.95, 0.8, 0.6)
@@ -156,7 +130,7 @@ def test_coloured_media_are_grey_media_channel_by_channel():
 
 
 def test_path_image_does_not_depend_on_the_launch():
-    b = soft_ball()
+    b = lumpy_ball()
     cam = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 13, 7)
     base = dict(density_scale=6.0, spp=3, seed=2, estimator="path", max_depth=8,
                 env=(0.2, 0.3, 0.4), aovs=("depth",))

@@ -3,7 +3,8 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import reference
+from helpers import chi2_sf
+import reference
 
 SRC = """
 #include "common.h"
@@ -118,14 +119,6 @@ def hg_cdf(mu, g):
 
 
 CHI2_LEVEL = 1e-3           # per case; the seeds are fixed, so a pass is reproducible
-
-
-def chi2_sf(x, k):
-    """P(chi-square with k degrees of freedom > x), Wilson-Hilferty (error < 1e-3 in p
-    at these k)."""
-    from math import erfc, sqrt
-    z = ((x / k) ** (1 / 3) - (1 - 2 / (9 * k))) / sqrt(2 / (9 * k))
-    return 0.5 * erfc(z / sqrt(2))
 
 
 @pytest.mark.parametrize("g1,g2,w", [(0.0, 0.0, 1.0), (0.6, 0.0, 1.0), (-0.9, 0.0, 1.0),

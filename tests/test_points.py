@@ -8,6 +8,12 @@ from volrender.cloud import PointCloud
 from volrender.generators import blob, generate, GENERATORS, glass_gather, uniform_box
 from volrender.points import load_points
 
+def num(v):
+    """A number as text that reads back exactly: repr of the Python value (numpy 2's
+    repr of a numpy scalar is `np.float64(...)`, which no point reader parses)."""
+    return repr(v.item() if isinstance(v, np.generic) else v)
+
+
 VERTEX = [("x", "f4"), ("y", "f4"), ("z", "f4")]
 
 
@@ -34,7 +40,7 @@ def write_ply(path, fmt, vertex_props, vertex_rows, before=(), after=(), extra_h
                 dt = np.dtype([(n, endian + t) for n, t in vertex_props])
                 body += np.array([tuple(r) for r in rows], dtype=dt).tobytes()
             else:
-                body += b"".join((" ".join(repr(v) for v in r) + "\n").encode() for r in rows)
+                body += b"".join((" ".join(num(v) for v in r) + "\n").encode() for r in rows)
         else:
             head += [f"element {name} {len(rows)}"] + [f"property {p}" for p in props]
             for r in rows:   # only 'list uchar int' elements in these tests
@@ -108,7 +114,7 @@ def test_ply_crlf_and_trailing_spaces(tmp_path):
 @pytest.mark.parametrize("suffix,sep,header", [(".xyz", " ", None), (".csv", ",", "x,y,z"),
                                                (".txt", "\t", "# comment")])
 def test_text_xyz_round_trip(tmp_path, pts, suffix, sep, header):
-    lines = ([header] if header else []) + [sep.join(repr(v) for v in p) for p in pts]
+    lines = ([header] if header else []) + [sep.join(num(v) for v in p) for p in pts]
     path = tmp_path / ("p" + suffix)
     path.write_text("\n".join(lines) + "\n\n")
     pc = load_points(path)
@@ -120,19 +126,19 @@ def test_text_with_radius_and_colours(tmp_path, rng, pts):
     r = rng.random(len(pts))
     rgb = rng.integers(0, 256, size=(len(pts), 3))
     lines = ["x y z radius r g b"] + [
-        " ".join(map(repr, [*p, q, *map(int, c)])) for p, q, c in zip(pts, r, rgb)]
+        " ".join(map(num, [*p, q, *map(int, c)])) for p, q, c in zip(pts, r, rgb)]
     (tmp_path / "q.txt").write_text("\n".join(lines))
     pc = load_points(tmp_path / "q.txt")
     np.testing.assert_array_equal(pc.centers, pts)
     np.testing.assert_array_equal(pc.radii, r)
     np.testing.assert_allclose(pc.colors, rgb / 255.0, rtol=1e-6)
 
-    (tmp_path / "r.csv").write_text("\n".join(",".join(map(repr, [*p, q])) for p, q in zip(pts, r)))
+    (tmp_path / "r.csv").write_text("\n".join(",".join(map(num, [*p, q])) for p, q in zip(pts, r)))
     pc = load_points(tmp_path / "r.csv")
     np.testing.assert_array_equal(pc.radii, r)
 
     rgb01 = rng.random((len(pts), 3))
-    (tmp_path / "s.xyz").write_text("\n".join(" ".join(map(repr, [*p, *c]))
+    (tmp_path / "s.xyz").write_text("\n".join(" ".join(map(num, [*p, *c]))
                                               for p, c in zip(pts, rgb01)))
     pc = load_points(tmp_path / "s.xyz")
     assert pc.radii is None

@@ -2,23 +2,14 @@
 import numpy as np
 import pytest
 
-from volrender import reference, volume as volume_mod
+import reference
+from volrender import volume as volume_mod
 from volrender.camera import Camera
 from volrender.lights import PointLight, Sun
 from volrender.volume import VolumeSettings
 from volrender.bricks import Bricks
 from volrender.dispatch import Launch
-from helpers import render_volume
-
-VOX = 0.1
-
-
-def scaled(vox, offset=(0.0, 0.0, 0.0), rot=None):
-    m = np.eye(4)
-    m[:3, :3] = (np.eye(3) if rot is None else rot) * vox
-    m[:3, 3] = offset
-    return m
-
+from helpers import VOX, render_volume, scaled, top_camera
 
 
 # A slab: voxels with k in [K0, K1] hold 1, across the whole x/y extent. The trilinear
@@ -34,10 +25,6 @@ def slab():
     v[:, :, K0:K1 + 1] = 1.0
     c = (N_XY - 1) / 2 * VOX
     return Bricks.from_dense(v, scaled(VOX, (-c, -c, -(K0 + K1) / 2 * VOX)))
-
-
-def top_camera(n=16):
-    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 6.0, n, n)
 
 
 def test_slab_transmittance_is_exp_of_optical_depth(cl_device, slab):

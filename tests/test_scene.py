@@ -95,3 +95,17 @@ def test_parser_never_fails_other_than_with_a_user_error(tmp_path_factory, raw):
         scene_file.parse(raw, tmp_path_factory.getbasetemp())
     except UserError as exc:
         assert "\n" not in str(exc)
+
+
+def test_timings_measure_the_spacing_only_of_clouds_without_radii():
+    """Scene.timings (a Timings record): the load always; the radii only where the spacing
+    of a cloud without radii was measured."""
+    import numpy as np
+    import volrender
+    rng = np.random.default_rng(1)
+    bare = volrender.load_scene(rng.random((200, 3)), size=(8, 6))
+    sized = volrender.load_scene(np.c_[rng.random((200, 3)), np.full(200, 0.05)], size=(8, 6))
+    assert bare.timings.radii is not None and bare.timings.radii > 0
+    assert sized.timings.radii is None
+    assert bare.timings.load >= 0 and sized.timings.load > 0
+    assert volrender.Scene.of(sized.camera, (), sized.content).timings.load == 0.0

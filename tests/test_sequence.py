@@ -29,18 +29,6 @@ def frames(tmp_path_factory):
     return d
 
 
-@pytest.fixture(scope="module")
-def client():
-    distributed = pytest.importorskip("distributed")
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=40,
-                                       env={"POCL_MAX_PTHREAD_COUNT": "1"})
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
 def _render(frames, out, **kw):
     out.mkdir(exist_ok=True)
     return volrender.render_sequence(str(frames / "cloud_####.npz"), str(out / "f_####.exr"),

@@ -8,7 +8,6 @@ import pytest
 
 import volrender
 from volrender import cli, generators
-from test_sequence import client  # noqa: F401  (the module's 2-worker cluster)
 
 SIZE = (32, 24)
 
@@ -53,7 +52,7 @@ def test_point_sequence_is_one_camera_and_one_blend(cloud_frames, tmp_path):
                                   volrender.image.read_image(tmp_path / "a" / "g_0004.exr"))
 
 
-def test_point_sequence_on_dask_is_the_serial_bytes(cloud_frames, tmp_path, client):  # noqa: F811
+def test_point_sequence_on_dask_is_the_serial_bytes(cloud_frames, tmp_path, client):
     _render(cloud_frames, tmp_path / "s", workers=0)
     r = _render(cloud_frames, tmp_path / "d", client=client)
     assert r.workers == 2 and not r.failed

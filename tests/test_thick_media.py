@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from helpers import assert_unbiased, centred_bricks, look_at, volume_image, trilinear
-from volrender import reference
+import reference
 from volrender.lights import Sun
 from volrender.volume import VolumeSettings, emission_color
 

@@ -10,27 +10,19 @@ the seeds are fixed, so a pass or a failure is reproducible.
 import numpy as np
 import pytest
 
-from volrender import cli, reference
+import reference
+from volrender import cli
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import Sun
 from volrender.volume import (ESTIMATORS, VolumeSettings, emission_color, track_majorants)
 from volrender.bricks import Bricks
 from conftest import ROOT
-from helpers import render_volume
+from helpers import VOX, render_volume, scaled, top_camera
 
-VOX = 0.1
 Z = 5.0                         # standard errors allowed
 N_XY, K0, K1 = 40, 17, 22       # slab of tests/test_render_volume.py
 THICK = (K1 - K0 + 1) * VOX     # its integral along z, exactly
-
-
-def scaled(vox, offset):
-    m = np.eye(4)
-    m[:3, :3] *= vox
-    m[:3, 3] = offset
-    return m
-
 
 
 def make_slab(emission):
@@ -46,10 +38,6 @@ def make_slab(emission):
 @pytest.fixture(scope="module")
 def slab():
     return make_slab(False)
-
-
-def top_camera(n=16):
-    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 6.0, n, n)
 
 
 def assert_unbiased(est, want, what):

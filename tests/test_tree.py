@@ -305,3 +305,29 @@ def test_partition_equals_the_sorting_build(n, leaf, dup, axis):
     order, start, count = _sorting_reference(c, depth, axis)
     assert np.array_equal(t.order, order)
     assert np.array_equal(t.start, start) and np.array_equal(t.count, count)
+
+
+def test_in_frame_gives_the_render_frames_float32_boxes():
+    """Tree.in_frame: the same partition with float32 boxes of the render-frame spheres,
+    no margin, the frame's world origin kept; the boxes hold their float32 spheres."""
+    rng = np.random.default_rng(7)
+    c = 1e3 + rng.standard_normal((500, 3))
+    r = rng.uniform(0.01, 0.1, 500)
+    origin = 0.5 * (c.min(0) + c.max(0))
+    t = build(c, r, 8, margin=0.3, keys=(c - origin).astype(np.float32))
+    assert t.lo.dtype == np.float64 and (t.origin == 0).all() and t.margin == 0.3
+    sp = np.zeros((500, 4), np.float32)
+    sp[:, :3], sp[:, 3] = c - origin, r
+    sp = sp[t.order]
+    f = t.in_frame(sp, origin)
+    assert f.lo.dtype == np.float32 and f.margin == 0.0 and (f.origin == origin).all()
+    for name in ("order", "start", "count"):
+        np.testing.assert_array_equal(getattr(f, name), getattr(t, name))
+    leaf_of = np.repeat(np.arange(f.first_leaf, 2 * f.first_leaf), f.count[f.first_leaf:])
+    for d in range(f.depth + 1):
+        node = leaf_of >> (f.depth - d)
+        assert (f.lo[node] <= sp[:, :3] - sp[:, 3:]).all()
+        assert (f.hi[node] >= sp[:, :3] + sp[:, 3:]).all()
+    # the world boxes, moved into the frame, are the float32 ones up to float32 rounding
+    # plus the margin
+    np.testing.assert_allclose(f.lo[1], t.lo[1] - origin + 0.3, atol=1e-4)

@@ -19,12 +19,13 @@ FAST = settings(max_examples=25, deadline=None,
 
 
 def both(dev, c, r, leaf):
-    keys = (c - 0.5 * (c.min(0) + c.max(0))).astype(np.float32)
+    origin = 0.5 * (c.min(0) + c.max(0))
+    keys = (c - origin).astype(np.float32)
     sp = np.zeros((len(c), 4), np.float32)
     sp[:, :3], sp[:, 3] = keys, r
     host = tree.build(c, r, leaf, keys=keys)
-    dev_out = tree_device.build(dev, keys, sp, host.depth)
-    return host, sp, dev_out
+    dev_tree, dev_spheres = tree_device.build(dev, keys, sp, leaf, origin)
+    return host.in_frame(sp[host.order], origin), sp, dev_tree, dev_spheres
 
 
 @FAST
@@ -40,14 +41,14 @@ def test_device_tree_is_the_numpy_tree(cl_device, n, leaf, dup, seed):
         c[rng.random(n) < 0.2, 1] = -0.0
     elif dup == 3:                                 # one point n times
         c[:] = c[0]
-    host, sp, (order, start, count, lo, hi, spheres, _) = both(cl_device, c, 0.05, leaf)
-    np.testing.assert_array_equal(order, host.order)
-    np.testing.assert_array_equal(start, host.start)
-    np.testing.assert_array_equal(count, host.count)
+    host, sp, dev, spheres = both(cl_device, c, 0.05, leaf)
     np.testing.assert_array_equal(spheres, sp[host.order])
-    hlo, hhi = tree.float32_boxes(sp[host.order], host.start, host.count, host.depth)
-    np.testing.assert_array_equal(lo, hlo)
-    np.testing.assert_array_equal(hi, hhi)
+    for name in ("order", "start", "count", "lo", "hi", "origin"):
+        np.testing.assert_array_equal(getattr(dev, name), getattr(host, name), name)
+    assert (dev.depth, dev.leaf_size, dev.n_points, dev.margin) == \
+        (host.depth, host.leaf_size, host.n_points, 0.0)
+    assert dev.lo.dtype == np.float32
+    np.testing.assert_array_equal(dev.origin, 0.5 * (c.min(0) + c.max(0)))
 
 
 def clouds(shared):

@@ -1,6 +1,10 @@
 """The sparse brick layout the volume kernels read, and volrender's .npz brick cache
 (written by `volrender convert`, validated member by member on reading: a fuzz target).
-Layout: see volrender/vdb.py."""
+Layout: see volrender/vdb.py.
+
+Long file: two sides of one format, the Bricks record with its builder and the .npz cache
+reader that validates it; the reader (check_npz_members, load_npz, read_npz, _validate:
+about 140 lines) is the seam if either grows."""
 from __future__ import annotations
 
 import math

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import UserError
-from .progress import Progress
+from .progress import Eta, Progress
 
 DISPATCHES = ("fragment", "tiled")
 CHOICES = ("auto",) + DISPATCHES
@@ -46,6 +46,11 @@ GROW = 4                       # a launch is at most GROW x the pixel-samples of
 CHEAP = 16                     # a launch under target / CHEAP does not grow the next
 
 
+class PastDeadline(Exception):
+    """run_rows reached its deadline before the image was done (render.render_passes drops
+    that pass)."""
+
+
 @dataclass
 class Stats:
     """What run_rows did: kernel ms (profiling events), launches, and each launch's
@@ -55,6 +60,12 @@ class Stats:
     launches: int = 0
     took: list = field(default_factory=list)     # (seconds, rows, samples) per launch
     ends: list = field(default_factory=list)     # seconds from the start to each launch's end
+    eta: object = None                           # progress.Eta: the cost per row measured
+
+    @property
+    def profile(self):
+        """Seconds per sample per row (run_rows' profile= for the next render)."""
+        return None if self.eta is None else self.eta.profile
 
 
 def _enqueue(device, kernel, global_size, local_size):
@@ -181,13 +192,17 @@ def row_bands(width: int, height: int, pixels: int, unit: int = 1):
 
 
 def run_rows(device, kernel, args, width, height, pixels, progress=None,
-             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None) -> Stats:
+             dispatch: Dispatch | None = None, spp: int = 1, launch: Launch | None = None,
+             deadline: float | None = None, profile=None) -> Stats:
     """Launch `kernel(*args, y0, s0, s1)` over the image, band by band and sample range by
     sample range (see the module docstring); returns Stats. `pixels`: pixel-samples of the
     first launch on CPUs (unless launch.first), at most one tile row of one sample; later
     launches grow (at most x GROW, and only after one that was not cheap) or shrink
     towards the target (launch.target_s, else TARGET_S or GPU_TARGET_S) at the slowest
-    rate seen; launch.fixed: (rows, samples) per launch."""
+    rate seen; launch.fixed: (rows, samples) per launch. deadline: a time.perf_counter()
+    after which no launch starts (PastDeadline is raised instead). The bar's time left
+    counts cost (progress.Eta; profile: seconds per sample per row from an earlier render
+    of the same scene, Stats.profile)."""
     launch = launch or Launch()
     fixed = launch.fixed
     if launch.first is not None:
@@ -203,8 +218,10 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
     first = gpu_rows * width if gpu else max(1, min(int(pixels), width * th))
     work = first                                         # pixel-samples of the next launch
     rate = 0.0                                           # slowest seconds per pixel-sample
-    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height, spp=spp)
-    stats = Stats()
+    bar = Progress(width * height * spp, "render", progress, unit="sample", rows=height, spp=spp,
+                   eta=True)
+    eta = Eta(height, spp, profile)
+    stats = Stats(eta=eta)
     gx = -(-width // tw) * tw
     y0 = 0
     t_start = time.perf_counter()
@@ -224,6 +241,8 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                 chunk = max(1, work // (width * rows))
                 chunk = -(-(spp - s0) // -(-(spp - s0) // chunk))    # even chunks, no stub
                 s1 = min(spp, s0 + chunk)
+                if deadline is not None and time.perf_counter() >= deadline:
+                    raise PastDeadline()
                 kernel.set_args(*args, np.int32(y0), np.int32(s0), np.int32(s1))
                 if driver:
                     ns, took = _enqueue(device, kernel, (width, rows), None)
@@ -239,6 +258,8 @@ def run_rows(device, kernel, args, width, height, pixels, progress=None,
                     work = next_work(done, took, target, rate, None if gpu else first)
                     if gpu or took >= target / CHEAP:
                         rate = max(rate, took / done)
+                eta.add(y0, rows, s1 - s0, took)
+                bar.set_eta(eta.left())
                 bar.update(done, y0 + rows if s1 == spp else y0, s1)
                 s0 = s1
             y0 += rows

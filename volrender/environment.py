@@ -38,7 +38,11 @@ HDR_SUFFIXES = (".hdr", ".pic", ".rgbe")      # Radiance RGBE
 def read_hdr(path) -> np.ndarray:
     """float32 (H, W, 3) radiance of a Radiance RGBE file (.hdr), row 0 the top, through
     OpenImageIO."""
-    import OpenImageIO as oiio
+    try:
+        import OpenImageIO as oiio
+    except ImportError:
+        raise UserError("reading a Radiance HDR image needs OpenImageIO, which is not installed",
+                        path=path, fix="pip install OpenImageIO, or convert the map to .exr") from None
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         reason = oiio.geterror().strip().splitlines()[-1:] or ["unreadable"]

@@ -112,10 +112,13 @@ def npy_header(f):
     version = fmt.read_magic(f)
     if version == (1, 0):
         shape, _, dtype = fmt.read_array_header_1_0(f)
-    elif version == (2, 0):
+    elif version in ((2, 0), (3, 0)):
+        # 3.0 differs from 2.0 only by a UTF-8 header (non-Latin-1 field names, which no
+        # reader here accepts); numpy has no public reader of it (its private one left
+        # numpy.lib.format in numpy 2)
         shape, _, dtype = fmt.read_array_header_2_0(f)
     else:
-        shape, _, dtype = fmt._read_array_header(f, version)
+        raise ValueError(f"unknown .npy format version {version[0]}.{version[1]}")
     return shape, dtype, f.tell()
 
 

@@ -48,6 +48,12 @@ OCIO_LARGEST = 65504.0            # inputs are clipped here (half float's larges
 PNG_BITS = (8, 16)
 PNG_ALPHAS = ('opaque', 'straight')
 AOV_CHANNELS = {'depth': 'Z', 'transmittance': 'T'}
+# Layers of several channels (H x W x C): Blender's Denoising Data passes and its noisy
+# beauty, as Cycles writes them to a multilayer EXR (without the view-layer prefix), so its
+# Denoise node and OIDN's tools find them (volrender.guides).
+LAYERS = {'albedo': ('Denoising Albedo', 'RGB'), 'normal': ('Denoising Normal', 'XYZ'),
+          'noisy': ('Noisy Image', 'RGBA')}
+GUIDE_LAYERS = tuple(LAYERS)
 # Z where a ray meets nothing (the render's depth is +inf there): finite, as compositors
 # expect (Blender/Cycles write the same 1e10), and named in the header as `depthFar`.
 DEPTH_FAR = 1.0e10
@@ -63,6 +69,14 @@ _PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
 
 def _aov_channel(name: str) -> str:
     return AOV_CHANNELS.get(name, name)
+
+
+def _layer_channels(name: str) -> list:
+    """The EXR channels of a layer: one (AOV_CHANNELS), or a LAYERS layer's 'Name.R' ..."""
+    if name in LAYERS:
+        layer, parts = LAYERS[name]
+        return [f"{layer}.{c}" for c in parts]
+    return [_aov_channel(name)]
 
 
 def check_output(path, aovs=(), create: bool = False) -> Path:
@@ -94,8 +108,8 @@ def check_output(path, aovs=(), create: bool = False) -> Path:
     if names and suffix != '.exr':
         raise UserError(f"extra layers ({', '.join(map(str, names))}) need an .exr output",
                         path=out, fix=f"write to {out.with_suffix('.exr').name} or drop the layers")
-    channels = [_aov_channel(str(n)) for n in names]
-    for name, channel in zip(names, channels):
+    channels = [c for n in names for c in _layer_channels(str(n))]
+    for name, channel in zip([n for n in names for _ in _layer_channels(str(n))], channels):
         if channel in ('R', 'G', 'B', 'A') or channels.count(channel) > 1:
             raise UserError(f"layer {name!r} would be EXR channel {channel!r}, which is taken",
                             path=out, fix="rename the layer")
@@ -382,9 +396,15 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
         data = np.asarray(data)
         if data.ndim == 3 and data.shape[2] == 1:
             data = data[..., 0]
-        if data.shape != rgba.shape[:2]:
-            raise ValueError(f"layer {name!r} has shape {data.shape}, expected {rgba.shape[:2]}")
-        channels[_aov_channel(name)] = data
+        names_ = _layer_channels(name)
+        want = rgba.shape[:2] + ((len(names_),) if name in LAYERS else ())
+        if data.shape != want:
+            raise ValueError(f"layer {name!r} has shape {data.shape}, expected {want}")
+        if name in LAYERS:
+            for i, channel in enumerate(names_):
+                channels[channel] = data[..., i]
+        else:
+            channels[_aov_channel(name)] = data
     options = dict(exposure=exposure, tonemap=tonemap, camera=camera, png_bits=png_bits,
                    background=background, png_alpha=png_alpha)
     if not out.parent.exists():                  # as sequences do: -o new/x.png

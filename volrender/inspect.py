@@ -15,6 +15,10 @@ so box ``k`` of a mesh owns points ``8k .. 8k+7`` and cells ``12k .. 12k+11``
 Off-screen rendering needs no display: the VTK wheels fall back to EGL (Mesa's
 ``libEGL_mesa`` renders on the CPU with llvmpipe when there is no GPU).  VTK first
 tries X11 and logs one "bad X server connection" warning, which is harmless.
+
+Long file: one idea, the pyvista views (tree, cells, bricks, clouds), each a short
+function over the same box-wireframe builder, plus their atomic .vtm writing and the
+dispatch by input kind that `volrender tree` calls.
 """
 from __future__ import annotations
 

@@ -43,6 +43,7 @@ class Image:
     flags: dict
     camera: object = None
     info: dict = field(default_factory=dict)
+    noisy: np.ndarray | None = None  # the beauty before denoising (denoise="on"), else None
 
     @property
     def width(self) -> int:
@@ -59,10 +60,16 @@ class Image:
         transparent (default: the scene's --transparent) straight alpha:
         image.png_pixels), atomically."""
         from .image import write_image
+        from .image import GUIDE_LAYERS
         tonemap = view or tonemap
         if transparent is None:
             transparent = bool(self.info.get("transparent", False))
-        return write_image(path, self.rgba, self.aovs or None, exposure=exposure, tonemap=tonemap,
+        layers = dict(self.aovs)
+        if Path(path).suffix.lower() != ".exr":     # guides and the noisy image: EXR only
+            layers = {k: v for k, v in layers.items() if k not in GUIDE_LAYERS}
+        elif self.noisy is not None:
+            layers["noisy"] = self.noisy
+        return write_image(path, self.rgba, layers or None, exposure=exposure, tonemap=tonemap,
                            camera=self.camera, png_bits=png_bits,
                            background=self.info.get("background"),
                            png_alpha="straight" if transparent else "opaque")
@@ -70,8 +77,9 @@ class Image:
     @property
     def seconds(self) -> float:
         """The render's time as the CLI reports it: set-up (packing, program, uploads)
-        plus the launches up to the read-back."""
-        return (self.info.get("setup_ms", 0.0) + self.wall_ms) / 1e3
+        plus the launches up to the read-back, plus the guides and OIDN when denoised."""
+        return (self.info.get("setup_ms", 0.0) + self.wall_ms + self.info.get("guides_ms", 0.0)
+                + self.info.get("denoise_ms", 0.0)) / 1e3
 
     def __repr__(self) -> str:
         """One line: `<volrender.Image 320x240, 4 spp, pthread-..., 1.23 s>`."""
@@ -169,14 +177,58 @@ def image_problems(img, kind) -> list[str]:
 
 
 def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> Image:
-    """render() of a Scene, without the image warnings (adaptive passes call it per pass)."""
-    import pyopencl as cl
-
+    """render() of a Scene, without the image warnings (adaptive passes call it per pass),
+    denoised when the scene's denoise is "on"."""
     if variant not in VARIANTS:
         raise UserError(f"unknown render variant {variant!r}", fix="use None, 'uber' or 'stats'")
     dev = device_mod.resolve(device)
     if scene.kind == "volume" and volume.adaptive(scene.settings):     # passes (issue #22)
-        return render_passes(scene, dev, progress=progress, launch=launch)
+        img = render_passes(scene, dev, progress=progress, launch=launch)
+    else:
+        img = _beauty(scene, dev, progress=progress, variant=variant, launch=launch)
+    if getattr(scene.settings, "denoise", "off") == "on":
+        img = denoised(scene, dev, img)
+    return img
+
+
+def denoised(scene, dev, img) -> Image:
+    """`img` denoised by OIDN (volrender.denoise) with the scene's guides (volrender.guides:
+    albedo, and normal for glass), which join its AOVs; the noisy beauty stays as Image.noisy. Without
+    pyoidn: `img` unchanged, a one-line warning, and info['denoise_note'] saying why."""
+    import dataclasses
+    import warnings
+    from . import denoise as denoise_mod, guides
+    why = denoise_mod.unavailable()
+    if why:
+        warnings.warn(f"not denoised: {why}", ImageWarning, stacklevel=3)
+        return dataclasses.replace(img, info={**img.info, "denoised": False, "denoise_note": why})
+    base = scene
+    if scene.kind == "volume":          # one plan of one pass (the guides ignore the samples)
+        base = scene.replace(content=dataclasses.replace(
+            scene.content, settings=dataclasses.replace(
+                scene.content.settings, noise_target=None, time_limit=None, denoise="off")))
+    t0, c0 = time.perf_counter(), time.process_time()
+    plan = PLANNERS[scene.kind](base, dev, None, None)
+    g = guides.render_guides(base, dev, plan)
+    t1, c1 = time.perf_counter(), time.process_time()
+    # volumes: the albedo guide only (the density-gradient normal made OIDN keep the noise
+    # as detail: WDAS 4 spp 17 % -> 48 % relative RMSE, docs/error_time.md); glass: both
+    normal = g["normal"] if scene.kind == "glass" else None
+    rgba = denoise_mod.denoise(img.rgba, g["albedo"], normal)
+    t2, c2 = time.perf_counter(), time.process_time()
+    return dataclasses.replace(
+        img, rgba=rgba, noisy=img.rgba, aovs={**img.aovs, **g},
+        info={**img.info, "denoised": True, "guides_ms": 1e3 * (t1 - t0),
+              "denoise_ms": 1e3 * (t2 - t1), "guides_cpu_ms": 1e3 * (c1 - c0),
+              "denoise_guides": "albedo, normal" if normal is not None else "albedo",
+              "denoise_cpu_ms": 1e3 * (c2 - c1)})
+
+
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
+            profile=None) -> Image:
+    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
+    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
+    import pyopencl as cl
     cam = scene.camera
     t_plan = time.perf_counter()
     if scene.kind == "glass" and scene.content.builds == 0 and len(scene.content.cloud) >= BUILD_NOTE:
@@ -194,7 +246,7 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
                    dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
-                   launch=launch)
+                   launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
         if name == "rgba" or name in plan.aovs:
@@ -212,7 +264,9 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
     return Image(rgba=rgba, aovs=aovs, kernel_ms=run.kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info={"transparent": bool(getattr(scene.settings, "transparent", False)),
-                       "spp": scene.settings.spp, **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                       **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                       "spp": plan.info.get("spp", scene.settings.spp), "row_cost": run.profile,
+                       "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                        "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
 
 
@@ -247,30 +301,48 @@ def check_image_memory(width: int, height: int, dev, n_layers: int = 0):
 
 
 def render_passes(scene, device=None, *, progress=None, launch=None):
-    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) of
-    settings.spp samples and more, until the estimated relative noise (noise_estimate) is
-    at most settings.noise_target (after volume.ADAPTIVE_MIN_PASSES passes) or
-    settings.time_limit seconds have passed (the pass that would overrun it is sized to
-    fit, from the measured seconds per sample). Each pass after the first minimum set is
-    sized to reach the target from the noise so far (noise ~ 1/sqrt(N)), at most doubling
-    the samples. The image is the sample-weighted mean of the passes; info['noise'] its
-    relative noise estimate, info['noise_map'] the per-pixel standard error (H, W)."""
+    """Render a volume scene in independent passes (seeds seed, seed + 1, ...) until the
+    estimated relative error of the covered pixels (volume.noise_estimate) is at most
+    settings.noise_target (after volume.ADAPTIVE_MIN_PASSES passes), settings.max_spp
+    samples per pixel are taken (with a target), or settings.time_limit seconds have
+    passed. With a time limit the first pass is one sample per pixel (the least an image
+    needs; said when even that overran the limit) and later passes are sized to fit from the
+    measured seconds per sample; a pass still running at the limit is dropped (its launches
+    stop, dispatch.PastDeadline). Without one, passes of settings.spp samples. After the
+    minimum passes each is sized to reach the target from the noise so far (noise ~
+    1/sqrt(N)), at most doubling the samples. The image is the sample-weighted mean of the
+    passes; info: 'spp' (the samples taken, also counted launch by launch in
+    'samples_taken'), 'noise' (the covered pixels' estimate), 'noise_whole' (the whole
+    image's, for comparison), 'history' ((spp, noise, noise_whole) after each pass),
+    'noise_map' (the per-pixel standard error, H x W), 'stopped' (why)."""
     import dataclasses
     import time
+    from .dispatch import PastDeadline
+    # auto resolved once, with the passes' settings: per pass it would plan its own samples
+    # (volume.auto_estimator) and the passes would take more than they count
+    scene, note = volume.resolved(scene, device)
     s = scene.content.settings
-    base = dataclasses.replace(s, noise_target=None, time_limit=None)
+    base = dataclasses.replace(s, noise_target=None, time_limit=None, denoise="off")
     target, limit = s.noise_target, s.time_limit
+    cap = min(s.max_spp, volume.ADAPTIVE_MAX_SPP) if target is not None else volume.ADAPTIVE_MAX_SPP
     t0 = time.perf_counter()
-    batch = max(1, s.spp)
+    deadline = None if limit is None else t0 + limit
+    batch = 1 if limit is not None else max(1, min(s.spp, cap))
     mean = m2 = None
     aovs = {}
-    n = passes = 0
+    n = passes = taken = 0
     kernel_ms = cpu_ms = 0.0
-    noise, why, last = math.inf, "", None
+    noise, whole, why, last, history = math.inf, math.inf, "", None, []
     while True:
         st = dataclasses.replace(base, spp=batch, seed=s.seed + passes)
         content = dataclasses.replace(scene.content, settings=st)
-        img = _render(scene.replace(content=content), device, progress=progress, launch=launch)
+        try:
+            img = _beauty(scene.replace(content=content), device, progress=progress,
+                          launch=launch, deadline=deadline if passes else None,
+                          profile=last.info["row_cost"] if last is not None else None)
+        except PastDeadline:
+            why = f"time limit {limit:g} s (the pass under way then, {batch} spp, dropped)"
+            break
         x = img.rgba.astype(np.float64)
         if mean is None:
             mean, m2 = x, np.zeros_like(x)
@@ -282,6 +354,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         for k, v in img.aovs.items():
             aovs[k] = v if k not in aovs else aovs[k] + (v - aovs[k]) * (batch / (n + batch))
         n += batch
+        taken += img.info["samples_taken"]
         passes += 1
         kernel_ms += img.kernel_ms
         cpu_ms += img.cpu_ms
@@ -289,30 +362,41 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         elapsed = time.perf_counter() - t0
         if passes >= 2:
             _, noise = volume.noise_estimate(mean, m2, passes, n)
+            _, whole = volume.noise_estimate(mean, m2, passes, n, np.ones(mean.shape[:2], bool))
+            history.append((n, noise, whole))
         if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and noise <= target:
             why = f"noise {noise:.3g} <= target {target:g}"
             break
         per_spp = elapsed / n
         left = math.inf if limit is None else limit - elapsed
-        if left < per_spp * 1:
+        if passes == 1 and left <= 0:
+            why = (f"time limit {limit:g} s: one sample per pixel took {elapsed:.2f} s, the "
+                   "least an image needs")
+            break
+        if left < per_spp:
             why = f"time limit {limit:g} s"
             break
-        if n >= volume.ADAPTIVE_MAX_SPP:
-            why = f"{volume.ADAPTIVE_MAX_SPP} spp"
+        if n >= cap:
+            why = (f"the cap of {cap} spp (--max-spp)" if target is not None and cap == s.max_spp
+                   else f"{cap} spp")
             break
-        want = batch
+        want = max(1, min(s.spp, cap))
         if target is not None and passes >= volume.ADAPTIVE_MIN_PASSES and math.isfinite(noise):
             want = int(math.ceil(n * ((noise / target) ** 2 - 1.0) * 1.05))
         elif passes >= volume.ADAPTIVE_MIN_PASSES:
             want = n                      # a time limit alone: doubling passes
-        batch = int(max(1, min(want, n if passes >= volume.ADAPTIVE_MIN_PASSES else batch,
-                               left / per_spp if math.isfinite(left) else math.inf,
-                               volume.ADAPTIVE_MAX_SPP - n)))
-    se, noise = volume.noise_estimate(mean, m2, passes, n) if passes >= 2 else (None, math.inf)
-    info = dict(last.info)
-    info.update(spp=n, passes=passes, noise=noise, stopped=why,
+        elif limit is not None:           # the minimum passes share what time is left
+            want = min(want, int(left / per_spp / (volume.ADAPTIVE_MIN_PASSES - passes + 1)))
+        batch = int(max(1, min(want, n if passes >= volume.ADAPTIVE_MIN_PASSES else want,
+                               left / per_spp if math.isfinite(left) else math.inf, cap - n)))
+    se = volume.noise_estimate(mean, m2, passes, n)[0] if passes >= 2 else None
+    if target is not None and noise > target and math.isfinite(noise):
+        why += f" before the target {target:g}"
+    info = dict(last.info, **({"estimator_note": note} if note else {}))
+    info.update(spp=n, samples_taken=taken, passes=passes, noise=noise, noise_whole=whole,
+                history=history, stopped=why,
                 adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
-                         f"stopped at {why}; estimated noise "
+                         f"stopped at {why}; estimated error of the covered pixels "
                          + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"))
     if se is not None:
         info["noise_map"] = np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)

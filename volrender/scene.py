@@ -15,7 +15,13 @@ an error naming it (pbrt's unused-parameter rule).
 
 Scene files (TOML) are validated in two steps: `scene_file.read`/`parse` check each key's type and
 reject unknown keys and sections by full path (`[material].iro`); `load_scene` then checks
-ranges and kinds, naming the file and `[section].key`. Paths resolve relative to the file.
+ranges and kinds (overrides.py), naming the file and `[section].key`. Paths resolve
+relative to the file.
+
+Long file: the Scene model with its per-kind loading, Request and load_scene; the option
+checking lives in overrides.py, the scene-file reader in scene_file.py. The fire defaults
+(_fire_defaults, _fire_loaded) are the next seam, beside fire.py, once the volume work on
+them has landed.
 
     [volume]                 # a volume: file = ..., plus any VolumeSettings key
     file = "smoke.vdb"
@@ -45,14 +51,14 @@ import numpy as np
 from . import device as device_mod
 from .camera import View
 from .environment import Environment, load_environment, uniform
-from .errors import KEYWORDS, UserError, option_name, suggest
-from .settings import ENV, SIZE, STRS, VEC, VEC3, check_value, coerce
-from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, finite, options, read
+from .errors import KEYWORDS, UserError
+from .overrides import (check_kinds, explicit_keys, field_values, given_from_file,
+                        given_from_overrides, lights_given)
+from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, options, read
 from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
 
 VOLUME_SUFFIXES = (".vdb", ".npz")
 POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy", ".las", ".laz")
-KIND_NAMES = {"volume": "volumes", "glass": "molten glass (point clouds)"}
 
 
 # --------------------------------------------------------------------------- the Scene
@@ -158,7 +164,7 @@ class GlassContent:
     def load(cls, req, reuse=None, timings=None, device=None):
         """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
         when it is what req would read) and, for a cloud without radii, the radius and
-        blend of its spacing (spheres.scan_defaults; its time in timings["radii"])."""
+        blend of its spacing (spheres.scan_defaults; its time in timings.radii)."""
         import time
         from . import generators, points
         settings = req.settings
@@ -182,9 +188,17 @@ class GlassContent:
             t1 = time.perf_counter()
             settings, note = scan_defaults(cloud, settings, old.store if old else None)
             if timings is not None:
-                timings["radii"] = time.perf_counter() - t1
+                timings.radii = time.perf_counter() - t1
             notes.append(note)
         return cls(cloud, settings, **({"store": old.store} if old else {})), notes, False
+
+
+@dataclass
+class Timings:
+    """Seconds load_scene took: reading the content and the rest of resolving (load), and
+    measuring the spacing of a cloud without radii (radii; None when not measured)."""
+    load: float = 0.0
+    radii: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +210,7 @@ class Scene:
     source: str = ""
     inputs: tuple = ()                # every file the scene reads (resolved paths)
     notes: tuple = ()                 # choices made while resolving (the CLI prints them)
-    timings: dict = field(default_factory=dict, compare=False)  # seconds: load, radii
+    timings: Timings = field(default_factory=lambda: Timings(), compare=False)
     request: object = field(default=None, compare=False, repr=False)   # what load_scene read
 
     @property
@@ -234,14 +248,14 @@ class Scene:
 
     def _with_settings(self, opts) -> "Scene":
         """replace() of a Scene.of scene (no request to resolve again): settings only."""
-        given = _given_from_overrides(opts)
+        given = given_from_overrides(opts)
         other = [k for k, _ in given.items() if k in EXTRA_KEYS or options()[k].owner == "view"]
         if other:
             raise UserError(f"{given[other[0]][1]} cannot change a Scene made by Scene.of "
                             "(it has no camera framing or lights to resolve again)",
                             fix="pass camera=... or lights=... (Scene fields), or use load_scene")
-        _check_kinds(given, self.kind, "the scene")
-        values = _field_values(given, ("common", self.kind))
+        check_kinds(given, self.kind, "the scene")
+        values = field_values(given, ("common", self.kind))
         content = dataclasses.replace(self.content, settings=dataclasses.replace(
             self.content.settings, **values))
         return dataclasses.replace(self, content=content)
@@ -315,191 +329,6 @@ def generated_cloud(text: str, seed: int = 0):
     """PointCloud from GENERATOR:COUNT."""
     from . import generators
     return generators.generate(text.partition(":")[0], generated_cloud_count(text), seed)
-
-
-def _explicit(overrides) -> set:
-    """Option keys given as overrides (not from a file)."""
-    by_field = {o.field: o.key for o in options().values()}
-    return {by_field.get(k, k) for k, v in overrides.items() if v is not None}
-
-
-def _plain(value):
-    """numpy arrays and scalars as tuples and Python numbers; lists as tuples."""
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, (list, tuple)):
-        return tuple(_plain(v) for v in value)
-    return value
-
-
-def _python_value(opt, value, where):
-    """A keyword's value in the form the settings hold: one number where the option takes
-    one value (albedo=0.99: grey), "WxH" for sizes, one string for a list of strings."""
-    from .settings import pair
-    value = _plain(value)
-    kind, check = opt.meta["kind"], opt.meta["check"]
-    if kind == SIZE and isinstance(value, str):
-        import argparse
-        try:
-            return pair(where)(value)
-        except argparse.ArgumentTypeError as exc:
-            raise UserError(str(exc)) from None
-    if kind == STRS and isinstance(value, str):
-        return (value,)
-    if kind == ENV and finite(value):
-        return (float(value),)               # env=0.5: a grey uniform radiance
-    if kind in (VEC, VEC3) and finite(value) and check is not None and check((value,)) is None:
-        return (float(value),)
-    return value
-
-
-def _light_values(key, value, where):
-    """sun= / point_light=: one (x, y, z, power) tuple or a list of them, each 4 finite
-    numbers; lights=: Sun and PointLight objects."""
-    from .lights import PointLight, Sun
-    value = _plain(value) if key != "lights" else value
-    if key in ("sun", "point_light"):
-        if isinstance(value, tuple) and value and all(finite(v) for v in value):
-            value = (value,)                 # one light given as one tuple
-        what = "DX,DY,DZ,E" if key == "sun" else "X,Y,Z,I"
-        if not isinstance(value, tuple) or not all(
-                isinstance(v, tuple) and len(v) == 4 and all(map(finite, v)) for v in value):
-            raise UserError(f"{where} takes 4 finite numbers ({what}) or a list of such "
-                            f"tuples, got {value!r}")
-        value = tuple(tuple(float(c) for c in v) for v in value)
-    if key == "lights":
-        if isinstance(value, (Sun, PointLight)):
-            value = (value,)
-        if not isinstance(value, (list, tuple)) or not all(
-                isinstance(v, (Sun, PointLight)) for v in value):
-            raise UserError(f"{where} takes a list of volrender.Sun and volrender.PointLight, "
-                            f"got {value!r}")
-    return value
-
-
-def _negates(opt) -> bool:
-    """Whether opt is a switch that turns its field off (`--no-tree` sets use_tree=False)."""
-    return opt.meta["kind"] is bool and opt.key != opt.field
-
-
-def _given_from_overrides(overrides) -> dict:
-    """{option key: (field value, where)} for keyword overrides. Keys are the CLI flags
-    with underscores (`no_tree=True`); a field's own name works too (`use_tree=False`)."""
-    opts = options()
-    by_field = {opt.field: opt for opt in opts.values()}
-    given = {}
-    for key, value in overrides.items():
-        if value is None:
-            continue
-        if key in EXTRA_KEYS:
-            flag = "--" + key.replace("_", "-")
-            given[key] = (_light_values(key, value, flag), flag)
-            continue
-        opt = opts.get(key) or by_field.get(key)
-        if opt is None:
-            raise UserError(f"unknown option {key!r}",
-                            fix=suggest(key, [*opts, *EXTRA_KEYS, *by_field], option_name) or
-                            "`volrender render --help` and docs/options.md list them")
-        value = _python_value(opt, value, opt.flag if key == opt.key else f"{key}=")
-        if key == opt.key and _negates(opt):
-            if not isinstance(value, bool):
-                raise UserError(f"{opt.flag} is a switch: give True or False, got {value!r}")
-            value = not value
-        given[opt.key] = (value, opt.flag if key == opt.key else f"{key}=")
-    return given
-
-
-def _given_from_file(doc, path) -> dict:
-    """{option key: (field value, where)} for the settings keys of a parsed scene file."""
-    by_toml = {opt.meta["toml"]: opt for opt in options().values() if opt.meta["toml"]}
-    given = {}
-    for section, table in doc.items():
-        if section == "lights" or not isinstance(table, dict):
-            continue
-        for key, value in table.items():
-            opt = by_toml.get((section, key))
-            if opt is not None:
-                given[opt.key] = (value, f"{path}: [{section}].{key}")
-    return given
-
-
-def _check_kinds(given, kind, label):
-    for key, (value, where) in given.items():
-        if key in EXTRA_KEYS:
-            continue
-        owner = options()[key].owner
-        if owner in ("volume", "glass") and owner != kind:
-            raise UserError(f"{where} applies to {KIND_NAMES[owner]} only, but {label} is "
-                            f"{'a volume' if kind == 'volume' else 'a point cloud'}",
-                            fix=f"remove {where.split(': ')[-1]}")
-
-
-def _field_values(given, owners):
-    """Checked {field: value} of the given keys whose owner is in owners."""
-    out = {}
-    for key, (value, where) in given.items():
-        if key in EXTRA_KEYS:
-            continue
-        opt = options()[key]
-        if opt.owner in owners:
-            value = coerce(opt.meta, value)
-            check_value(opt.meta, value, where)
-            out[opt.field] = value
-    return out
-
-
-def _check_light(kind, vec, power, color, where):
-    """Ranges of one light (settings.MAX_VALUE bounds radiance-like values, so the packed
-    float32 radiance, colour x power, stays finite)."""
-    from .settings import MAX_VALUE
-    name = ("irradiance", "direction") if kind == "sun" else ("intensity", "position")
-    if not 0.0 <= power <= MAX_VALUE:
-        raise UserError(f"{where}: {name[0]} must be in [0, {MAX_VALUE:g}], got {power:g}")
-    if not all(0.0 <= c <= MAX_VALUE for c in color) or max(color) * power > MAX_VALUE:
-        raise UserError(f"{where}: color x {name[0]} must be in [0, {MAX_VALUE:g}], got "
-                        f"{', '.join(f'{c:g}' for c in color)} x {power:g}")
-    if kind == "sun":
-        top = max(abs(v) for v in vec)
-        if top == 0.0:
-            raise UserError(f"{where}: the direction must not be zero")
-    elif max(abs(v) for v in vec) > MAX_VALUE:
-        raise UserError(f"{where}: position coordinates must be within +-{MAX_VALUE:g}")
-
-
-def _lights(given, doc, path=None):
-    from .lights import PointLight, Sun
-    no_lights = given.get("no_lights", (False, ""))[0]
-    explicit = [k for k in ("lights", "sun", "point_light") if k in given]
-    if no_lights and explicit:
-        raise UserError(f"--no-lights contradicts --{explicit[0].replace('_', '-')}; drop one of them")
-    if no_lights:
-        return ()
-    if "lights" in given:
-        return tuple(given["lights"][0])
-    if "sun" in given or "point_light" in given:
-        for key, kind in (("sun", "sun"), ("point_light", "point")):
-            for v in given.get(key, ((),))[0]:
-                if v:
-                    _check_light(kind, v[:3], v[3], (1.0, 1.0, 1.0),
-                                 f"--{key.replace('_', '-')} {','.join(f'{x:g}' for x in v)}")
-        out = [Sun(tuple(s[:3]), s[3]) for s in given.get("sun", ((),))[0] if s]
-        out += [PointLight(tuple(p[:3]), p[3]) for p in given.get("point_light", ((),))[0] if p]
-        return tuple(out)
-    if doc.get("lights"):
-        out = []
-        for i, l in enumerate(doc["lights"]):
-            where = f"{path}: [[lights]] #{i + 1}" if path else f"[[lights]] #{i + 1}"
-            color = l.get("color", (1.0, 1.0, 1.0))
-            if l["type"] == "sun":
-                _check_light("sun", l["direction"], l.get("irradiance", 1.0), color, where)
-                out.append(Sun(l["direction"], l.get("irradiance", 1.0), color))
-            else:
-                _check_light("point", l["position"], l.get("intensity", 1.0), color, where)
-                out.append(PointLight(l["position"], l.get("intensity", 1.0), color))
-        return tuple(out)
-    return None                           # the defaults, turned to the up axis by load()
 
 
 def _fire_defaults(path, settings, given):
@@ -628,7 +457,7 @@ class Request:
         render on, which --estimator auto weighs (None: a CPU)."""
         import time
         t0 = time.perf_counter()
-        timings = {}
+        timings = Timings()
         notes = []
         environment = None
         cls = VolumeContent if self.kind == "volume" else GlassContent
@@ -663,7 +492,7 @@ class Request:
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_suns
             lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
-        timings["load"] = time.perf_counter() - t0 - timings.get("radii", 0.0)
+        timings.load = time.perf_counter() - t0 - (timings.radii or 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes), timings, request=self)
 
@@ -671,7 +500,7 @@ class Request:
 def request(source, **overrides) -> Request:
     """Check `source` and the overrides (kinds, types, ranges) without loading anything
     but a scene file; see load_scene."""
-    given = _given_from_overrides(overrides)
+    given = given_from_overrides(overrides)
     origin = source_kind(source)
     array = None
     if origin == "array":
@@ -680,7 +509,7 @@ def request(source, **overrides) -> Request:
     doc = {}
     if origin == "scene":
         doc = read(source)
-        given = {**_given_from_file(doc, Path(source)), **given}
+        given = {**given_from_file(doc, Path(source)), **given}
     if origin == "generator":
         generated_cloud_count(str(source))
     camera_file = None
@@ -688,20 +517,20 @@ def request(source, **overrides) -> Request:
         from .camera import read_camera_file
         camera_file = Path(given.pop("camera")[0])
         by_field = {o.field: o.key for o in options().values() if o.owner == "view"}
-        explicit = _explicit(overrides)
+        explicit = explicit_keys(overrides)
         for name, value in read_camera_file(camera_file).items():
             if by_field[name] not in explicit:
                 given[by_field[name]] = value
     kind = "volume" if origin == "volume" or "volume" in doc else "glass"
     if origin == "array":
         kind = array_kind
-    _check_kinds(given, kind, str(source))
+    check_kinds(given, kind, str(source))
     from .camera import check_conflicts
     check_conflicts({options()[k].field: where for k, (_, where) in given.items()
                      if k not in EXTRA_KEYS and options()[k].owner == "view"})
-    view = View(**_field_values(given, ("view",)))
-    lights = _lights(given, doc, Path(source) if origin == "scene" else None)
-    values = _field_values(given, ("common", kind))
+    view = View(**field_values(given, ("view",)))
+    lights = lights_given(given, doc, Path(source) if origin == "scene" else None)
+    values = field_values(given, ("common", kind))
     if kind == "volume":
         from .volume import VolumeSettings
         settings = VolumeSettings(**values)

@@ -24,6 +24,11 @@ worker. Every frame is written atomically; a frame that fails is reported with i
 number and file while the others complete; a worker that dies has its tasks retried on
 another. A JSON record (per frame: input, output, seconds, worker, device, status) is
 written beside the outputs.
+
+Long file: three parts that change together with the sequence command: patterns and
+--frames (a fuzz target), the shared camera, and running the frames (claims, Dask, the
+JSON record). Patterns are the clean seam (sequence_pattern.py) once the concurrent work
+on interruption and frame records has landed.
 """
 from __future__ import annotations
 

@@ -289,6 +289,11 @@ class CommonSettings:
                              "of the opaque picture (default: opaque, as the render looks; EXR "
                              "is always premultiplied RGBA)", check=boolean,
                              toml=("render", "transparent"))
+    denoise: str = knob("auto", "Open Image Denoise guided by the render's albedo (and "
+                        "normals, for glass; the `denoise` extra): auto denoises PNG outputs and writes EXR/NPY as "
+                        "rendered (an EXR denoised with on keeps the noisy image and the guides "
+                        "as layers); from Python auto is off", check=one_of(("auto", "on", "off")),
+                        choices=("auto", "on", "off"), toml=("render", "denoise"))
     env: str | tuple | None = knob(
         None, "environment: R,G,B (a uniform radiance; one value = grey) or an "
         "equirectangular map (.exr, .hdr, .npy; centre looks along -z, top row up). Glass reflects "

@@ -193,32 +193,31 @@ def pack_scene(cloud, settings, device=None, samples=None,
             or tree_on == "device" else None
         on_device = tree_on == "device" or (tree_on == "auto" and dev is not None and is_gpu(dev))
         t0 = time.perf_counter()
-        built = None
+        tree = None
         if on_device:
             try:
-                built = tree_device.build(dev, spheres[:, :3], spheres, depth)
+                tree, spheres = tree_device.build(dev, spheres[:, :3], spheres,
+                                                  int(settings.leaf_size), centre)
             except tree_device.Unsupported:          # pyopencl's scan at this size: numpy
                 if tree_on == "device":
                     raise
-        if built is not None:
-            order, start, count, blo, bhi, spheres, _ = built
-        else:
+        if tree is None:
             tree = tree_mod.build(centers, radii, int(settings.leaf_size), 0.0,
                                   keys=spheres[:, :3])
-            order, start, count = tree.order, tree.start, tree.count
-            spheres = spheres[order]
-            blo, bhi = tree_mod.float32_boxes(spheres, start, count, depth)
+            spheres = spheres[tree.order]
+            tree = tree.in_frame(spheres, centre)   # the device build's float32 boxes
+        order = tree.order
         tree_ms = 1e3 * (time.perf_counter() - t0)
-        first_leaf = 1 << depth
-        nodes = layout.record("TreeNode", 2 << depth)
+        first_leaf = tree.first_leaf
+        nodes = layout.record("TreeNode", tree.n_nodes)
         # the float32 boxes hold their float32 spheres up to rounding: widen them by one ulp
         # of the largest coordinate, outwards
         ulp = float(np.spacing(np.float32(np.abs(spheres[:, :3]).max() + radii.max())))
-        tlo = _outward(blo.astype(np.float64) - ulp, True)
-        thi = _outward(bhi.astype(np.float64) + ulp, False)
+        tlo = _outward(tree.lo.astype(np.float64) - ulp, True)
+        thi = _outward(tree.hi.astype(np.float64) + ulp, False)
         for a, ax in enumerate("xyz"):
             nodes[f"lo_{ax}"], nodes[f"hi_{ax}"] = tlo[:, a], thi[:, a]
-        nodes["start"], nodes["count"] = start, count
+        nodes["start"], nodes["count"] = tree.start, tree.count
     colors = None
     if settings.point_colors and cloud.colors is not None:
         colors = np.zeros((n, 4), np.float32)

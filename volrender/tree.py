@@ -9,7 +9,10 @@ ceil(N / 2^D) spheres and only the rightmost leaves of tiny inputs can be empty.
 
 Node bounds are the AABB of (center +- radius) of the node's spheres, inflated
 by ``margin`` on every side (the blend's support width, so that every sphere that
-can influence a point is found).  Empty nodes have lo = +inf, hi = -inf.
+can influence a point is found; the renderer passes 0).  Empty nodes have lo = +inf,
+hi = -inf.  Both builders (``build`` here, tree_device.build on the device) return a
+``Tree``; its boxes are float64 world boxes (``build``) or the float32 boxes of the
+render frame, whose world origin the record keeps (tree_device.build, Tree.in_frame).
 
 The build is vectorised level by level, with no Python work per node: the points are
 sorted once along each axis, and each level splits every node's three sorted lists
@@ -18,7 +21,8 @@ Within a leaf, points stay in the order of its parent's split axis.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +44,8 @@ class Tree:
     margin: float
     n_points: int
     order: np.ndarray     # int64 (N,) sphere indices, grouped leaf by leaf
+    # the frame of lo/hi: the world position of its origin (zeros: world coordinates)
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def n_nodes(self) -> int:
@@ -50,6 +56,14 @@ class Tree:
     def first_leaf(self) -> int:
         """Index of the leftmost leaf, 2^D."""
         return 1 << self.depth
+
+    def in_frame(self, spheres, origin) -> "Tree":
+        """This tree with the float32 boxes of `spheres` (float32 (N, 4): centre, radius;
+        tree order; in the frame whose world origin is `origin`) and no margin: the boxes
+        the device build gives, bit for bit (float32_boxes)."""
+        lo, hi = float32_boxes(spheres, self.start, self.count, self.depth)
+        return dataclasses.replace(self, lo=lo, hi=hi, margin=0.0,
+                                   origin=np.asarray(origin, np.float64))
 
     def spheres(self, node: int) -> np.ndarray:
         """Sphere indices under ``node``."""

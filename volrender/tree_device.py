@@ -6,11 +6,10 @@ no host round trip. Needs PyOpenCL's Mako-templated algorithms (pyopencl.algorit
 from __future__ import annotations
 
 import functools
-import time
 
 import numpy as np
 
-from .tree import node_ranges
+from .tree import Tree, node_ranges, tree_depth
 
 
 @functools.lru_cache(maxsize=None)
@@ -58,16 +57,14 @@ class Unsupported(Exception):
     """pyopencl's scan cannot run at this size on this device: build on the host."""
 
 
-def build(device, keys, spheres, depth: int):
-    """Tree order (int64 (N,)), node start/count (int64 (2^(D+1),)), float32 node boxes
-    (lo, hi: (2^(D+1), 3)) and the spheres in tree order (float32 (N, 4)), built on
-    `device` (a volrender.device.Device). keys: float32 (N, 3) split coordinates;
-    spheres: float32 (N, 4) centre, radius in the input order. Returns also the build's
-    wall time in ms."""
-    import pyopencl as cl
+def build(device, keys, spheres, leaf_size: int, origin=(0.0, 0.0, 0.0)):
+    """(tree.Tree, spheres in tree order: float32 (N, 4)), built on `device` (a
+    volrender.device.Device). keys: float32 (N, 3) split coordinates; spheres: float32
+    (N, 4) centre, radius in the input order, in the frame whose world origin is `origin`
+    (the Tree's float32 boxes are in that frame, with no margin)."""
     import pyopencl.array as cla
-    t0 = time.perf_counter()
     n = len(keys)
+    depth = tree_depth(n, int(leaf_size))
     ctx, queue = device.context, device.queue
     k = {name: device.kernel("build_tree", {}, name) for name in
          ("tree_keys", "tree_axes", "tree_split", "tree_gather", "tree_leaves", "tree_parents")}
@@ -121,7 +118,9 @@ def build(device, keys, spheres, depth: int):
         first = 1 << d
         k["tree_parents"](queue, (max(64, -(-first // 64) * 64),), None, np.int32(first),
                          lo.data, hi.data)
-    out = (order.get().astype(np.int64), start, count, lo.get()[:, :3], hi.get()[:, :3],
-           d_sp.get())
+    tree = Tree(lo=lo.get()[:, :3], hi=hi.get()[:, :3], start=start, count=count, depth=depth,
+                leaf_size=int(leaf_size), margin=0.0, n_points=n,
+                order=order.get().astype(np.int64), origin=np.asarray(origin, np.float64))
+    out = d_sp.get()
     queue.finish()
-    return (*out, 1e3 * (time.perf_counter() - t0))
+    return tree, out

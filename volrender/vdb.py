@@ -12,6 +12,10 @@ Layout (the volume kernel depends on it):
   * majorant[slot] = data[slot].max() (bounds the interpolated density in the brick).
   * optional emission and temperature grids in the same slots; a brick is stored when
     its density or emission is non-zero (the temperature only colours the emission).
+
+Long file: one idea, reading OpenVDB, including the reader subprocess (_ReaderProcess,
+_serve) that keeps a crash inside OpenVDB out of the renderer's process; the header and
+the brick layout already live in vdb_header.py and bricks.py.
 """
 from __future__ import annotations
 

@@ -1,7 +1,11 @@
 """Volumes: settings, the VolumeParams record and the render orchestration of the marcher
 (single scattering or its multiple-scattering octaves) and the path tracer (multiple
 scattering, unbiased; the tracker is it at max depth 1). Each work-item owns its pixel (no
-float atomics), so an image depends only on the scene, the settings and the seed."""
+float atomics), so an image depends only on the scene, the settings and the seed.
+
+Long file: one idea, the volume integrator's host side; VolumeSettings (160 lines of
+knobs: each option's one home) is most of it. The automatic estimator and the octave
+constants (auto_*, octave_*) are the seam if it grows further."""
 from __future__ import annotations
 
 import dataclasses
@@ -48,6 +52,8 @@ AUTO_PATH_SLOPE = 0.512
 EMISSION_LAWS = ("auto", "colour", "blackbody")
 ADAPTIVE_MIN_PASSES = 4      # passes before the noise estimate is trusted
 ADAPTIVE_MAX_SPP = 1 << 20   # samples per pixel at most, over all passes
+ADAPTIVE_CAP_SPP = 4096      # --max-spp's default: where an unreachable --noise-target stops
+COVERED_ALPHA = 0.05         # the noise estimate covers pixels above this alpha (the medium's)
 MAX_DEPTH = 256        # path estimator's default depth: converged (< 0.1%) on the real files at albedo <= 0.99
 RR_DEPTH = 4           # path roulette from the 5th scattering event on
 MS_OCTAVES_MAX = 16
@@ -192,19 +198,27 @@ class VolumeSettings(CommonSettings):
                                   check=lambda v: None if v is None or isinstance(v, bool)
                                   else "must be True, False or None", flag=None,
                                   show_default=False)
-    noise_target: float | None = knob(None, "render passes until the estimated noise, the "
-                                      "per-pixel standard error's RMS over the image's RMS "
-                                      "value, is below this (e.g. 0.05; from the spread of "
-                                      "independent passes of --spp samples, at least "
-                                      f"{ADAPTIVE_MIN_PASSES}); best with --estimator path",
+    noise_target: float | None = knob(None, "render passes until the estimated relative "
+                                      "error of the pixels the volume covers (alpha > "
+                                      f"{COVERED_ALPHA:g}), the RMS of their standard errors "
+                                      "over their RMS value, is below this (e.g. 0.05: 5 per cent; "
+                                      "from the spread of independent passes, at least "
+                                      f"{ADAPTIVE_MIN_PASSES}), or --max-spp or --time-limit "
+                                      "is reached; best with --estimator path",
                                       check=in_range(1e-4, 10, allow_none=True),
                                       toml=("render", "noise_target"), kind=NUM,
                                       parse=number("--noise-target"), show_default=False)
     time_limit: float | None = knob(None, "render passes until this many seconds have passed "
-                                    "(with --noise-target: whichever comes first)",
+                                    "(with --noise-target: whichever comes first); the first "
+                                    "pass is one sample per pixel, then passes are sized to "
+                                    "fit, and one that would overrun is dropped",
                                     check=in_range(1e-3, 1e7, allow_none=True),
                                     toml=("render", "time_limit"), kind=NUM,
                                     parse=number("--time-limit"), show_default=False)
+    max_spp: int = knob(ADAPTIVE_CAP_SPP, "--noise-target: samples per pixel at most over "
+                        "all passes (a target the render cannot reach stops here and says "
+                        "what it reached)", check=in_range(1, ADAPTIVE_MAX_SPP, integer=True),
+                        toml=("render", "max_spp"))
     aovs: tuple = knob((), "extra EXR layer (repeatable): depth -> Z (opacity-weighted mean "
                        "distance), transmittance -> T", flag="--aov", choices=AOVS,
                        check=_aovs_ok, toml=("volume", "aov"), kind=STRS, show_default=False)
@@ -598,12 +612,19 @@ def adaptive(settings: VolumeSettings) -> bool:
     return settings.noise_target is not None or settings.time_limit is not None
 
 
-def noise_estimate(mean, m2, n_passes, n_samples):
+def noise_estimate(mean, m2, n_passes, n_samples, covered=None):
     """(per-pixel standard error of the mean (H, W, 3), relative noise): from the passes'
     spread, m2 = sum_b n_b (mean_b - mean)^2 (Chan's update), the per-sample variance is
     m2 / (B - 1) and the mean's variance that over N samples; relative noise = RMS of the
-    standard error over the RMS of the value."""
+    standard error over the RMS of the value, both over the `covered` pixels (a boolean
+    H x W; default: alpha > COVERED_ALPHA, the whole image where none is), so a sky that
+    is noiseless by construction does not dilute it: it reads as the relative RMS error
+    `bench error` measures against a reference."""
     var = m2[..., :3] / max(n_passes - 1, 1) / max(n_samples, 1)
     se = np.sqrt(np.maximum(var, 0.0))
-    rms = float(np.sqrt((mean[..., :3] ** 2).mean()))
-    return se, float(np.sqrt(var.mean())) / max(rms, 1e-30)
+    if covered is None:
+        covered = mean[..., 3] > COVERED_ALPHA
+    if not np.any(covered):
+        covered = np.ones(mean.shape[:2], bool)
+    rms = float(np.sqrt((mean[..., :3][covered] ** 2).mean()))
+    return se, float(np.sqrt(var[covered].mean())) / max(rms, 1e-30)

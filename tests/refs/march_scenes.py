@@ -42,12 +42,12 @@ def scenes():
     m[:3, 3] = (-1.2, -0.9, -1.0)
     v = _noise((24, 18, 20), 3)
     grid = Bricks.from_dense(v, m, emission=np.where(v > 0.5, v, 0).astype(np.float32))
-    demo = vdb.load_volume(ROOT / "scenes" / "demo_cloud.npz") if not _has_vdb() else \
-        vdb.load_volume(ROOT / "scenes" / "demo_cloud.vdb")
+    # the demo cloud is a .vdb: None where OpenVDB's binding is missing (the test skips it)
+    demo = vdb.load_volume(ROOT / "scenes" / "demo_cloud.vdb") if _has_vdb() else None
     cam = Camera((1.5, 1.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 24, 18)
     lights = [Sun((-0.6, -1.0, -0.5), 4.0), PointLight((0.5, 1.5, 0.5), 2.0)]
     return [
-        ("demo", demo, frame_bounds(*demo.world_bounds(), 32, 24, fov=28.0),
+        ("demo", demo, demo and frame_bounds(*demo.world_bounds(), 32, 24, fov=28.0),
          [Sun((-0.6, -1.0, -0.5), 10.0)],
          dict(density_scale=6.0, background=(0.32, 0.42, 0.58), spp=2, seed=4)),
         ("emit", grid, cam, lights,

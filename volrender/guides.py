@@ -1,0 +1,67 @@
+"""Denoising guides: albedo and normal images written by small kernels of their own
+(cl/guide_volume.cl, cl/guide_glass.cl) that read the render kernel's own arguments by
+name, so they follow the integrators without touching them. Each pixel averages
+denoise.GUIDE_SPP jittered sub-pixel rays (prefiltered: OIDN takes them as clean).
+
+    albedo  H x W x 3 in [0, 1]   volumes: (1 - T) albedo + T min(behind, 1);
+                                  glass: the first surface's tint, else the environment
+    normal  H x W x 3 in [-1, 1]  volumes: -grad(density)/|grad| where T falls to 1/2;
+                                  glass: the first surface's outward normal; 0: nothing
+
+EXR layers (image.LAYERS): `Denoising Albedo.R/G/B`, `Denoising Normal.X/Y/Z` (Blender's
+Denoising Data passes, what its Denoise node and OIDN's tools take) and, when denoised,
+`Noisy Image.R/G/B/A`.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .denoise import GUIDE_SPP
+from .dispatch import Dispatch, Plan, run_rows
+
+ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
+        "glass": ("cam", "gp", "spheres", "nodes", "env", "colors", "bricks", "cells", "lists",
+                  "runs")}
+UNTILED = ("tiled", "tile_w", "tile_h", "tile_cap")
+
+
+def plan(scene, main: Plan, spp: int = GUIDE_SPP) -> Plan:
+    """The guide launch beside a render's Plan `main` (volume.plan or glass.plan of the
+    same scene): its arguments by name, the camera's samples set to `spp`, fragment
+    dispatch (no tile lists)."""
+    inputs = dict(main.inputs)
+    cam = inputs["cam"].copy()
+    cam["spp"] = spp
+    inputs["cam"] = cam
+    f = main.features
+    plain = type(f)()
+    features = dataclasses.replace(f, **{k: getattr(plain, k) for k in UNTILED if hasattr(f, k)})
+    W, H = scene.camera.width, scene.camera.height
+    return Plan(f"guide_{scene.kind}", features, [(n, inputs[n]) for n in ARGS[scene.kind]],
+                [("albedo", (H, W, 4)), ("normal", (H, W, 4))],
+                Dispatch("fragment", main.dispatch.tile), main.band_pixels,
+                build_options=main.build_options)
+
+
+def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
+    """{'albedo': H x W x 3, 'normal': H x W x 3} float32 of the scene (see the module
+    docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
+    centre)."""
+    import pyopencl as cl
+    from .dispatch import upload
+    p = plan(scene, main, spp)
+    kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
+    ctx = device.context
+    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in p.inputs]
+    outs = {name: cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * int(np.prod(shape)))
+            for name, shape in p.outputs}
+    run_rows(device, kernel, args + list(outs.values()), scene.camera.width,
+             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=spp)
+    host = {}
+    for name, shape in p.outputs:
+        host[name] = np.empty(shape, np.float32)
+        cl.enqueue_copy(device.queue, host[name], outs[name])
+    device.queue.finish()
+    return {name: np.ascontiguousarray(v[..., :3]) for name, v in host.items()}
