@@ -21,7 +21,7 @@ from volrender.render import render
 from volrender.scene import Scene, VolumeContent
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
-from helpers import Z, look_at, scaled
+from helpers import ENV, Z, look_at, lumpy_ball, scaled, sky, top_camera
 
 SUN = Sun((0.35, -1.0, 0.25), 3.0)
 SIGMA = 0.12                     # per voxel (world unit = one voxel here)
@@ -228,13 +228,15 @@ def test_cached_sky_in_a_thin_slab_is_the_maps_l1_projection(cl_device, g):
     tau, -tau/2 ~ -0.4 %). With g = 0 that is the exact integral of p L (test_env's
     closed form); with g = 0.6 the L1 truncation of the phase's convolution."""
     from volrender.environment import Environment
-    from test_env import sky, thin_slab, top_camera
     t = sky()
-    cam = top_camera()
+    cam = top_camera(12, fov=4.0)
+    v = np.zeros((24, 24, 24), np.float32)             # test_env's thin slab (tau 4e-3)
+    v[:, :, 10:14] = 1.0
+    thin = Bricks.from_dense(v, scaled(0.1, (-1.15, -1.15, -1.15)))
     s = VolumeSettings(estimator="march", ms_octaves=1, density_scale=0.01, albedo=0.8,
                        phase=(g, 0.0, 1.0), spp=16, seed=5, step=0.5, shadow_step=0.5,
                        hide_env=True, light_cache="on", light_cache_cell=2)
-    img = render(Scene.of(cam, [], VolumeContent(thin_slab(), s), Environment(t)), cl_device)
+    img = render(Scene.of(cam, [], VolumeContent(thin, s), Environment(t)), cl_device)
     assert img.info["light_cache_cell"] == 2
     h, w = t.shape[:2]
     th = (np.arange(h) + 0.5) / h * np.pi
@@ -259,10 +261,14 @@ def test_cached_white_furnace(cl_device, density):
     bands) with the cache: the bands telescope to transmittance 1 along every baked
     direction, the 14 directions' cells cover the sphere, so every pixel is L, as the
     exact march gives (float rounding only; the map is not sampled)."""
-    from test_defaults import furnace
+    from volrender.camera import Camera
+    cam = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
     for cell in (2, 4):
-        r, img = furnace(cl_device, density, estimator="march", ms_octaves=4, spp=1,
-                         light_cache="on", light_cache_cell=cell)
+        s = VolumeSettings(density_scale=density, albedo=1.0, env=ENV, phase=(0.5, -0.3, 0.7),
+                           estimator="march", ms_octaves=4, spp=1, light_cache="on",
+                           light_cache_cell=cell)
+        img = render(Scene.of(cam, [], VolumeContent(lumpy_ball(), s)), cl_device)
+        r = img.rgba[..., :3][img.rgba[..., 3] > 0] / np.asarray(ENV)
         assert img.info["light_cache_cell"] == cell
         np.testing.assert_allclose(r, 1.0, atol=2e-3)
 
@@ -276,7 +282,6 @@ def test_cached_sky_through_a_thick_slab(cl_device, below):
     the one measured, not derived (mean +9 % / -6 %, relative RMSE 13 % / 16 %,
     docs/error_time.md); pairing the cells with the wrong directions gives +79 % / -25 %."""
     from volrender.environment import Environment
-    from test_env import sky
     v = slab_values()
     bricks = Bricks.from_dense(v, scaled(1.0, -(np.array(v.shape) - 1) / 2))
     cam = look_at((30.0, -100.0 if below else 100.0, 90.0), fov=22.0, n=24)
