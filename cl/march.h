@@ -94,6 +94,31 @@ inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau, int l
 #endif
     return sum;
 }
+/* The environment's bands without the phase (they keep it: vr_octaves(vp, mu, tau, 0)
+   = p(mu) x this): the transmittance the bands give through shadow depth tau, per
+   channel; exp(-tau) with one octave. The light cache bakes it (cl/bake_light.cl). */
+inline VrSpec vr_env_bands(__constant VolumeParams* vp, float tau)
+{
+    VrSpec ext_tau = tau * VR_EXTINCTION(vp);
+    VrSpec prev = vr_spec_transmit(ext_tau);
+    VrSpec sum = prev;
+#if VR_MS_OCTAVES > 1
+#if VR_CHROMATIC
+    float3 ln_a = vp->ms_decay.xyz;
+#else
+    float ln_a = vp->ms_decay.x;
+#endif
+    VrSpec gain = VR_ALBEDO(vp);
+    float du = 1.0f / (float)(VR_MS_OCTAVES - 1);
+    for (int k = 1; k < VR_MS_OCTAVES; ++k) {
+        VrSpec tk = vr_spec_transmit(exp((float)k * du * ln_a) * ext_tau);
+        sum += gain * (tk - prev);
+        prev = tk;
+    }
+#endif
+    return sum;
+}
+
 /* where the shadow march may stop: every band's (and channel's) light below 1e-4 */
 #define VR_TAU_STOP(vp) ((vp)->ms.w)
 #endif

@@ -3,7 +3,7 @@
    the lights and the environment (VR_ENV 1 uniform, 2 a map: one direction per step).
    Flags: VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_PHASE_MIXED, VR_SKIP_EMPTY,
           VR_EMISSION, VR_DEPTH, VR_TILED, VR_TILE_W, VR_TILE_H, VR_TILE_CAP,
-          VR_CHROMATIC, VR_ENV, VR_MS_OCTAVES, VR_TEMPERATURE.
+          VR_CHROMATIC, VR_ENV, VR_MS_OCTAVES, VR_TEMPERATURE, VR_LIGHT_CACHE.
 
    Dispatch (volrender/dispatch.py):
    fragment (VR_TILED 0): independent work-items, any local size, no local memory.
@@ -20,7 +20,8 @@
     !defined(VR_EMISSION) || \
     !defined(VR_DEPTH) || !defined(VR_TILED) || !defined(VR_TILE_W) || \
     !defined(VR_TILE_H) || !defined(VR_TILE_CAP) || !defined(VR_CHROMATIC) || \
-    !defined(VR_ENV) || !defined(VR_MS_OCTAVES) || !defined(VR_TEMPERATURE)
+    !defined(VR_ENV) || !defined(VR_MS_OCTAVES) || !defined(VR_TEMPERATURE) || \
+    !defined(VR_LIGHT_CACHE)
 #error "render_volume.cl: a VR_* feature flag is missing (see volrender/features.py)"
 #endif
 
@@ -33,13 +34,15 @@
 #include "lights.h"
 #include "env.h"
 #include "march.h"
+#include "light_cache.h"
 #include "accum.h"
 
 #define VR_T_CUTOFF 1e-5f          /* stop marching once the view transmittance is below */
 
 /* occ: the occupied bricks' coordinates (n_occ of them), read only by tiled culling.
    temperature: the temperature grid (VR_TEMPERATURE), bb: the blackbody table; env, cdf:
-   the environment map and its sampling CDFs (VR_ENV 2). */
+   the environment map and its sampling CDFs (VR_ENV 2); light_cache: the baked light
+   (VR_LIGHT_CACHE > 0, light_cache.h), read instead of the shadow marches. */
 #if VR_TILED
 __attribute__((reqd_work_group_size(VR_TILE_W, VR_TILE_H, 1)))
 #endif
@@ -50,6 +53,7 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                             __global const float* temperature, __global const float4* bb,
                             __global const float4* env, __global const float* cdf,
                             __global float4* out, __global float* depth,
+                            __global const float* light_cache,
                             __global const int4* occ, int n_occ, int y0, int s0, int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
@@ -132,11 +136,23 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
             if (vr_spec_max(a) > 0.0f) {
 #if VR_N_SUNS + VR_N_POINTS > 0 || VR_ENV
                 float3 S = (float3)(0.0f);
+#if VR_LIGHT_CACHE
+                VrCacheTap tap;
+                vr_cache_tap(slot, c, f, &tap);
+#if VR_N_SUNS + VR_N_POINTS > 0
+                S = vr_cached_inscatter(&g, vp, lights, light_cache, &tap, p, -dir, cam->seed, pixel,
+                                        (uint)s, (uint)k);
+#endif
+#if VR_ENV
+                S += vr_cached_env(vp, light_cache, &tap, dir);
+#endif
+#else
 #if VR_N_SUNS + VR_N_POINTS > 0
                 S = vr_inscatter(&g, vp, lights, p, -dir, cam->seed, pixel, (uint)s, (uint)k);
 #endif
 #if VR_ENV
                 S += vr_env_inscatter(&g, vp, env, cdf, p, dir, cam->seed, pixel, (uint)s, (uint)k);
+#endif
 #endif
                 L += T * a * VR_ALBEDO(vp) * S;
 #endif

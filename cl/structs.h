@@ -38,7 +38,7 @@ typedef struct {  /* 32 bytes */
     float4 radiance;
 } Light;
 
-typedef struct {  /* 320 bytes */
+typedef struct {  /* 336 bytes */
     float4 world_to_local0;
     float4 world_to_local1;
     float4 world_to_local2;
@@ -71,6 +71,10 @@ typedef struct {  /* 320 bytes */
     int max_depth;
     int rr_depth;
     int bb_n;
+    float cache_near;
+    float _pad0;
+    float _pad1;
+    float _pad2;
 } VolumeParams;
 
 typedef struct {  /* 32 bytes */

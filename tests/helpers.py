@@ -58,9 +58,7 @@ def volume_image(bricks, camera, lights, settings, device, environment=None):
     """render.Image of a volume (the public path); environment: texels (H, W, 3) of a
     map, else settings.env."""
     env = None if environment is None else Environment(np.asarray(environment, np.float32))
-    if settings.estimator == "auto":        # the marcher's estimand, as render_volume
-        import dataclasses
-        settings = dataclasses.replace(settings, estimator="march")
+    settings = exact_march(settings)
     return render(Scene.of(camera, list(lights), VolumeContent(bricks, settings), env), device)
 
 
@@ -214,12 +212,22 @@ def unprivileged_uid():
     return pwd.getpwnam("nobody").pw_uid
 
 
-def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
-    """Settings left at --estimator auto render as `march` here: these tests check the
-    marcher's estimand (single scattering, or the octaves asked for); auto's choice has
-    its own tests (test_defaults.py), through load_scene as the CLI renders."""
+def exact_march(settings):
+    """Settings left at --estimator auto render as `march`, and --light-cache auto as
+    off, here: these tests check the marcher's estimand (single scattering, or the octaves
+    asked for) with its exact shadow marches; auto's choice has its own tests
+    (test_defaults.py), through load_scene as the CLI renders, and the cache its own
+    (test_light_cache.py)."""
     if settings.estimator == "auto":
         settings = dataclasses.replace(settings, estimator="march")
+    if settings.light_cache == "auto":
+        settings = dataclasses.replace(settings, light_cache="off")
+    return settings
+
+
+def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
+    """See exact_march."""
+    settings = exact_march(settings)
     return common.render_volume(bricks, camera, lights, settings, device, progress, launch)
 
 

@@ -426,6 +426,8 @@ def cmd_render(args):
     with warnings.catch_warnings():          # the denoiser's absence was said above
         warnings.filterwarnings("ignore", message="not denoised")
         img = render(scene, dev, progress=args.progress)
+    if img.info.get("light_cache"):          # the light cache's cost model (issue 33)
+        print(f"volrender: {img.info['light_cache']}", file=sys.stderr)
     if img.info.get("adaptive"):
         print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
     t_write = time.perf_counter()

@@ -109,6 +109,8 @@ STRUCTS: dict[str, list[tuple[str, str]]] = {
         ("max_depth", "int"),            # path estimator: scattering events per path
         ("rr_depth", "int"),             # path estimator: Russian roulette from this event on
         ("bb_n", "int"),                 # blackbody table entries
+        ("cache_near", "float"),         # light cache: exact shadow march this far (world), the cache beyond
+        ("_pad0", "float"), ("_pad1", "float"), ("_pad2", "float"),
     ],
     # Partition tree node (heap index: root 1, children 2i, 2i+1). Bounds are the AABB of
     # the node's spheres (centre +- radius) in the render frame, rounded outwards; empty

@@ -8,6 +8,7 @@ knobs: each option's one home) is most of it. The automatic estimator and the oc
 constants (auto_*, octave_*) are the seam if it grows further."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 import weakref
@@ -29,6 +30,7 @@ PIXELS_PER_LAUNCH = 1 << 16
 # tracking on per-brick majorants, single scattering (unbiased; step and shadow_step are
 # unused); path: path tracing, the same walks, up to max_depth scattering events.
 ESTIMATORS = ("auto", "march", "track", "path")
+CACHE_MODES = ("auto", "on", "off")       # --light-cache (light_cache.py)
 # auto (auto_estimator): single scattering where a scattered photon scatters again with
 # probability < AUTO_MS_PROBABILITY; else the path estimator or the march with AUTO_OCTAVES
 # octave bands, by auto_model's predicted error within AUTO_BUDGET_MS
@@ -173,6 +175,18 @@ class VolumeSettings(CommonSettings):
                                           else rgb(0, 100, n=(3,))(v),
                                           toml=("volume", "ms_octave_scales"), kind=VEC,
                                           show_default=False)
+    light_cache: str = knob("auto", "march: bake the light reaching the medium once per scene "
+                            "and lights on a coarse grid and read it instead of a shadow march "
+                            "per sample per light (volrender/light_cache.py); auto: where the "
+                            "cost model says the bake and the short exact marches near each "
+                            "sample cost less than the exact march (the choice is printed); "
+                            "off: the exact shadow march", check=one_of(CACHE_MODES),
+                            choices=CACHE_MODES, toml=("volume", "light_cache"))
+    light_cache_cell: int | None = knob(None, "light cache node spacing, voxels (1, 2, 4 or 8; "
+                                        "default: the cost model's cheapest)",
+                                        check=lambda v: None if v in (None, 1, 2, 4, 8)
+                                        else "must be 1, 2, 4 or 8", toml=("volume",
+                                        "light_cache_cell"), kind=int, show_default=False)
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
@@ -540,12 +554,17 @@ def plan(scene, device, variant=None, launch=None):
               ("emission", emission), ("temperature", temperature), ("bb", blackbody.table()),
               ("env", env), ("cdf", cdf)]
     extra = []
+    cache_info = {}
     if settings.estimator != "march":
         inputs.append(("majorant", track_majorants(bricks, settings)))
     else:                             # the occupied bricks, which only tiled culling reads
         occ = occupied_bricks(bricks) if features.tiled and features.skip_empty \
             else np.zeros((0, 4), np.int32)
-        extra = [("occ", occ), ("n_occ", np.int32(len(occ)))]
+        cache, cache_info = light_cache_of(scene, device, features, params, inputs)
+        if cache is not None:
+            features = dataclasses.replace(features, light_cache=cache.choice.cell)
+        extra = [("light_cache", cache.buffer if cache is not None else none),
+                 ("occ", occ), ("n_occ", np.int32(len(occ)))]
     W, H = scene.camera.width, scene.camera.height
     # depth: (sum, weight) per pixel while samples are split across launches, then
     # (depth, weight); the layer is [..., 0]
@@ -553,8 +572,37 @@ def plan(scene, device, variant=None, launch=None):
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
                 info={"background": tuple(settings.background), "estimator": settings.estimator,
-                      "ms_octaves": settings.octaves, "spp": settings.spp,
+                      "ms_octaves": settings.octaves, "spp": settings.spp, **cache_info,
                       **({"estimator_note": note} if note else {})})
+
+
+def light_cache_choice(scene):
+    """light_cache.Choice for a resolved volume scene (its cost model; cell 0: none)."""
+    from . import light_cache
+    from .lights import counts
+    n_suns, n_points = counts(scene.lights)
+    bricks, settings = scene.content.bricks, scene.content.settings
+    return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
+                              env_mode(scene.environment) > 0,
+                              tau=optical_size(bricks, settings)["tau"])
+
+
+def light_cache_of(scene, device, features, params, inputs):
+    """(light_cache.LightCache or None, info): the scene's cache on `device`, baked on
+    first use (light_cache.get), and what Image.info records of it."""
+    from . import light_cache
+    choice = light_cache_choice(scene)
+    if not choice.cell:
+        return None, {"light_cache": choice.note()}
+    named = dict(inputs)
+    before = light_cache.builds(scene.content)
+    cache = light_cache.get(scene.content, device, features, params, named["lights"],
+                            scene.environment, choice)
+    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice.cell)
+    baked = light_cache.builds(scene.content) > before
+    return cache, {"light_cache": choice.note(), "light_cache_baked": baked,
+                   "light_cache_bake_ms": cache.bake_ms if baked else 0.0,
+                   "light_cache_bytes": choice.nbytes, "light_cache_cell": choice.cell}
 
 
 # --------------------------------------------------------------------------- adaptive passes
