@@ -605,7 +605,7 @@ DENOISE_TARGET = 0.05          # the issue's: within 5 % of path 1024 spp, cover
 COVERED = 0.05                 # covered pixels: reference alpha above this
 
 
-def covered_errors(img, ref, var, covered) -> dict:
+def masked_errors(img, ref, var, covered) -> dict:
     """Relative RMSE over the covered pixels (RGB), the reference's noise removed (its
     variance of the mean, independent of the image's), and the covered mean's ratio."""
     d = img[..., :3].astype(np.float64)[covered] - ref[..., :3][covered]
@@ -684,7 +684,7 @@ def run_denoise(dev, args, record):
             for group, pic, t in (("path", img.noisy, base), ("path + OIDN", img.rgba, base + extra),
                                   ("path + OIDN colour only", plain, base + alone)):
                 row = {"group": group, "label": f"{group} {n} spp", "spp": n, "time_ms": t,
-                       **covered_errors(pic, ref, var, covered)}
+                       **masked_errors(pic, ref, var, covered)}
                 if group == "path + OIDN":
                     row.update(guides_ms=img.info["guides_ms"], denoise_ms=img.info["denoise_ms"])
                 sc["rows"].append(row)

@@ -42,7 +42,7 @@ def guide_plans(dev):
     lights = (Sun((0.2, -1.0, -0.4), 2.0),)
     from volrender.camera import Camera
     cam = Camera((0.3, 0.4, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8)
-    vs = Scene(cam, lights, VolumeContent(soft_ball(), volume.VolumeSettings(estimator="march")))
+    vs = Scene(cam, lights, VolumeContent(glowing_ball(), volume.VolumeSettings(estimator="march")))
     yield guides.plan(vs, volume.plan(vs, dev))
     cloud = generators.blob(60, seed=1)
     gs = Scene(glass.default_camera(cloud, 8, 8), lights, GlassContent(cloud, glass.GlassSettings()))
