@@ -150,7 +150,7 @@ case "$cmd" in
            --density-scale 6 --albedo 0.98 --sun=-0.6,-1,-0.5,10 --fov 28 --env 0.32,0.42,0.58 \
            --ms-octaves 3
          echo "run.sh: wrote demo.png" >&2 ;;
-  test)  apt_deps; venv vdb,inspect,bench,test; shift || true
+  test)  apt_deps; venv vdb,inspect,bench,denoise,test; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
   test-pip) apt_deps; pip_env; shift || true
          "$PIP_VENV/bin/python" -m pytest -q -p no:cacheprovider "${PIP_TESTS[@]}" "$@" ;;
