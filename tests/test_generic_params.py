@@ -94,8 +94,8 @@ def _axis_oracle(model, ior, refl, tau, bounces, front, back):
     """Radiance along the axis of one absorbing sphere (normal incidence at every event,
     chord optical depth tau per channel), written from the documentation of glass_path:
     at each event the Fresnel share F (x reflectivity) is reflected and 1 - F refracted;
-    a branch at its last event, or that leaves, reads the environment along its direction
-    (front: towards the eye, back: away from it). full: both branches everywhere; fast:
+    a branch that leaves reads the environment along its direction (front: towards the
+    eye, back: away from it); one that meets glass with no event left returns 0. full: both branches everywhere; fast:
     the outer reflection reads the environment only, an exit's reflection is dropped."""
     f = ((ior - 1) / (ior + 1)) ** 2                 # normal incidence, either side
     att = np.exp(-np.asarray(tau, np.float64))
@@ -106,8 +106,10 @@ def _axis_oracle(model, ior, refl, tau, bounces, front, back):
         if inside:
             thr = thr * att
         hit = inside or (forward and events == 0)
-        if not hit or events >= bounces:
+        if not hit:
             return thr * (back if forward else front)
+        if events >= bounces:                # meets glass with no event left: a path
+            return np.zeros(3)               # tracer's depth limit (issue 32)
         events += 1
         t_thr, r_thr = thr * (1 - f), thr * f * refl
         if model == "full":
@@ -138,7 +140,7 @@ def test_axis_of_an_absorbing_sphere_is_the_fresnel_branch_sum(cl_device, model)
     a = np.array([0.1, 0.25, 0.5])                  # per world unit (material unit 1)
     s = glass.GlassSettings(ior=1.7, reflectivity=0.8, absorption=tuple(a), glow=0.0,
                             blend=0.0, material_unit=1.0, bounces=5, roulette=0.0,
-                            glass_model=model, spp=1)
+                            glass_model=model, spp=1, split_events=64)   # every branch
     hh, ww = 16, 32
     v, u = np.meshgrid((np.arange(hh) + 0.5) / hh, (np.arange(ww) + 0.5) / ww, indexing="ij")
     tex = np.stack([0.5 + 0.4 * np.cos(2 * np.pi * u), 0.4 + 0.5 * v,
