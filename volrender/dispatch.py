@@ -28,12 +28,14 @@ launch from the slowest rate seen so far (docs/benchmarks.md: the launch cadence
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .errors import UserError
+from .process import signals_held
 from .progress import Eta, Progress
 
 DISPATCHES = ("fragment", "tiled")
@@ -68,13 +70,22 @@ class Stats:
         return None if self.eta is None else self.eta.profile
 
 
+_LAUNCHED: set = set()     # (kernel, local size) launched once in this process
+
+
 def _enqueue(device, kernel, global_size, local_size):
     """One launch, waited for: (kernel ns from its profiling event, wall seconds). Tests
-    replace it to fake a slow kernel."""
+    replace it to fake a slow kernel. A kernel's first launch at a local size is made
+    with signals held: PoCL compiles the work-group function then, and a signal inside
+    its compiler breaks it ("1 error generated.") instead of ending the render after it."""
     import pyopencl as cl
+    key = (kernel.int_ptr, tuple(local_size) if local_size else None)
+    first = key not in _LAUNCHED
     start = time.perf_counter()
-    ev = cl.enqueue_nd_range_kernel(device.queue, kernel, global_size, local_size)
-    ev.wait()
+    with signals_held() if first else contextlib.nullcontext():
+        ev = cl.enqueue_nd_range_kernel(device.queue, kernel, global_size, local_size)
+        ev.wait()
+    _LAUNCHED.add(key)
     return ev.profile.end - ev.profile.start, time.perf_counter() - start
 
 
