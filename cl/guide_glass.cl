@@ -14,6 +14,7 @@
 #include "camera.h"
 #include "sdf.h"
 #include "glass.h"
+#include "guide.h"
 
 __kernel void guide_glass(__constant Camera* cam, __constant GlassParams* gp,
                           __global const float4* restrict spheres,
@@ -63,12 +64,5 @@ __kernel void guide_glass(__constant Camera* cam, __constant GlassParams* gp,
             a_sum.xyz += clamp(sky, 0.0f, 1.0f);
         }
     }
-    if (s1 < cam->spp) {
-        albedo_out[pixel] = a_sum;
-        normal_out[pixel] = n_sum;
-        return;
-    }
-    float inv = 1.0f / (float)cam->spp;
-    albedo_out[pixel] = a_sum * inv;
-    normal_out[pixel] = n_sum * inv;
+    guide_store(albedo_out, normal_out, pixel, a_sum, n_sum, s1, cam->spp);
 }

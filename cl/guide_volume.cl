@@ -17,6 +17,7 @@
 #include "camera.h"
 #include "volume.h"
 #include "env.h"
+#include "guide.h"
 
 inline float3 vr_guide_gradient(const VrGrid* g, float3 p)
 {
@@ -97,12 +98,5 @@ __kernel void guide_volume(__constant Camera* cam, __constant VolumeParams* vp,
             n_sum.w += w;
         }
     }
-    if (s1 < cam->spp) {
-        albedo_out[pixel] = a_sum;
-        normal_out[pixel] = n_sum;
-        return;
-    }
-    float inv = 1.0f / (float)cam->spp;
-    albedo_out[pixel] = a_sum * inv;
-    normal_out[pixel] = n_sum * inv;
+    guide_store(albedo_out, normal_out, pixel, a_sum, n_sum, s1, cam->spp);
 }

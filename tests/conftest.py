@@ -101,3 +101,11 @@ def log(monkeypatch):
     d = {"launches": [], "clock": 0.0, "args": ()}
     spy_args(monkeypatch, d)
     return d
+
+
+@pytest.fixture(scope="module")
+def box():
+    """A 12^3 grid holding a 6^3 cube of density 1 (test_python_api, test_everyday)."""
+    g = np.zeros((12, 12, 12), np.float32)
+    g[3:9, 3:9, 3:9] = 1.0
+    return g

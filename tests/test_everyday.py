@@ -12,13 +12,6 @@ SIZE = (12, 10)
 
 
 @pytest.fixture(scope="module")
-def box():
-    g = np.zeros((12, 12, 12), np.float32)
-    g[3:9, 3:9, 3:9] = 1.0
-    return g
-
-
-@pytest.fixture(scope="module")
 def box_image(box):
     return volrender.render(box, size=SIZE, density_scale=0.5, spp=2)
 

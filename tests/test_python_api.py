@@ -16,13 +16,6 @@ SIZE = (12, 10)
 
 
 @pytest.fixture(scope="module")
-def box():
-    g = np.zeros((12, 12, 12), np.float32)
-    g[3:9, 3:9, 3:9] = 1.0
-    return g
-
-
-@pytest.fixture(scope="module")
 def points():
     return np.random.default_rng(1).normal(size=(40, 3))
 
