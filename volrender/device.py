@@ -71,12 +71,16 @@ def _cl():
 def all_devices():
     """[(platform index, device index, platform, device)] for every OpenCL device found."""
     cl = _cl()
-    try:
-        platforms = cl.get_platforms()
-    except cl.Error as exc:
-        raise UserError(f"no OpenCL platform found ({exc})",
-                        fix="install a runtime: `bash run.sh setup` installs PoCL") from None
-    return [(i, j, p, d) for i, p in enumerate(platforms) for j, d in enumerate(p.get_devices())]
+    # held: PoCL starts its worker threads here, and they inherit this thread's signal
+    # mask; they compile kernels at first launch, and a signal landing in one of them
+    # breaks its compiler ("1 error generated."). Held, the signals go to the main thread.
+    with signals_held():
+        try:
+            platforms = cl.get_platforms()
+        except cl.Error as exc:
+            raise UserError(f"no OpenCL platform found ({exc})",
+                            fix="install a runtime: `bash run.sh setup` installs PoCL") from None
+        return [(i, j, p, d) for i, p in enumerate(platforms) for j, d in enumerate(p.get_devices())]
 
 
 def describe(platform, device) -> str:
@@ -150,9 +154,10 @@ class Device:
 
     def __post_init__(self):
         cl = _cl()
-        self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(
-            self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        with signals_held():                  # threads started here inherit the mask too
+            self.context = cl.Context([self.device])
+            self.queue = cl.CommandQueue(
+                self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
 
     @property
     def name(self) -> str:
