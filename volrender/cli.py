@@ -321,12 +321,12 @@ def render_overrides(args) -> dict:
 def describe(scene, img=None) -> str:
     """The status line's summary; with the image, the acceleration the render used."""
     s = scene.settings
-    spp = img.info.get("spp", s.spp) if img is not None else s.spp     # the samples taken
-    done = ", denoised" if img is not None and img.info.get("denoised") else ""
+    spp = img.info.spp if img is not None else s.spp     # the samples taken
+    done = ", denoised" if img is not None and img.info.denoised else ""
     if scene.kind == "volume":
         return f"{spp} spp{done}"
-    accel = img.info.get("accel", s.accel) if img is not None else s.accel
-    model = f", {img.info['model']}" if img is not None and img.info.get("model") else ""
+    accel = img.info.accel if img is not None else s.accel
+    model = f", {img.info.model}" if img is not None and img.info.model else ""
     return f"{len(scene.content.cloud.centers)} spheres, {spp} spp, accel {accel}{model}{done}"
 
 
@@ -346,10 +346,10 @@ def time_breakdown(scene, img, write_s) -> str:
     rest of the launches and the write."""
     parts = [("load", scene.timings.load), ("radii", scene.timings.radii)]
     if scene.kind == "glass":
-        parts += [("tree", img.info.get("tree_ms", 0.0) / 1e3),
-                  ("cells", img.info.get("cells_ms", 0.0) / 1e3)]
+        parts += [("tree", img.info.tree_ms / 1e3),
+                  ("cells", img.info.cells_ms / 1e3)]
     build = sum(v for k, v in parts[2:]) if scene.kind == "glass" else 0.0
-    setup = max(img.info.get("setup_ms", 0.0) / 1e3 - build, 0.0)
+    setup = max(img.info.setup_ms / 1e3 - build, 0.0)
     parts += [("setup", setup), ("kernel", img.kernel_ms / 1e3),
               ("launch overhead", max(img.wall_ms - img.kernel_ms, 0.0) / 1e3), ("write", write_s)]
     return ", ".join(f"{k} {v:.3f} s" for k, v in parts if v is not None)
@@ -426,15 +426,15 @@ def cmd_render(args):
     with warnings.catch_warnings():          # the denoiser's absence was said above
         warnings.filterwarnings("ignore", message="not denoised")
         img = render(scene, dev, progress=args.progress)
-    if img.info.get("light_cache"):          # the light cache's cost model (issue 33)
-        print(f"volrender: {img.info['light_cache']}", file=sys.stderr)
-    if img.info.get("adaptive"):
-        print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
+    if img.info.light_cache:          # the light cache's cost model (issue 33)
+        print(f"volrender: {img.info.light_cache}", file=sys.stderr)
+    if img.info.adaptive:
+        print(f"volrender: {img.info.adaptive}", file=sys.stderr)
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
-        if img.info.get("note"):
-            print(f"volrender: {img.info['note']}", file=sys.stderr)
+        if img.info.note:
+            print(f"volrender: {img.info.note}", file=sys.stderr)
         print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
               file=sys.stderr)
     if args.camera_out:

@@ -507,9 +507,9 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
             t2 = time.perf_counter()
             img.save(out, **save_kw)
             t3 = time.perf_counter()
-            build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
+            build_s = (img.info.tree_ms + img.info.cells_ms) / 1e3
             rec.update(status="ok", device=img.device, load_s=t1 - t0, build_s=build_s,
-                       setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
+                       setup_s=img.info.setup_ms / 1e3, kernel_s=img.kernel_ms / 1e3,
                        render_s=t2 - t1, write_s=t3 - t2)
         except UserError as exc:
             rec.update(status="failed", error=str(exc))
