@@ -58,7 +58,7 @@ def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
     outs = {name: cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * int(np.prod(shape)))
             for name, shape in p.outputs}
     run_rows(device, kernel, args + list(outs.values()), scene.camera.width,
-             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=spp)
+             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=p.spp)
     host = {}
     for name, shape in p.outputs:
         host[name] = np.empty(shape, np.float32)

@@ -240,7 +240,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
+                   dispatch=plan.dispatch, spp=plan.spp,
                    launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
@@ -261,7 +261,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
                  info=RenderInfo(**{
                      "transparent": bool(getattr(scene.settings, "transparent", False)),
                      **plan.info, "setup_ms": setup_ms, "launches": run.launches,
-                     "spp": plan.info.get("spp", scene.settings.spp), "row_cost": run.profile,
+                     "spp": plan.spp, "row_cost": run.profile,
                      "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                      "launch_s": tuple(t for t, _, _ in run.took),
                      "launch_ends_s": tuple(run.ends)}))

@@ -19,7 +19,7 @@ class RenderInfo:
     (dispatch.Plan.info names them), render the launch's, denoising and adaptive passes
     theirs."""
     # every render (render._beauty)
-    spp: int | None = None               # samples per pixel: taken (passes: summed)
+    spp: int | None = None               # samples per pixel taken: Plan.spp (passes: summed)
     samples_taken: int = 0               # counted launch by launch
     setup_ms: float = 0.0                # packing, program (cached after the first), uploads
     launches: int = 0

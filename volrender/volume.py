@@ -572,7 +572,7 @@ def plan(scene, device, variant=None, launch=None):
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
                 info={"background": tuple(settings.background), "estimator": settings.estimator,
-                      "ms_octaves": settings.octaves, "spp": settings.spp, **cache_info,
+                      "ms_octaves": settings.octaves, **cache_info,
                       **({"estimator_note": note} if note else {})})
 
 
