@@ -6,7 +6,6 @@ schema (one source of truth):
 tests/test_manual.py fails when the committed files are not what this writes."""
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from . import scene_file

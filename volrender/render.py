@@ -91,7 +91,6 @@ class Image:
 
     def __array__(self, dtype=None, copy=None):
         """np.asarray(image): the H x W x 4 linear premultiplied RGBA (float32)."""
-        import numpy as np
         out = self.rgba if dtype is None else self.rgba.astype(dtype, copy=False)
         return out.copy() if copy else out
 

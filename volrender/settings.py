@@ -262,7 +262,7 @@ def env_ok(v):
     if v is None or (isinstance(v, str) and v) or isinstance(v, os.PathLike):
         return None
     return rgb(0, MAX_VALUE, n=(1, 3))(v) and \
-        f"takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
+        "takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
 
 
 @dataclass(frozen=True)
