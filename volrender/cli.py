@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import logging
 import os
 import re
@@ -17,8 +18,20 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__, atomic, process
+import numpy
+
+from . import __version__, atomic, device as device_mod, process
+from .camera import View, describe as describe_camera, write_camera_file
+from .device import BuildError, resolve
 from .errors import SPELLING, UserError, opencl_message, printable, suggest
+from .files import check_input, refuse_overwrite
+from .glass import GlassSettings
+from .render import check_image_memory, image_problems, render
+from .scene import request
+from .scene_file import options
+from .sequence import is_pattern, render_sequence
+from .settings import floats, in_range, number, pair
+from .volume import VolumeSettings
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -79,7 +92,6 @@ def _show(value) -> str:
 
 def add_option(group, opt, default):
     """One render option from its settings knob (help and default written once)."""
-    from .settings import number
     meta = opt.meta
     text = meta["help"]
     bounds = getattr(meta["check"], "range", None)
@@ -108,11 +120,6 @@ _GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
-    from .scene_file import options
-    from .glass import GlassSettings
-    from .volume import VolumeSettings
-    from .camera import View
-    from .settings import floats
     defaults = {**{f.name: f.default for f in dataclasses.fields(View)},
                 **{f.name: f.default for f in dataclasses.fields(VolumeSettings)},
                 **{f.name: f.default for f in dataclasses.fields(GlassSettings)}}
@@ -136,8 +143,6 @@ def add_render_options(r):
 def add_camera_options(t):
     """tree: the render's camera options (the image size is --window-size), so the view
     is the render's."""
-    from .camera import View
-    from .scene_file import options
     g = t.add_argument_group("camera (as render's: the view is the render's camera)")
     defaults = {f.name: f.default for f in dataclasses.fields(View)}
     for opt in options().values():
@@ -149,7 +154,6 @@ def add_camera_options(t):
 
 def camera_overrides(args) -> dict:
     """The camera options given to `volrender tree`."""
-    from .scene_file import options
     keys = [o.key for o in options().values() if o.owner == "view" and o.field != "size"]
     return {k: getattr(args, k) for k in keys + ["camera"] if getattr(args, k, None) is not None}
 
@@ -289,7 +293,6 @@ def build_parser():
 
 
 def _exposure(text):
-    from .settings import number
     v = number("--exposure")(text)
     if not -64 <= v <= 64:
         raise argparse.ArgumentTypeError(f"--exposure: must be in [-64, 64] stops, got {text!r}")
@@ -297,17 +300,14 @@ def _exposure(text):
 
 
 def _int(name):
-    from .settings import number
     return number(name, int)
 
 
 def _float(name):
-    from .settings import number
     return number(name)
 
 
 def _pair(name):
-    from .settings import pair
     return pair(name)
 
 
@@ -333,7 +333,6 @@ def describe(scene, img=None) -> str:
 def look_problems(img, scene) -> list[str]:
     """Warnings for an image that came out empty or saturated, with the fix (render()
     warns with them: render.image_problems)."""
-    from .render import image_problems
     return image_problems(img, scene.kind)
 
 
@@ -357,7 +356,6 @@ def time_breakdown(scene, img, write_s) -> str:
 
 def cmd_sequence(args):
     from .denoise import decide
-    from .sequence import render_sequence
     overrides = render_overrides(args)
     on, note = decide(overrides.get("denoise", "auto"), Path(args.output).suffix)
     if note:
@@ -387,7 +385,6 @@ def cmd_sequence(args):
 def cmd_render(args):
     from . import image
     image.check_view(args.tonemap)           # an OpenColorIO view that is missing: now
-    from .sequence import is_pattern
     if len(args.input) > 1:                  # the shell expanded a glob: a sequence of files
         return cmd_sequence(args)
     args.input = args.input[0]
@@ -397,10 +394,6 @@ def cmd_render(args):
     if given:
         raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
-    from .files import refuse_overwrite
-    from .device import resolve
-    from .render import check_image_memory, render
-    from .scene import request
     from .denoise import decide
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
@@ -421,7 +414,6 @@ def cmd_render(args):
     for note in [*scene.notes, *([denoise_note] if denoise_note else [])]:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
-        from .camera import describe as describe_camera
         print(f"volrender: {describe_camera(scene.camera)}", file=sys.stderr)
     with warnings.catch_warnings():          # the denoiser's absence was said above
         warnings.filterwarnings("ignore", message="not denoised")
@@ -438,7 +430,6 @@ def cmd_render(args):
         print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
               file=sys.stderr)
     if args.camera_out:
-        from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)
     print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.seconds:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
@@ -447,7 +438,6 @@ def cmd_render(args):
 
 def cmd_convert(args):
     from . import vdb
-    from .files import check_input, refuse_overwrite
     src, dst = Path(args.input), Path(args.output)
     if src.suffix.lower() != ".vdb":
         raise UserError("convert reads OpenVDB files", path=src, fix="give a .vdb input")
@@ -476,7 +466,6 @@ TREE_RANGES = {"blend": (0, 1e18, False), "depth": (0, 2**31, True), "max_depth"
 
 def cmd_tree(args):
     from . import inspect
-    from .settings import in_range
     for key, (lo, hi, integer) in TREE_RANGES.items():
         problem = in_range(lo, hi, integer=integer, allow_none=True)(getattr(args, key))
         if problem:
@@ -494,14 +483,12 @@ def cmd_tree(args):
 
 
 def cmd_info(args):
-    from . import device as device_mod
     if args.input:
         from .info import describe
         for path in args.input:
             for line in describe(path, args.device):
                 print(line)
         return 0
-    import numpy
     import pyopencl
     print(f"volrender {__version__}, python {sys.version.split()[0]}, numpy {numpy.__version__}, "
           f"pyopencl {pyopencl.VERSION_TEXT}")
@@ -554,7 +541,6 @@ def cmd_bench(args):
         raise UserError(f"matplotlib is not installed ({exc})",
                         fix="pip install 'volrender[bench]' (bash run.sh setup installs it)") from None
     sys.path.insert(0, str(root))
-    import importlib
     module = importlib.import_module(f"bench.{args.name}")
     extra = list(args.args)
     if args.device and "--device" not in extra:
@@ -639,7 +625,6 @@ def _main(argv, written_from) -> tuple:
 
 def _user_message(exc) -> str:
     """One line: a build error's compiler log is only shown with --debug."""
-    from .device import BuildError
     text = str(exc)
     if "\n" not in text:
         return text

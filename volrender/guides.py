@@ -19,7 +19,7 @@ import dataclasses
 import numpy as np
 
 from .denoise import GUIDE_SPP
-from .dispatch import Dispatch, Plan, run_rows
+from .dispatch import Dispatch, Plan, run_rows, upload
 
 ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
         "glass": ("cam", "gp", "spheres", "nodes", "env", "colors", "bricks", "cells", "lists",
@@ -50,7 +50,6 @@ def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
     docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
     centre)."""
     import pyopencl as cl
-    from .dispatch import upload
     p = plan(scene, main, spp)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
     ctx = device.context

@@ -16,6 +16,7 @@ that costs least; `auto` bakes where that is below the exact march.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -23,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import layout
+from .dispatch import upload
+from .environment import env_mode
 
 MODES = ("auto", "on", "off")
 # node spacings the cost model picks from; 8 (brick corners) is valid when asked for, but
@@ -81,7 +84,6 @@ def env_quadrature(environment, res=(128, 256)) -> np.ndarray:
     summed over the map's texels (or a res grid for a uniform environment). With every
     transmittance 1 the bake then gives the map's own L1 projection exactly; a sun disk in
     the map is integrated, never missed between directions."""
-    from .environment import env_mode
     mode = env_mode(environment)
     out = np.zeros((ENV_DIRS, 5, 4), np.float64)
     dirs = env_dirs()
@@ -209,7 +211,6 @@ def get(content, device, features, params, lights_packed, environment,
         memo = (environment, env_quadrature(environment))
         content.store["env_quadrature"] = memo
     env = memo[1]
-    import dataclasses
     flags = dataclasses.replace(features, light_cache=choice.cell, tiled=False, tile_w=1,
                                 tile_h=1, tile_cap=0, depth=False).flags()
     key = (tuple(sorted(flags.items())), params.tobytes(), np.asarray(lights_packed).tobytes(),
@@ -229,7 +230,6 @@ def get(content, device, features, params, lights_packed, environment,
 def bake(bricks, device, flags, params, lights_packed, env, choice, table, data) -> LightCache:
     """Run cl/bake_light.cl over every node of every occupied brick."""
     import pyopencl as cl
-    from .dispatch import upload
     ctx, q = device.context, device.queue
     occ = occupied_slots(bricks)
     n = len(occ) * nodes_per_brick(choice.cell)
@@ -267,7 +267,6 @@ def probe(content, device, flags, local):
     (n, 3) inside occupied bricks: (n, channels); flags: the marcher's (its plan's
     features); tests."""
     import pyopencl as cl
-    from .dispatch import upload
     cache = cached(content, device)
     kernel = device.kernel("bake_light", dict(flags), "probe_light_cache")
     pts = np.zeros((len(local), 4), np.float32)

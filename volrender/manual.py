@@ -9,7 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import scene_file
-from .settings import knobs
+from .camera import View
+from .glass import GlassSettings
+from .settings import CommonSettings, knobs
+from .volume import VolumeSettings
 
 GROUPS = (("view", "Camera and image"), ("common", "Every render"),
           ("volume", "Volumes (.vdb, .npz)"), ("glass", "Point clouds as molten glass"))
@@ -34,10 +37,6 @@ def _cell(text) -> str:
 
 
 def _owners():
-    from .camera import View
-    from .glass import GlassSettings
-    from .settings import CommonSettings
-    from .volume import VolumeSettings
     return {"view": View, "common": CommonSettings, "volume": VolumeSettings,
             "glass": GlassSettings}
 

@@ -12,19 +12,24 @@ only on the scene and its seed.
 """
 from __future__ import annotations
 
+import base64
+import dataclasses
+import io
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import device as device_mod, glass, volume
-from .dispatch import Launch, run_rows, upload
+from .dispatch import Launch, PastDeadline, run_rows, upload
 from .errors import ImageWarning, UserError, spell
 from .progress import say
 from .render_info import RenderInfo
+from .scene import Scene, load_scene
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
 BUILD_NOTE = 100_000                   # clouds from which the build says so (seconds on PoCL)
@@ -107,14 +112,12 @@ class Image:
 
     def _repr_png_(self) -> bytes:
         """The image as PNG bytes (Jupyter shows an Image with it): `to_pil`'s pixels."""
-        import io
         buf = io.BytesIO()
         self.to_pil().save(buf, format="PNG")
         return buf.getvalue()
 
     def _repr_html_(self) -> str:
         """The picture with the repr's line under it (Jupyter prefers it to the PNG)."""
-        import base64
         import html
         data = base64.b64encode(self._repr_png_()).decode("ascii")
         return (f'<div><img src="data:image/png;base64,{data}" width="{self.width}" '
@@ -133,8 +136,6 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     `variant`: "uber" or "stats" builds of the glass kernel (benchmarks). `launch`: how the
     image is cut into launches (dispatch.Launch; the default adapts). An image that came out
     empty, a solid silhouette or overexposed warns (errors.ImageWarning), saying the fix."""
-    import warnings
-    from .scene import Scene, load_scene
     if not isinstance(scene, Scene):
         if not isinstance(scene, (str, os.PathLike, np.ndarray)):
             raise UserError(f"render() takes a Scene (volrender.load_scene), a file path or a "
@@ -189,8 +190,6 @@ def denoised(scene, dev, img) -> Image:
     """`img` denoised by OIDN (volrender.denoise) with the scene's guides (volrender.guides:
     albedo, and normal for glass), which join its AOVs; the noisy beauty stays as Image.noisy. Without
     pyoidn: `img` unchanged, a one-line warning, and info.denoise_note saying why."""
-    import dataclasses
-    import warnings
     from . import denoise as denoise_mod, guides
     why = denoise_mod.unavailable()
     if why:
@@ -314,9 +313,6 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     samples_taken), noise (the covered pixels' estimate), noise_whole (the whole
     image's, for comparison), history ((spp, noise, noise_whole) after each pass),
     noise_map (the per-pixel standard error, H x W), stopped (why)."""
-    import dataclasses
-    import time
-    from .dispatch import PastDeadline
     # auto resolved once, with the passes' settings: per pass it would plan its own samples
     # (volume.auto_estimator) and the passes would take more than they count
     scene, note = volume.resolved(scene, device)

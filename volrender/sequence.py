@@ -33,20 +33,34 @@ on interruption and frame records has landed.
 from __future__ import annotations
 
 import contextlib
+import datetime
+import fcntl
 import fnmatch
 import glob as globmod
-import logging
+import hashlib
 import json
+import logging
 import os
 import re
 import signal
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import process
-from .errors import UserError, one_line_if_uncaught
+import numpy as np
+
+from . import points, process
+from .atomic import write_bytes
+from .camera import FRAMING, describe as describe_camera, write_camera_file
+from .device import all_devices, resolve
+from .errors import UserError, one_line_if_uncaught, option_name
+from .progress import Progress
+from .render import check_image_memory, render
+from .scene import load_scene, request
+from .settings import in_range
+from .spheres import blend_width, sphere_bounds, sphere_radii
 
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
@@ -291,9 +305,7 @@ def sequence_camera(paths, overrides, device=None):
     is read once for its bounds, and the radius and blend are one for the whole sequence,
     given or chosen from the first frame (said in the notes). Frames whose bounds cannot
     be read are left out of the union and returned as failed."""
-    import numpy as np
     from . import vdb
-    from .scene import request
     first = next(iter(paths.values()))
     req = request(first, **overrides)
     if req.origin not in ("volume", "points"):
@@ -301,8 +313,6 @@ def sequence_camera(paths, overrides, device=None):
                         ".xyz, .csv, .txt)", path=first, fix="give a pattern of such files")
     extra, notes = {}, []
     if req.kind == "glass":
-        from . import points
-        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
@@ -341,7 +351,6 @@ def _frame_defaults(paths, overrides, device=None):
     estimator (with its octave bands or samples) unless --estimator is given, so that
     neither the brightness nor the estimator changes from frame to frame; ({}, [])
     when neither applies or the frame cannot be read."""
-    from .scene import request
     fire = "emission_scale" not in overrides
     auto = overrides.get("estimator", "auto") == "auto"
     if not (fire or auto):
@@ -451,8 +460,6 @@ def _claim(out, wait: bool):
     runs over one output folder (on one host or over NFS) render each frame once. Returns a
     release function, or None where another process holds it and `wait` is false. Where the
     directory takes no lock file or no locks, every claim is granted."""
-    import fcntl
-    import hashlib
     d = Path(out).resolve().parent
     fd = _LOCK_FDS.get(d)
     if fd is None:
@@ -475,8 +482,6 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
-    from .render import render
-    from .scene import load_scene
     frame, src, out = job
     rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
            "pid": os.getpid()}
@@ -561,7 +566,6 @@ def device_per_worker(specs):
 def gpu_specs() -> list[str]:
     """'P:D' of every GPU OpenCL lists (empty without one)."""
     import pyopencl as cl
-    from .device import all_devices
     return [f"{i}:{j}" for i, j, _, d in all_devices() if d.type & cl.device_type.GPU]
 
 
@@ -614,7 +618,6 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     _exit_if_reimported()
     _check_counts(workers=workers, chunk=chunk)
     from . import image
-    from .camera import FRAMING, describe as describe_camera, write_camera_file
     dst = parse_pattern(output, output=True)
     frame_list = parse_frames(frames) if isinstance(frames, str) else (
         sorted(set(int(f) for f in frames)) if frames is not None else None)
@@ -766,8 +769,6 @@ MAX_CHUNK = MAX_FRAMES
 def _check_counts(**counts):
     """workers in 0..MAX_WORKERS and chunk in 1..MAX_CHUNK (None: the default), before
     any work: a LocalCluster asked for -1 workers waits for them forever."""
-    from .errors import option_name
-    from .settings import in_range
     checks = {"workers": in_range(0, MAX_WORKERS, integer=True, allow_none=True),
               "chunk": in_range(1, MAX_CHUNK, integer=True, allow_none=True)}
     for key, value in counts.items():
@@ -779,19 +780,15 @@ def _check_counts(**counts):
 def _check_every_frame(first, overrides, device, serial):
     """The limits every frame shares, once, before any frame is read: the options, and
     the image's buffers against memory (the device's too when frames render here)."""
-    from .render import check_image_memory
-    from .scene import request
     req = request(first, **overrides)             # every option checked, nothing loaded
     dev = None
     if serial:
-        from .device import resolve
         dev = resolve(device)
     check_image_memory(*req.view.size, dev, len(req.settings.aovs) if req.kind == "volume" else 0)
 
 
 def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
     """Render the jobs here, appending each frame's record to `records` as it is done."""
-    from .progress import Progress
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
     bar = Progress(len(jobs), "frames", progress, unit="frame")
@@ -823,7 +820,6 @@ def _exit_if_reimported():
 def _local_cluster(**kw):
     """A LocalCluster; a UserError naming the `__main__` guard when its workers died
     re-running the script (see _exit_if_reimported), with the cluster's logs held back."""
-    import tempfile
     from distributed import LocalCluster
     names = ("distributed.nanny", "distributed.deploy.spec", "distributed.core",
              "distributed.process", "distributed.worker")
@@ -917,7 +913,6 @@ def _stop_client(client, cluster):
 def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records):
     """Render the jobs as Dask tasks of k frames, appending the records as they come."""
     from distributed import as_completed
-    from .progress import Progress
     chunks = [jobs[i:i + k] for i in range(0, len(jobs), k)]
     futures = [client.submit(render_chunk, c, frame_kw, save_kw, skip_existing, pure=False,
                              retries=2, key=f"volrender-frames-{c[0][0]}-{c[-1][0]}-{os.getpid()}")
@@ -943,9 +938,7 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
     """The JSON record beside the outputs: the command, settings, camera, version and date,
     and one row per frame; a resumed run (--skip-existing) keeps the earlier run's rows of
     the frames it skipped."""
-    import datetime
-    from . import __version__
-    from .atomic import write_bytes
+    from . import __version__     # the package (its __init__ imports this module)
     path = record_path(dst)
     frames = result.records
     runs = 1
