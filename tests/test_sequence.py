@@ -10,6 +10,7 @@ import volrender
 from volrender import cli, image, sequence, vdb
 from volrender.bricks import Bricks
 from volrender.errors import UserError
+from volrender.frame_record import FrameRecord, FrameStatus
 from conftest import ROOT
 
 DEMO = ROOT / "scenes" / "demo_cloud.vdb"
@@ -39,7 +40,7 @@ def _render(frames, out, **kw):
 def serial(frames, tmp_path_factory):
     out = tmp_path_factory.mktemp("serial")
     r = _render(frames, out, workers=0)
-    assert [rec["status"] for rec in r.records] == ["ok"] * 6
+    assert [rec.status for rec in r.records] == ["ok"] * 6
     return out
 
 
@@ -80,7 +81,7 @@ def test_serial_frames_share_one_camera_framing_the_union(frames, serial):
 def test_two_dask_workers_give_the_serial_bytes(frames, serial, client, tmp_path):
     r = _render(frames, tmp_path, client=client, chunk=2)
     assert r.workers == 2 and not r.failed
-    assert {rec["worker"] for rec in r.records} <= {"0", "1"}
+    assert {rec.worker for rec in r.records} <= {"0", "1"}
     _same_files(serial, tmp_path)
 
 
@@ -120,7 +121,7 @@ def test_skip_existing_renders_only_the_missing_frames(frames, serial, tmp_path)
         (out / f"f_{f:04d}.exr").write_bytes((serial / f"f_{f:04d}.exr").read_bytes())
     before = {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
     r = _render(frames, out, workers=0, skip_existing=True)
-    status = {rec["frame"]: rec["status"] for rec in r.records}
+    status = {rec.frame: rec.status for rec in r.records}
     assert status == {1: "skipped", 2: "skipped", 3: "ok", 4: "ok", 5: "skipped", 6: "ok"}
     assert before == {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
     _same_files(serial, out)
@@ -178,3 +179,25 @@ def test_sequence_options_on_one_file_are_an_error(tmp_path, capsys):
     code = cli.main(["render", str(DEMO), "-o", str(tmp_path / "o.png"), "--workers", "2"])
     err = capsys.readouterr().err
     assert code == 2 and "--workers applies to sequences only" in err
+
+
+def test_frame_records_are_typed_and_their_rows_on_disk_plain_json():
+    """A frame's record has a FrameStatus (equal to its string); its row on disk is the
+    JSON object of before (the fields that are set, the status a plain string) and reads
+    back as the same record; `rec["status"]` of the dict it was still answers, warning."""
+    rec = FrameRecord(3, "in_0003.npz", "out_0003.exr", worker="0", pid=7, status="ok",
+                      seconds=0.5)
+    assert rec.status is FrameStatus.OK and rec.status == "ok" and rec.error is None
+    row = rec.to_json()
+    assert row == {"frame": 3, "input": "in_0003.npz", "output": "out_0003.exr",
+                   "worker": "0", "pid": 7, "status": "ok", "seconds": 0.5}
+    assert type(row["status"]) is str and json.loads(json.dumps(row)) == row
+    assert FrameRecord.from_json({**row, "from_a_newer_version": 1}) == rec
+    with pytest.raises(ValueError):
+        FrameRecord(1, "a", "b", status="done")
+    with pytest.warns(DeprecationWarning, match=r"record.status"):
+        assert rec["status"] == "ok"
+    with pytest.warns(DeprecationWarning), pytest.raises(KeyError):
+        rec["error"]
+    with pytest.warns(DeprecationWarning):
+        assert rec.get("error", "none") == "none"

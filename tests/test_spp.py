@@ -94,5 +94,5 @@ def test_scene_file(launches, cloud, tmp_path, capsys):
 def test_sequence(launches, cloud, tmp_path):
     r = volrender.render_sequence(str(cloud / "p_####.npy"), str(tmp_path / "g_####.exr"),
                                   frames="1-2", size=SIZE, spp=SPP, bounces=1, workers=0)
-    assert [rec["status"] for rec in r.records] == ["ok"] * 2
+    assert [rec.status for rec in r.records] == ["ok"] * 2
     renders(launches, n_images=2)

@@ -368,16 +368,16 @@ def cmd_sequence(args):
                         say=lambda note: print(f"volrender: {note}", file=sys.stderr),
                         camera_out=args.camera_out, verbose=args.verbose, **overrides)
     for rec in r.failed:
-        print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
+        print(f"volrender: error: frame {rec.frame} ({rec.input}): {rec.error}",
               file=sys.stderr)
-    done = sum(rec["status"] == "ok" for rec in r.records)
-    skipped = sum(rec["status"] == "skipped" for rec in r.records)
+    done = sum(rec.status == "ok" for rec in r.records)
+    skipped = sum(rec.status == "skipped" for rec in r.records)
     print(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
           f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}",
           file=sys.stderr)
     if r.failed:
         print(f"volrender: error: {len(r.failed)} frames failed: "
-              f"{', '.join(str(rec['frame']) for rec in r.failed)}", file=sys.stderr)
+              f"{', '.join(str(rec.frame) for rec in r.failed)}", file=sys.stderr)
         return 2
     return 0
 

@@ -56,6 +56,7 @@ from .atomic import write_bytes
 from .camera import FRAMING, describe as describe_camera, write_camera_file
 from .device import all_devices, resolve
 from .errors import UserError, one_line_if_uncaught, option_name
+from .frame_record import FrameRecord, FrameStatus
 from .progress import Progress
 from .render import check_image_memory, render
 from .scene import load_scene, request
@@ -411,7 +412,7 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             records.append(rec)
     for job in deferred:
         records.append(_render_frame(job, overrides, save_kw, skip_existing, worker, wait=True))
-    return sorted(records, key=lambda r: r["frame"])
+    return sorted(records, key=lambda r: r.frame)
 
 
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"      # a PNG's last chunk: empty, fixed CRC
@@ -483,8 +484,7 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
     frame, src, out = job
-    rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
-           "pid": os.getpid()}
+    rec = FrameRecord(frame, str(src), str(out), worker=worker, pid=os.getpid())
     t0 = time.perf_counter()
     release = lambda: None  # noqa: E731
     if skip_existing:
@@ -492,17 +492,17 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
         if found is not None:
             why = unusable(out, overrides.get("size"))
             if why is None:
-                rec.update(status="skipped", seconds=0.0)
+                rec.status, rec.seconds = FrameStatus.SKIPPED, 0.0
                 return rec
-            rec["redone"] = why             # rendered again, and said so
+            rec.redone = why                # rendered again, and said so
         release = _claim(out, wait)
         if release is None:
             return None
         now = _found(out)
         if now is not None and now != found and unusable(out, overrides.get("size")) is None:
             release()                   # the run that held it has written it
-            rec.pop("redone", None)
-            rec.update(status="skipped", seconds=time.perf_counter() - t0)
+            rec.redone = None
+            rec.status, rec.seconds = FrameStatus.SKIPPED, time.perf_counter() - t0
             return rec
     try:
         try:
@@ -513,16 +513,16 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
             img.save(out, **save_kw)
             t3 = time.perf_counter()
             build_s = (img.info.tree_ms + img.info.cells_ms) / 1e3
-            rec.update(status="ok", device=img.device, load_s=t1 - t0, build_s=build_s,
-                       setup_s=img.info.setup_ms / 1e3, kernel_s=img.kernel_ms / 1e3,
-                       render_s=t2 - t1, write_s=t3 - t2)
+            rec.status, rec.device = FrameStatus.OK, img.device
+            rec.load_s, rec.build_s, rec.setup_s = t1 - t0, build_s, img.info.setup_ms / 1e3
+            rec.kernel_s, rec.render_s, rec.write_s = img.kernel_ms / 1e3, t2 - t1, t3 - t2
         except UserError as exc:
-            rec.update(status="failed", error=str(exc))
+            rec.status, rec.error = FrameStatus.FAILED, str(exc)
         except MemoryError:
-            rec.update(status="failed", error="out of host memory")
+            rec.status, rec.error = FrameStatus.FAILED, "out of host memory"
     finally:
         release()
-    rec["seconds"] = time.perf_counter() - t0
+    rec.seconds = time.perf_counter() - t0
     return rec
 
 
@@ -581,7 +581,7 @@ def default_workers(device=None) -> int:
 
 @dataclass
 class SequenceResult:
-    records: list = field(default_factory=list)   # one per frame, in frame order
+    records: list = field(default_factory=list)   # FrameRecord per frame, in frame order
     wall_s: float = 0.0
     workers: int = 0
     record_path: Path | None = None
@@ -591,11 +591,11 @@ class SequenceResult:
 
     @property
     def failed(self) -> list:
-        return [r for r in self.records if r["status"] == "failed"]
+        return [r for r in self.records if r.status == FrameStatus.FAILED]
 
     @property
     def fps(self) -> float:
-        done = sum(r["status"] == "ok" for r in self.records)
+        done = sum(r.status == FrameStatus.OK for r in self.records)
         return done / self.wall_s if self.wall_s > 0 else 0.0
 
 
@@ -653,8 +653,8 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
         frame_kw.pop(key, None)
     save_kw = {"exposure": exposure, "tonemap": tonemap}
     jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
-    failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
-               "error": err, "seconds": 0.0} for f, err in bad.items()]
+    failed = [FrameRecord(f, str(paths[f]), str(outs[f]), status=FrameStatus.FAILED, error=err,
+                          seconds=0.0) for f, err in bad.items()]
     t0, started = time.perf_counter(), time.time_ns()
     own, records, n_workers, stopped, handlers, levels = None, [], 0, None, {}, {}
     try:
@@ -674,12 +674,12 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
             _stop_client(*own)
     if stopped is not None:
         records = _rows_when_stopped(records, jobs, started)
-    result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
+    result = SequenceResult(sorted(records + failed, key=lambda r: r.frame),
                             time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
                             options=extra)
     for rec in result.records if say else ():
-        if rec.get("redone"):
-            say(f"frame {rec['frame']}: {rec['output']} was there but {rec['redone']}; "
+        if rec.redone:
+            say(f"frame {rec.frame}: {rec.output} was there but {rec.redone}; "
                 "rendered it again")
     settings = {k: (list(v) if isinstance(v, tuple) else v) for k, v in overrides.items()
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
@@ -717,18 +717,17 @@ def _rows_when_stopped(records, jobs, started_ns):
     """The records of a stopped run, one per job: a frame without a record was written
     if its output is there, complete and newer than the run's start (a worker finished it
     as the run stopped), and is 'interrupted' otherwise."""
-    have = {r["frame"] for r in records}
+    have = {r.frame for r in records}
     out = list(records)
     for frame, src, dst in jobs:
         if frame in have:
             continue
-        row = {"frame": frame, "input": str(src), "output": str(dst), "seconds": 0.0}
         try:
             fresh = os.stat(dst).st_mtime_ns >= started_ns
         except OSError:
             fresh = False
-        row["status"] = "ok" if fresh else "interrupted"
-        out.append(row)
+        out.append(FrameRecord(frame, str(src), str(dst), seconds=0.0,
+                               status=FrameStatus.OK if fresh else FrameStatus.INTERRUPTED))
     return out
 
 
@@ -749,7 +748,7 @@ def _stopped_summary(result) -> str:
     """'frames 1-3 written, 4-8 not (record out/f.sequence.json)' and the like."""
     by = {}
     for r in result.records:
-        by.setdefault(r["status"], []).append(r["frame"])
+        by.setdefault(r.status.value, []).append(r.frame)
     ok, left = by.get("ok", []), by.get("interrupted", [])
     parts = [f"{'frame' if len(ok) == 1 else 'frames'} {_ranges(ok)} written" if ok
              else "no frame written"]
@@ -924,9 +923,9 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, re
                 recs = fut.result()
             except Exception as exc:                 # the task itself failed, not a frame
                 c = chunks[futures.index(fut)]
-                recs = [{"frame": f, "input": str(s), "output": str(o), "status": "failed",
-                         "error": f"the worker failed ({type(exc).__name__}: {exc})".replace("\n", " "),
-                         "seconds": 0.0} for f, s, o in c]
+                why = f"the worker failed ({type(exc).__name__}: {exc})".replace("\n", " ")
+                recs = [FrameRecord(f, str(s), str(o), status=FrameStatus.FAILED, error=why,
+                                    seconds=0.0) for f, s, o in c]
             records += recs
             bar.update(len(recs))
     finally:
@@ -940,14 +939,15 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
     the frames it skipped."""
     from . import __version__     # the package (its __init__ imports this module)
     path = record_path(dst)
-    frames = result.records
+    frames = [r.to_json() for r in result.records]
     runs = 1
     if resume and path.is_file():
         try:
             old = json.loads(path.read_text())
             earlier = {r["frame"]: r for r in old.get("frames", []) if r.get("status") == "ok"}
             frames = [{**earlier[r["frame"]], "from_earlier_run": True}
-                      if r["status"] == "skipped" and r["frame"] in earlier else r for r in frames]
+                      if r["status"] == FrameStatus.SKIPPED.value and r["frame"] in earlier else r
+                      for r in frames]
             runs = int(old.get("runs", 1)) + 1
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass                      # an unreadable old record is replaced
@@ -958,7 +958,7 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
                "runs": runs, "settings": settings or {}, "options": result.options,
                "camera": camera_overrides(cam) if cam is not None else None,
                "wall_s": result.wall_s, "workers": result.workers, "fps": result.fps,
-               "failed": [r["frame"] for r in result.failed], "frames": frames}
+               "failed": [r.frame for r in result.failed], "frames": frames}
     try:
         return write_bytes(path, json.dumps(payload, indent=1, default=str).encode(),
                            "sequence record")
