@@ -8,9 +8,9 @@ function is for a reason: an optional extra or a heavy module (pyopencl, PIL, Op
 pyvista, pyoidn, openvdb, laspy, dask, scipy, matplotlib...), a module of the package that
 `volrender --help` does not load (image, vdb, inspect, denoise... : kept off the start-up
 path, `python -X importtime -m volrender --help`), or a standard-library module that costs
-start-up time (subprocess, multiprocessing, tomllib, html). test_imports_inside_functions
-fails on the two that never have a reason: a module the file already imports at its top, and
-a module of CHEAP_STDLIB (loaded by `import volrender` anyway)."""
+start-up time (subprocess, multiprocessing, tomllib, html). The test of inner imports fails
+on the two that never have a reason: a module the file already imports at its top, and a
+module of CHEAP_STDLIB (loaded by `import volrender` anyway); INNER_ALLOWED says why else."""
 import ast
 from pathlib import Path
 
