@@ -158,6 +158,48 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
             "write_image_s": statistics.median(whole), "write_runs_s": whole}
 
 
+TONE_VIEWS = ("filmic", "clamp", "standard", "aces")
+TONE_PROBE = """
+import json, sys, time, warnings
+import numpy as np
+from volrender import image
+rgba = np.load(sys.argv[1])
+out, codes = {}, {}
+for view in VIEWS:
+    for alpha in ("opaque", "straight"):
+        ts = []
+        for _ in range(REPEAT):
+            t = time.perf_counter()
+            px = image.png_pixels(rgba, 0.0, view, alpha=alpha)
+            ts.append(time.perf_counter() - t)
+        out[f"{view}/{alpha}"] = sorted(ts)[len(ts) // 2]
+        codes[f"{view}/{alpha}"] = px
+np.savez(sys.argv[2], **{k.replace("/", "__"): v for k, v in codes.items()})
+print(json.dumps(out))
+"""
+
+
+def tone_times(roots: dict, frame_path: Path, repeat: int, tmp: Path) -> dict:
+    """{checkout: {"view/alpha": median s}} of image.png_pixels on the 1080p frame, each
+    checkout in its own process, and the codes that differ from this checkout's."""
+    import json
+    code = TONE_PROBE.replace("VIEWS", repr(TONE_VIEWS)).replace("REPEAT", str(repeat))
+    res, px = {}, {}
+    for k, r in roots.items():
+        _, out = wall([sys.executable, "-c", code, str(frame_path), str(tmp / f"{k}.npz")], r,
+                      out=True)
+        res[k] = json.loads(out.strip().splitlines()[-1])
+        px[k] = np.load(tmp / f"{k}.npz")
+        print("tone map", k, {n: round(v, 3) for n, v in res[k].items()}, flush=True)
+    if "baseline" in px:
+        res["codes_differing_from_baseline"] = {
+            n.replace("__", "/"): {"count": int(np.count_nonzero(px["this"][n] != px["baseline"][n])),
+                                   "max": int(np.abs(px["this"][n].astype(int) - px["baseline"][n]).max())}
+            for n in px["this"].files}
+        print("codes differing", res["codes_differing_from_baseline"], flush=True)
+    return res
+
+
 def plot(payload, path):
     import matplotlib
     matplotlib.use("Agg")
@@ -187,6 +229,9 @@ def plot(payload, path):
     fig.savefig(path, dpi=110)
 
 
+PARTS = ("start", "command", "png", "tone")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench latency", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -195,40 +240,52 @@ def main(argv=None):
                     help="another checkout whose command runs interleaved with this one's")
     ap.add_argument("--frame", type=Path, default=FRAME, help=f"1080p linear frame (.npy; default {FRAME})")
     ap.add_argument("--tag", default=None, help="added to the results' name: latency_<device>-<tag>.json")
+    ap.add_argument("--only", default=",".join(PARTS),
+                    help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
     args = ap.parse_args(argv)
+    parts = set(args.only.split(","))
+    if parts - set(PARTS):
+        ap.error(f"--only: unknown part(s) {', '.join(sorted(parts - set(PARTS)))}")
     from volrender import device
     dev = device.get(None)
     roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
     tmp = Path(tempfile.mkdtemp())
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
-               "command_argv": [str(SCENE.relative_to(ROOT)), *COMMAND]}
-    payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
-    payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
-    for k in roots:
-        print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
-              {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
-    runs = {k: [] for k in roots}
-    for r in roots.values():                         # warm: programs built, files cached
-        command_run(r, tmp / "w.png")
-    for _ in range(args.repeat):
-        for k, r in roots.items():
-            runs[k].append(command_run(r, tmp / f"{k}.png"))
-    payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]},
-                              "runs": rs} for k, rs in runs.items()}
-    for k, v in payload["command"].items():
-        print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
-    if args.baseline:
-        m = {k: v["median"] for k, v in payload["command"].items()}
-        payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
-        payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
-        print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
-              f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
-    payload["png"] = png_levels(frame(args.frame), args.repeat)
-    print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
-          f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
+               "command_argv": [str(SCENE.relative_to(ROOT)), *COMMAND], "parts": sorted(parts)}
+    if "start" in parts:
+        payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
+        payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
+        for k in roots:
+            print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
+                  {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
+    if "command" in parts:
+        runs = {k: [] for k in roots}
+        for r in roots.values():                     # warm: programs built, files cached
+            command_run(r, tmp / "w.png")
+        for _ in range(args.repeat):
+            for k, r in roots.items():
+                runs[k].append(command_run(r, tmp / f"{k}.png"))
+        payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]},
+                                  "runs": rs} for k, rs in runs.items()}
+        for k, v in payload["command"].items():
+            print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
+        if args.baseline:
+            m = {k: v["median"] for k, v in payload["command"].items()}
+            payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
+            payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
+            print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
+                  f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
+    if "png" in parts:
+        payload["png"] = png_levels(frame(args.frame), args.repeat)
+        print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
+              f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
+    if "tone" in parts:
+        frame(args.frame)
+        payload["tone"] = tone_times(roots, args.frame, args.repeat, tmp)
     payload["load_end"] = os.getloadavg()
     path = write_json(result_path("latency", dev, args.tag), payload)
-    plot(payload, path.with_suffix(".png"))
+    if {"command", "png"} <= parts:
+        plot(payload, path.with_suffix(".png"))
     print(f"wrote {path}")
 
 
