@@ -200,6 +200,58 @@ def tone_times(roots: dict, frame_path: Path, repeat: int, tmp: Path) -> dict:
     return res
 
 
+SHARED = Path(os.environ.get("VOLRENDER_SHARED_DATA", ROOT.parent / "shared" / "data"))
+FRAMED = ("blob:100000", "blob:1000000", "scenes/demo_cloud.vdb", SHARED / "vdb" / "smoke.vdb",
+          SHARED / "points" / "bun_zipper.ply")
+FRAMING_PROBE = """
+import json, sys, time
+import numpy as np
+import volrender
+out = {}
+for src in SOURCES:
+    sc = volrender.load_scene(src, size=(1920, 1080))
+    c, req = sc.content, sc.request
+    lo, hi = c.bounds()
+    ext, cam, fit = [], [], []
+    for _ in range(REPEAT):
+        t = time.perf_counter()
+        e = c.extent()
+        t1 = time.perf_counter()
+        camera = req.view.camera(lo, hi, None, extent=e)
+        t2 = time.perf_counter()
+        ext.append(t1 - t)
+        fit.append(t2 - t1)
+    out[src] = {"extent_s": sorted(ext)[len(ext) // 2], "fit_s": sorted(fit)[len(fit) // 2],
+                "points": int(np.asarray(e[0]).size // 3), "origin": list(camera.origin),
+                "target": list(camera.target)}
+print(json.dumps(out))
+"""
+
+
+def framing_times(roots: dict, repeat: int) -> dict:
+    """{checkout: {source: extent and fit medians, camera}} and the cameras' distance
+    apart (relative to this checkout's camera distance)."""
+    import json
+    sources = [s if ":" in str(s) else str((ROOT / s).resolve()) for s in FRAMED]
+    sources = [s for s in sources if ":" in s or Path(s).is_file()]
+    code = FRAMING_PROBE.replace("SOURCES", repr(sources)).replace("REPEAT", str(repeat))
+    res = {}
+    for k, r in roots.items():
+        _, out = wall([sys.executable, "-c", code], r, out=True)
+        res[k] = json.loads(out.strip().splitlines()[-1])
+        print("framing", k, {Path(n).name: (round(v["extent_s"], 3), round(v["fit_s"], 3))
+                             for n, v in res[k].items()}, flush=True)
+    if "baseline" in res:
+        apart = {}
+        for n, v in res["this"].items():
+            b = res["baseline"][n]
+            d = np.linalg.norm(np.subtract(v["origin"], v["target"]))
+            apart[n] = max(np.abs(np.subtract(v[f], b[f])).max() for f in ("origin", "target")) / d
+        res["camera_apart_relative"] = apart
+        print("cameras apart (relative)", apart, flush=True)
+    return res
+
+
 def plot(payload, path):
     import matplotlib
     matplotlib.use("Agg")
@@ -229,7 +281,7 @@ def plot(payload, path):
     fig.savefig(path, dpi=110)
 
 
-PARTS = ("start", "command", "png", "tone")
+PARTS = ("start", "command", "png", "tone", "framing")
 
 
 def main(argv=None):
@@ -282,6 +334,8 @@ def main(argv=None):
     if "tone" in parts:
         frame(args.frame)
         payload["tone"] = tone_times(roots, args.frame, args.repeat, tmp)
+    if "framing" in parts:
+        payload["framing"] = framing_times(roots, args.repeat)
     payload["load_end"] = os.getloadavg()
     path = write_json(result_path("latency", dev, args.tag), payload)
     if {"command", "png"} <= parts:
