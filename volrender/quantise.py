@@ -67,7 +67,9 @@ def _pool():
             n = len(os.sched_getaffinity(0))
         except AttributeError:
             n = os.cpu_count() or 1
-        _POOL.append(ThreadPoolExecutor(max(1, min(4, n)), thread_name_prefix="volrender-codes"))
+        from .process import hold_in_this_thread
+        _POOL.append(ThreadPoolExecutor(max(1, min(4, n)), thread_name_prefix="volrender-codes",
+                                        initializer=hold_in_this_thread))
     return _POOL[0]
 
 
