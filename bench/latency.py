@@ -48,7 +48,8 @@ COMMAND = ["--size", "192x108", "--spp", "1", "-v", "--no-progress"]
 FRAME = ROOT / "bench" / "data" / "latency_frame_1080p.npy"
 PACKAGES = ("numpy", "pyopencl", "OpenEXR", "PIL", "pyopenvdb", "openvdb", "volrender",
             "dask", "scipy", "matplotlib", "PyOpenColorIO", "png")
-STAGES = ("load", "setup", "kernel", "launch overhead", "write")
+STAGES = ("load", "radii", "tree", "cells", "setup", "kernel", "launch overhead", "guides",
+          "denoise", "write")
 
 
 def env_for(root: Path) -> dict:
@@ -85,16 +86,17 @@ def import_times(root: Path, out: Path) -> dict:
     return {p: found.get(p) for p in PACKAGES}
 
 
-def command_run(root: Path, out: Path) -> dict:
+def command_run(root: Path, out: Path, scene=None, command=None) -> dict:
     cpu = []
-    took, err = wall([sys.executable, "-m", "volrender", "render", str(SCENE), *COMMAND,
-                      "-o", str(out)], root, cpu)
+    took, err = wall([sys.executable, "-m", "volrender", "render", str(scene or SCENE),
+                      *(command or COMMAND), "-o", str(out)], root, cpu)
     line = next(ln for ln in err.splitlines() if ln.startswith("volrender: time: "))
     parts = {k: float(v) for k, v in re.findall(r"([a-z ]+?) ([0-9.]+) s", line[17:])}
     parts = {k.strip(" ,"): v for k, v in parts.items()}
     build = [float(v) / 1e3 for v in re.findall(r"built cl/\S+ .* in (\d+) ms", err)]
     row = {"wall_s": took, "cpu_s": cpu[0], **{k: parts.get(k, 0.0) for k in STAGES}, "build_s": sum(build)}
-    row["outside_s"] = took - sum(row[k] for k in STAGES)
+    row["outside_s"] = took - sum(parts.values())
+    row["other_stages"] = sorted(set(parts) - set(STAGES))
     return row
 
 
@@ -116,11 +118,11 @@ def startup(root: Path, repeat: int) -> dict:
             "vdb_load_own_cpu_s": med(x[0] for x in ld), "vdb_load_wall_s": med(x[1] for x in ld)}
 
 
-def frame(path: Path) -> np.ndarray:
+def frame(path: Path, scene: Path = SCENE) -> np.ndarray:
     if not path.is_file():
         print(f"rendering {path} (1920x1080, 1 spp, once)", flush=True)
         path.parent.mkdir(parents=True, exist_ok=True)
-        wall([sys.executable, "-m", "volrender", "render", str(SCENE), "--size", "1920x1080",
+        wall([sys.executable, "-m", "volrender", "render", str(scene), "--size", "1920x1080",
               "--spp", "1", "--no-progress", "-o", str(path)], ROOT)
     return np.load(path)
 
@@ -166,6 +168,10 @@ from volrender import image
 rgba = np.load(sys.argv[1])
 out, codes = {}, {}
 for view in VIEWS:
+    try:
+        image.check_view(view)
+    except Exception:                   # OpenColorIO missing here
+        continue
     for alpha in ("opaque", "straight"):
         ts = []
         for _ in range(REPEAT):
@@ -258,7 +264,7 @@ def plot(payload, path):
     import matplotlib.pyplot as plt
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     labels = list(payload["command"])
-    keys = ["outside_s", "load", "setup", "kernel", "launch overhead", "write"]
+    keys = ["outside_s", *STAGES]
     bottom = np.zeros(len(labels))
     for k in keys:
         v = np.array([payload["command"][c]["median"][k] for c in labels])
@@ -292,10 +298,17 @@ def main(argv=None):
                     help="another checkout whose command runs interleaved with this one's")
     ap.add_argument("--frame", type=Path, default=FRAME, help=f"1080p linear frame (.npy; default {FRAME})")
     ap.add_argument("--tag", default=None, help="added to the results' name: latency_<device>-<tag>.json")
+    ap.add_argument("--scene", type=Path, default=None,
+                    help=f"the command part's input (default: {SCENE.relative_to(ROOT)})")
+    ap.add_argument("--args", default=None,
+                    help=f"the command part's render options (default: {' '.join(COMMAND)}); "
+                         "-v and --no-progress are added")
     ap.add_argument("--only", default=",".join(PARTS),
                     help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
     args = ap.parse_args(argv)
     parts = set(args.only.split(","))
+    scene = args.scene.resolve() if args.scene else SCENE
+    command = COMMAND if args.args is None else [*args.args.split(), "-v", "--no-progress"]
     if parts - set(PARTS):
         ap.error(f"--only: unknown part(s) {', '.join(sorted(parts - set(PARTS)))}")
     from volrender import device
@@ -303,7 +316,7 @@ def main(argv=None):
     roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
     tmp = Path(tempfile.mkdtemp())
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
-               "command_argv": [str(SCENE.relative_to(ROOT)), *COMMAND], "parts": sorted(parts)}
+               "command_argv": [str(scene), *command], "parts": sorted(parts)}
     if "start" in parts:
         payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
         payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
@@ -313,11 +326,12 @@ def main(argv=None):
     if "command" in parts:
         runs = {k: [] for k in roots}
         for r in roots.values():                     # warm: programs built, files cached
-            command_run(r, tmp / "w.png")
+            command_run(r, tmp / "w.png", scene, command)
         for _ in range(args.repeat):
             for k, r in roots.items():
-                runs[k].append(command_run(r, tmp / f"{k}.png"))
-        payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]},
+                runs[k].append(command_run(r, tmp / f"{k}.png", scene, command))
+        payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]
+                                             if f != "other_stages"},
                                   "runs": rs} for k, rs in runs.items()}
         for k, v in payload["command"].items():
             print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
@@ -328,11 +342,11 @@ def main(argv=None):
             print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
                   f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
     if "png" in parts:
-        payload["png"] = png_levels(frame(args.frame), args.repeat)
+        payload["png"] = png_levels(frame(args.frame, scene), args.repeat)
         print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
               f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
     if "tone" in parts:
-        frame(args.frame)
+        frame(args.frame, scene)
         payload["tone"] = tone_times(roots, args.frame, args.repeat, tmp)
     if "framing" in parts:
         payload["framing"] = framing_times(roots, args.repeat)
