@@ -4,7 +4,8 @@
 # checkout and a baseline one, interleaved (bench/latency.py --only command); the
 # 10^5-sphere point sequence's frames/s as a pipeline and one frame after another
 # (bench/sequence.py --unpiped), and the baseline's; tone mapping at 1080p.
-#   bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR   (DATA_DIR: demo_cloud.npz, bun_zipper.ply)
+#   VOLRENDER_COMMIT=... BASE_COMMIT=... bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR
+# (DATA_DIR: demo_cloud.npz from `volrender convert`, bun_zipper.ply)
 set -u
 OUT=${OUT:-/tmp/out}
 BASE=$(cd "${1:?baseline checkout}" && pwd)
@@ -19,7 +20,7 @@ step 50 python3 bench/latency.py --only command --scene "$DATA/bun_zipper.ply" \
   --args "--size 1920x1080" --baseline "$BASE" --repeat 2 --tag bunny-1080p
 step 35 python3 bench/sequence.py --device nvidia --points 100000 --frames 12 \
   --size 1920x1080 --workers 0 --unpiped --format exr --tag points-pipeline
-(cd "$BASE" && step 20 python3 bench/sequence.py --device nvidia --points 100000 --frames 12 \
+(cd "$BASE" && VOLRENDER_COMMIT=${BASE_COMMIT:-baseline} step 20 python3 bench/sequence.py --device nvidia --points 100000 --frames 12 \
   --size 1920x1080 --workers 0 --format exr --tag points-before)
 step 20 python3 bench/latency.py --only tone --scene "$DATA/demo_cloud.npz" --baseline "$BASE" \
   --repeat 3 --tag tone
