@@ -17,6 +17,10 @@ All arrays are ``H x W x C`` with the top image row first. Every write goes thro
 ``volrender.atomic`` (a temporary file renamed over the destination once complete), so a
 failed or interrupted write never leaves a half-written image and never touches an
 existing file.
+
+Long file: the writers, their checks and the PNG's view transforms (their float64
+definition, `_codes`, and the table path of float32 renders, `_fast_codes8`) change
+together; the tables themselves are in quantise.py.
 """
 
 from __future__ import annotations

@@ -22,13 +22,21 @@ def _failure(exc) -> str:
     return "out of host memory" if isinstance(exc, MemoryError) else str(exc)
 
 
-def run_frames(jobs, overrides, save_kw, records, done=lambda: None) -> list:
+def frame_times(img, load_s, render_s, write_s) -> dict:
+    """A written frame's record fields: status, device and its stages' seconds."""
+    build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
+    return dict(status="ok", device=img.device, load_s=load_s, build_s=build_s,
+                setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
+                render_s=render_s, write_s=write_s)
+
+
+def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="local") -> list:
     """Render [(frame, input, output)] here, appending each frame's record to `records`
-    when its file is written (or it failed) and calling `done()` then."""
+    when its file is written (or it failed) and calling `done()` then; `worker` names
+    this process in them (sequence.render_chunk's name)."""
     from .render import render
     from .scene import load_scene
-    from .sequence import _worker_name, frame_times
-    worker, device = _worker_name(), os.environ.get("VOLRENDER_DEVICE") or None
+    device = os.environ.get("VOLRENDER_DEVICE") or None
 
     def load(job):
         t0 = time.perf_counter()

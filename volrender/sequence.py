@@ -475,6 +475,7 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
+    from .pipeline import frame_times
     from .render import render
     from .scene import load_scene
     frame, src, out = job
@@ -516,14 +517,6 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
         release()
     rec["seconds"] = time.perf_counter() - t0
     return rec
-
-
-def frame_times(img, load_s, render_s, write_s) -> dict:
-    """A written frame's record fields: status, device and its stages' seconds."""
-    build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
-    return dict(status="ok", device=img.device, load_s=load_s, build_s=build_s,
-                setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
-                render_s=render_s, write_s=write_s)
 
 
 def set_env(name: str, value: str | None):
@@ -809,7 +802,7 @@ def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
                 bar.update()
         else:
             from .pipeline import run_frames
-            run_frames(jobs, frame_kw, save_kw, records, bar.update)
+            run_frames(jobs, frame_kw, save_kw, records, bar.update, worker=_worker_name())
     finally:
         bar.close()
     return records
