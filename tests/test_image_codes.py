@@ -1,5 +1,6 @@
 """8-bit PNG codes through quantise tables (issue 35): equal to image._codes, the float64
 definition of to_srgb, for every float32 value, and on real renders."""
+import os
 import warnings
 
 import numpy as np
@@ -88,3 +89,22 @@ def test_real_renders_code_as_the_definition_and_exr_keeps_them(renders, tmp_pat
         for suffix in (".exr", ".npy"):
             back = image.read_image(image.write_image(tmp_path / f"{name}{suffix}", rgba))
             assert np.array_equal(back.view(np.uint32), rgba.view(np.uint32))
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_forked_child_codes_with_threads_of_its_own():
+    """The row-block threads belong to the process that made them: a child forked after a
+    first PNG (multiprocessing's fork start) hung on the parent's pool, which it lacks."""
+    import signal
+    x = np.random.default_rng(0).random((300, 400, 3)).astype(np.float32)
+    want = image.to_srgb(x)
+    pid = os.fork()
+    if pid == 0:                                         # the child: 10 s, then SIGALRM
+        code = 3
+        try:
+            signal.alarm(10)
+            code = 0 if np.array_equal(image.to_srgb(x), want) else 3
+        finally:
+            os._exit(code)
+    status = os.waitpid(pid, 0)[1]
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0, status

@@ -62,15 +62,18 @@ def table(cuts: np.ndarray):
 
 
 def _pool():
+    """The threads (made once per process: a forked child gets its own)."""
+    if _POOL and _POOL[0][0] != os.getpid():
+        _POOL.clear()
     if not _POOL:
         try:
             n = len(os.sched_getaffinity(0))
         except AttributeError:
             n = os.cpu_count() or 1
         from .process import hold_in_this_thread
-        _POOL.append(ThreadPoolExecutor(max(1, min(4, n)), thread_name_prefix="volrender-codes",
-                                        initializer=hold_in_this_thread))
-    return _POOL[0]
+        _POOL.append((os.getpid(), ThreadPoolExecutor(
+            max(1, min(4, n)), thread_name_prefix="volrender-codes", initializer=hold_in_this_thread)))
+    return _POOL[0][1]
 
 
 def in_blocks(run, rows: int, per_row: int) -> None:
