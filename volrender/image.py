@@ -343,7 +343,24 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None,
         out[..., :3] = to_srgb(rgba[..., :3], exposure, tonemap, bits)
         out[..., 3] = top
         return out
-    rgba = np.asarray(rgba, np.float64)
+    out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
+    if not single:
+        colour, out[..., 3] = _straight(np.asarray(rgba, np.float64), background, top)
+        out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
+        return out
+    from . import quantise
+    colour = np.empty(rgba.shape[:2] + (3,), np.float32)
+
+    def run(r0, r1):                    # float64 a block at a time, on the pool's threads
+        c, out[r0:r1, :, 3] = _straight(np.asarray(rgba[r0:r1], np.float64), background, top)
+        colour[r0:r1] = np.minimum(c, float(np.finfo(np.float32).max))  # finite stays finite
+    quantise.in_blocks(run, len(rgba), rgba[0].size)
+    out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
+    return out
+
+
+def _straight(rgba, background, top):
+    """png_pixels' straight colour (float64) and alpha codes of float64 pixels."""
     rgb, alpha = rgba[..., :3], rgba[..., 3]
     a = np.where(np.isfinite(alpha), np.clip(alpha, 0.0, 1.0), 1.0)
     covered = a > 0
@@ -355,12 +372,7 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None,
         with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
             straight = part / np.where(covered, a, 1.0)[..., None]
         colour = np.where(covered[..., None], straight, rgb)
-    if single:                          # largest float32: a finite colour stays finite
-        colour = np.minimum(colour, float(np.finfo(np.float32).max)).astype(np.float32)
-    out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
-    out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
-    out[..., 3] = np.floor(a * top + 0.5)
-    return out
+    return colour, np.floor(a * top + 0.5)
 
 
 # ---------------------------------------------------------------------------- writers
