@@ -35,9 +35,9 @@ apt_deps() {
 covers() { local e; for e in ${2//,/ }; do [[ ",$1," == *",$e,"* ]] || return 1; done; }
 merge_extras() { echo "$1,$2" | tr , '\n' | awk 'NF && !seen[$0]++' | paste -sd, -; }
 
-# The default install renders (and denoises: pyoidn) everything but `volrender tree` (whose pyvista and VTK are
+# The default install renders (denoises: pyoidn; views in the browser: viser) everything but `volrender tree` (whose pyvista and VTK are
 # over half the venv); `--inspect` adds it, and the tests install it to test it.
-EXTRAS=vdb,bench,denoise
+EXTRAS=vdb,bench,denoise,view
 for a in "$@"; do [ "$a" = --inspect ] && EXTRAS=$EXTRAS,inspect; done
 
 venv() {
@@ -150,7 +150,7 @@ case "$cmd" in
            --density-scale 6 --albedo 0.98 --sun=-0.6,-1,-0.5,10 --fov 28 --env 0.32,0.42,0.58 \
            --ms-octaves 3
          echo "run.sh: wrote demo.png" >&2 ;;
-  test)  apt_deps; venv vdb,inspect,bench,denoise,test; shift || true
+  test)  apt_deps; venv vdb,inspect,bench,denoise,view,test; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
   test-pip) apt_deps; pip_env; shift || true
          "$PIP_VENV/bin/python" -m pytest -q -p no:cacheprovider "${PIP_TESTS[@]}" "$@" ;;

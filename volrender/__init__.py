@@ -40,6 +40,7 @@ from .lights import PointLight, Sun  # noqa: E402
 from .render import Image, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
 from .sequence import render_sequence  # noqa: E402
+from .viewer import view  # noqa: E402
 
-__all__ = ["load_scene", "render", "render_sequence", "Scene", "Image", "Sun", "PointLight",
+__all__ = ["load_scene", "render", "render_sequence", "view", "Scene", "Image", "Sun", "PointLight",
            "UserError", "__version__"]
