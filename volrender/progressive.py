@@ -94,8 +94,8 @@ class Accumulation:
         cam = self.scene.camera
         W, H = cam.width, cam.height
         left = self.spp - self.taken
-        n = 1 if self.rate is None else int(seconds / max(self.rate * W * H, 1e-12))
-        n = max(1, min(n, left, max(1, self.taken)))
+        n = 1 if self.rate is None else seconds / max(self.rate * W * H, 1e-12)
+        n = int(max(1, min(n, left, max(1, self.taken))))
         tw, th = self.dispatch.tile
         if is_gpu(self.dev):
             rows = H
@@ -311,7 +311,7 @@ class Session:
         acc = Accumulation(scene.replace(camera=cam, content=content), self.dev)
         img = acc.advance(math.inf)
         self.rate = acc.rate
-        frame = Frame(img, "preview", 1, 1, version, False, time.perf_counter() - t0)
+        frame = Frame(img, "preview", acc.taken, acc.spp, version, False, time.perf_counter() - t0)
         self.frame = frame
         return frame
 
@@ -367,7 +367,8 @@ def command_line(scene, camera_file, output, exposure=0.0, view="filmic", spp=No
                 if hasattr(light, "direction"):
                     words.append(f"--sun={_value((*light.direction, float(light.irradiance)))}")
                 else:
-                    words.append(f"--point-light={_value((*light.position, float(light.intensity)))}")
+                    point = (*light.position, float(light.intensity))
+                    words.append(f"--point-light={_value(point)}")
             continue
         flag = opts[key].flag if key in opts else "--" + key.replace("_", "-")
         if isinstance(value, bool) or opts.get(key) and opts[key].meta["kind"] is bool \

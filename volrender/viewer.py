@@ -12,7 +12,6 @@ docs/viewer.md is the user's page.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import io
 import math
 import sys
@@ -61,7 +60,8 @@ def check_port(host: str, port: int):
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 raise UserError(f"port {port} on {host} is in use (another viewer or server)",
-                                fix=f"give a free one with --port N, e.g. --port {port + 1}") from None
+                                fix=f"give a free one with --port N, e.g. --port {port + 1}") \
+                    from None
             raise UserError(f"cannot listen on {host}:{port} ({exc.strerror})",
                             fix="give another --port (1024..65535) or --host") from None
 
@@ -89,10 +89,19 @@ def sun_direction(azimuth, elevation, frame):
     return tuple(float(v) for v in -to)
 
 
+def ordered(fn):
+    """An async viser callback calling fn(): run in viser's event loop, so the changes apply
+    in the order the browser sent them (sync callbacks run on a thread pool, in any order)."""
+    async def callback(_):
+        fn()
+    return callback
+
+
 class Viewer:
     """The running viewer: a viser server, its controls, and a progressive.Session. `run()`
     renders until stopped (the CLI's main thread); `start()` runs it in a thread (Python,
-    Jupyter); `stop()` ends both. `url` is what it serves."""
+    Jupyter); `stop()` ends both. `url` is what it serves; `controls` the GUI handles by
+    label."""
 
     def __init__(self, scene, device=None, *, port=DEFAULT_PORT, host=DEFAULT_HOST, size=None,
                  exposure=0.0, view="filmic", save_dir=".", command=None):
@@ -134,13 +143,16 @@ class Viewer:
         up = np.asarray(cam.up, np.float64)
         self.server.scene.set_up_direction(tuple(up / np.linalg.norm(up)))
 
-    def _connect(self, client):
+    # Both run in viser's event loop (async): the camera callback is registered before the
+    # client's first camera message is handled, and the cameras apply in the order sent
+    # (sync callbacks run on a thread pool, in any order).
+    async def _connect(self, client):
         cam = self.session.camera
         client.camera.position, client.camera.look_at = cam.origin, cam.target
         client.camera.up_direction, client.camera.fov = cam.up, math.radians(cam.fov)
         client.camera.on_update(self._camera_moved)
 
-    def _camera_moved(self, handle):
+    async def _camera_moved(self, handle):
         from .camera import Camera
         if self.follow_canvas and handle.image_width > 0 and handle.image_height > 0:
             w, h = handle.image_width, handle.image_height
@@ -153,8 +165,8 @@ class Viewer:
         except UserError:                  # a degenerate pose on the way: keep the last
             return
         self.session.set_camera(cam)
-        if hasattr(self, "_fov"):
-            self._fov.value = round(cam.fov, 3)
+        if hasattr(self, "_fov") and abs(self._fov.value - cam.fov) > 0.25:
+            self._fov.value = round(cam.fov, 1)
 
     # ---------------------------------------------------------------- controls
 
@@ -164,42 +176,52 @@ class Viewer:
         opt = self.session.set_options
         self._status = gui.add_markdown("starting ...")
         with gui.add_folder("Look"):
-            ex = gui.add_slider("exposure", min=-10.0, max=10.0, step=0.1, initial_value=self.exposure)
+            ex = gui.add_slider("exposure", min=-10.0, max=10.0, step=0.1,
+                                initial_value=self.exposure)
             ex.on_update(lambda _: self._display(exposure=ex.value))
-            vw = gui.add_dropdown("view", VIEWS, initial_value=self.view if self.view in VIEWS else "filmic")
+            vw = gui.add_dropdown("view", VIEWS,
+                                  initial_value=self.view if self.view in VIEWS else "filmic")
             vw.on_update(lambda _: self._display(view=vw.value))
-            self._fov = gui.add_slider("fov", min=1.0, max=120.0, step=0.5, initial_value=round(self.session.camera.fov, 3))
-            self._fov.on_update(lambda _: self._set_fov(self._fov.value))
+            self._fov = gui.add_slider("fov", min=1.0, max=120.0, step=0.5,
+                                       initial_value=round(self.session.camera.fov, 3))
+            self._fov.on_update(ordered(lambda: self._set_fov(self._fov.value)))
+        self.controls = {"exposure": ex, "view": vw, "fov": self._fov}
         if scene.kind == "volume":
             with gui.add_folder("Volume"):
-                ds = gui.add_number("density scale", initial_value=float(s.density_scale), min=0.0, step=0.1)
-                ds.on_update(lambda _: opt(density_scale=float(ds.value)))
-                al = gui.add_slider("albedo", min=0.0, max=1.0, step=0.01, initial_value=float(np.mean(s.albedo)))
-                al.on_update(lambda _: opt(albedo=(float(al.value),)))
+                ds = gui.add_number("density scale", initial_value=float(s.density_scale),
+                                    min=0.0, step=0.1)
+                ds.on_update(ordered(lambda: opt(density_scale=float(ds.value))))
+                al = gui.add_slider("albedo", min=0.0, max=1.0, step=0.01,
+                                    initial_value=float(np.mean(s.albedo)))
+                al.on_update(ordered(lambda: opt(albedo=(float(al.value),))))
                 from .volume import ESTIMATORS
                 given = scene.request.settings.estimator if scene.request else s.estimator
                 es = gui.add_dropdown("estimator", ESTIMATORS, initial_value=given)
-                es.on_update(lambda _: opt(estimator=es.value))
+                es.on_update(ordered(lambda: opt(estimator=es.value)))
+            self.controls.update({"density scale": ds, "albedo": al, "estimator": es})
         else:
             from .glass import GLASS_MODELS
             with gui.add_folder("Glass"):
-                io_ = gui.add_slider("IOR", min=1.0, max=3.0, step=0.01, initial_value=float(s.ior))
-                io_.on_update(lambda _: opt(ior=float(io_.value)))
-                bl = gui.add_number("blend (rebuilds)", initial_value=float(s.blend or 0.0), min=0.0,
-                                    step=float(s.blend or 0.01) / 10)
-                bl.on_update(lambda _: opt(blend=float(bl.value)))
+                io_ = gui.add_slider("IOR", min=1.0, max=3.0, step=0.01,
+                                     initial_value=float(s.ior))
+                io_.on_update(ordered(lambda: opt(ior=float(io_.value))))
+                bl = gui.add_number("blend (rebuilds)", initial_value=float(s.blend or 0.0),
+                                    min=0.0, step=float(s.blend or 0.01) / 10)
+                bl.on_update(ordered(lambda: opt(blend=float(bl.value))))
                 gm = gui.add_dropdown("glass model", GLASS_MODELS, initial_value=s.glass_model)
-                gm.on_update(lambda _: opt(glass_model=gm.value))
+                gm.on_update(ordered(lambda: opt(glass_model=gm.value)))
+            self.controls.update({"IOR": io_, "blend": bl, "glass model": gm})
         self._sun_controls(scene)
         with gui.add_folder("Samples"):
             sp = gui.add_number("samples", initial_value=int(s.spp), min=1, max=65536, step=1)
-            sp.on_update(lambda _: opt(spp=int(sp.value)))
+            sp.on_update(ordered(lambda: opt(spp=int(sp.value))))
             from .denoise import unavailable
-            dn = gui.add_checkbox("denoise", initial_value=s.denoise in ("on", "auto") and not unavailable(),
-                                  disabled=unavailable() is not None)
-            dn.on_update(lambda _: opt(denoise="on" if dn.value else "off"))
+            dn = gui.add_checkbox("denoise", disabled=unavailable() is not None,
+                                  initial_value=s.denoise in ("on", "auto") and not unavailable())
+            dn.on_update(ordered(lambda: opt(denoise="on" if dn.value else "off")))
         save = gui.add_button("Save image and camera")
         save.on_click(lambda _: self._save_clicked())
+        self.controls.update({"samples": sp, "denoise": dn, "save": save})
         self._saved_text = gui.add_markdown("")
 
     def _sun_controls(self, scene):
@@ -211,19 +233,24 @@ class Viewer:
         up = np.abs(np.asarray(scene.camera.up, np.float64))
         frame = up_frame("z" if up[2] > up[1] else "y")
         az0, el0 = sun_angles(suns[0], frame)
-        points = [(*l.position, float(l.intensity)) for l in scene.lights if isinstance(l, PointLight)]
+        points = [(*l.position, float(l.intensity)) for l in scene.lights
+                  if isinstance(l, PointLight)]
         gui = self.server.gui
         with gui.add_folder("Sun"):
-            az = gui.add_slider("azimuth", min=-180.0, max=180.0, step=1.0, initial_value=round(az0, 1))
-            el = gui.add_slider("elevation", min=-90.0, max=90.0, step=1.0, initial_value=round(el0, 1))
-            e = gui.add_number("irradiance", initial_value=float(suns[0].irradiance), min=0.0, step=0.5)
+            az = gui.add_slider("azimuth", min=-180.0, max=180.0, step=1.0,
+                                initial_value=round(az0, 1))
+            el = gui.add_slider("elevation", min=-90.0, max=90.0, step=1.0,
+                                initial_value=round(el0, 1))
+            e = gui.add_number("irradiance", initial_value=float(suns[0].irradiance), min=0.0,
+                               step=0.5)
 
-        def changed(_):
+        def changed(_):   # the first sun turned; the other lights kept
             d = sun_direction(az.value, el.value, frame)
             sun = [(*d, float(e.value))] + [(*l.direction, float(l.irradiance)) for l in suns[1:]]
             self.session.set_options(sun=sun, **({"point_light": points} if points else {}))
         for h in (az, el, e):
-            h.on_update(changed)
+            h.on_update(ordered(lambda: changed(None)))
+        self.controls.update({"sun azimuth": az, "sun elevation": el, "sun irradiance": e})
 
     def _set_fov(self, fov):
         for client in self.server.get_clients().values():
@@ -244,8 +271,8 @@ class Viewer:
         """The frame's 8-bit sRGB H x W x 3, as the CLI's opaque PNG."""
         from .image import png_pixels
         img = frame.image
-        return png_pixels(img.rgba, self.exposure, self.view, background=img.info.get("background"),
-                          alpha="opaque")[..., :3]
+        return png_pixels(img.rgba, self.exposure, self.view,
+                          background=img.info.get("background"), alpha="opaque")[..., :3]
 
     def show(self, frame):
         import time
@@ -299,8 +326,8 @@ class Viewer:
         cmd = command_line(scene, cam, stem.with_name(stem.name + "_cli.png"), self.exposure,
                            self.view, spp=frame.target)
         if cmd is not None:
-            note = ("" if frame.state == "converged" else
-                    f"# saved at {frame.spp} of {frame.target} spp: this renders all {frame.target}\n")
+            note = ("" if frame.state == "converged" else f"# saved at {frame.spp} of "
+                    f"{frame.target} spp: this renders all {frame.target}\n")
             write_bytes(stem.with_suffix(".sh"), f"#!/bin/sh\n{note}{cmd}\n".encode(), "command")
         self.saved.append((png, cam, cmd))
         print(f"volrender: saved {png} and {cam}" + (f"; the CLI: {cmd}" if cmd else ""),
@@ -360,7 +387,7 @@ def view(scene, device=None, *, port=DEFAULT_PORT, host=DEFAULT_HOST, size=None,
     is shown inline. size: the still image's (default: the scene's; "canvas": the
     browser's)."""
     from . import device as device_mod
-    from .scene import Scene, load_scene
+    from .scene import Scene
     dev = device_mod.resolve(device)
     if not isinstance(scene, Scene):
         from .scene import request
