@@ -568,7 +568,8 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "build": "acceleration build time (tree, support cells) against sphere count",
               "edge": "support-cell edge against build and render time: the automatic edge's fit",
               "whole": "the whole command a user waits for, default against the alternatives",
-              "latency": "a single command's time outside the kernel: start, imports, PNG"}
+              "latency": "a single command's time outside the kernel: start, imports, PNG",
+              "viewer": "the viewer's frames: per second while moving, time to a converged still"}
 
 
 def bench_dir() -> Path:
