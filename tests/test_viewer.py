@@ -74,7 +74,7 @@ def test_saved_camera_renders_identically_from_the_cli(kind, ball, tmp_path, mon
     src = GLASS if kind == "glass" else str(ball)
     knob = {"ior": 1.33} if kind == "glass" else {"density_scale": 3.0}
     scene = volrender.load_scene(src, size=(24, 18), spp=4)
-    v = volrender.viewer.Viewer(scene, port=free_port(), save_dir=tmp_path)
+    v = volrender.viewer.Viewer(scene, port=0, save_dir=tmp_path)
     try:
         s = v.session
         run_still(s)
@@ -184,7 +184,7 @@ def test_controls_set_the_options_they_name(kind, ball):
     from volrender.viewer import Viewer, sun_angles, sun_direction
     src = GLASS if kind == "glass" else str(ball)
     scene = volrender.load_scene(src, size=(16, 12), spp=2)
-    v = Viewer(scene, port=free_port())
+    v = Viewer(scene, port=0)
     try:
         c = v.controls
         want = ({"IOR": (1.7, "ior", 1.7), "glass model": ("fast", "glass_model", "fast"),
@@ -303,10 +303,10 @@ def test_the_server_serves_the_page_and_streams_frames():
     gives another frame."""
     from websockets.sync.client import connect
     scene = volrender.load_scene(GLASS, size=(20, 16), spp=2, denoise="off")
-    port = free_port()
-    v = volrender.view(scene, port=port, size="canvas")
+    v = volrender.view(scene, port=0, size="canvas")       # 0: a free port, the URL says which
+    port = v.port
     try:
-        assert v.url == f"http://localhost:{port}/"
+        assert v.url == f"http://localhost:{port}/" and port > 0
         with urllib.request.urlopen(v.url, timeout=30) as r:
             assert r.status == 200 and b"viser" in r.read().lower()
         cam = scene.camera
@@ -348,14 +348,13 @@ def test_without_viser_the_error_names_the_install(monkeypatch, capsys):
 
 
 def test_ctrl_c_stops_the_viewer_with_one_line():
-    port = free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     p = subprocess.Popen([sys.executable, "-m", "volrender", "view", GLASS, "--size", "16x12",
-                          "--spp", "2", "--port", str(port)], cwd=ROOT, env=env,
+                          "--spp", "2", "--port", "0"], cwd=ROOT, env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         url = p.stdout.readline().strip()
-        assert url == f"http://localhost:{port}/"
+        assert url.startswith("http://localhost:") and url.endswith("/"), p.stderr.read()
         with urllib.request.urlopen(url, timeout=30) as r:
             assert r.status == 200
         p.send_signal(signal.SIGINT)
@@ -363,7 +362,89 @@ def test_ctrl_c_stops_the_viewer_with_one_line():
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 128 + signal.SIGINT, err
+    assert p.returncode == 128 + signal.SIGINT, (out, err)
     lines = [l for l in err.splitlines() if l.strip()]
-    assert lines[-1] == "volrender: interrupted (SIGINT); no output written", err
-    assert "Traceback" not in err and "viser" not in out
+    assert lines[-1] == "volrender: interrupted (SIGINT); no output written", (out, err)
+    assert "Traceback" not in err and "viser" not in out, (out, err)
+
+
+# ------------------------------------------------------------------ a real browser
+
+@pytest.fixture
+def browser():
+    """Headless Chromium through Selenium (Debian's chromium and chromium-driver; `bash
+    run.sh test` installs them where apt works), real time: WebGL in software."""
+    import shutil
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
+    from selenium.webdriver.chrome.service import Service
+    exe, driver = shutil.which("chromium") or shutil.which("chromium-browser"), \
+        shutil.which("chromedriver")
+    if not exe or not driver:
+        pytest.skip("no chromium and chromedriver here (Debian: apt-get install chromium "
+                    "chromium-driver)")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = exe
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+              "--window-size=800,600", "--force-device-scale-factor=1"):
+        opts.add_argument(a)
+    try:
+        d = webdriver.Chrome(options=opts, service=Service(driver))
+    except Exception as exc:                     # a browser that does not start here
+        pytest.skip(f"chromium does not start: {str(exc).splitlines()[0]}")
+    yield d
+    d.quit()
+
+
+def shown_in(browser, v, camera, timeout=120.0):
+    """Wait until the viewer has converged on `camera` (origin, target) sent by the
+    browser and the page says so; the frame and a screenshot of the page."""
+    from PIL import Image as PILImage
+    end = time.monotonic() + timeout
+    s = v.session
+    while time.monotonic() < end:
+        f = s.frame
+        if f is not None and f.state == "converged" and f.version == s.version \
+                and np.allclose(s.camera.origin, camera[0], atol=1e-6) \
+                and np.allclose(s.camera.target, camera[1], atol=1e-6) \
+                and "converged:" in browser.page_source:
+            shot = PILImage.open(io.BytesIO(browser.get_screenshot_as_png())).convert("RGB")
+            return f, np.asarray(shot)
+        time.sleep(0.2)
+    raise AssertionError(f"not converged on {camera}: {s.frame and s.frame.state}, "
+                         f"camera {s.camera.origin}")
+
+
+def test_in_a_real_browser(browser, tmp_path):
+    """Chromium opens the page, sends its camera (the viewer's start, then one from the
+    URL), and shows the frames: the converged frame is on screen where no panel covers it
+    (8-bit, PNG), it is not blank, another camera gives another frame, and the saved
+    camera file reproduces it through the CLI bit for bit."""
+    scene = volrender.load_scene(GLASS, size=(64, 48), spp=2, denoise="off")
+    v = volrender.view(scene, port=0, size="canvas", save_dir=tmp_path)
+    try:
+        cam = scene.camera
+        browser.get(v.url)
+        first, shot = shown_in(browser, v, (cam.origin, cam.target))
+        rgb = v.pixels(first)
+        assert rgb.shape == shot.shape                   # the canvas: the whole window
+        region = (slice(200, 440), slice(20, 450))       # below the notice, left of the panel
+        diff = np.abs(shot[region].astype(int) - rgb[region]).max(axis=-1)
+        assert np.median(diff) <= 2 and (diff <= 6).mean() > 0.8, np.median(diff)
+        assert rgb[region].std() > 5.0
+        other = np.asarray(cam.target) + np.array([0.0, 0.3, 1.0]) * np.linalg.norm(
+            np.subtract(cam.origin, cam.target))
+        q = ",".join
+        browser.get(v.url + f"?initialCameraPosition={q(map(repr, other))}"
+                            f"&initialCameraLookAt={q(map(repr, cam.target))}")
+        second, shot = shown_in(browser, v, (other, cam.target))
+        rgb2 = v.pixels(second)
+        assert np.abs(rgb2.astype(int) - rgb).mean() > 2.0
+        diff = np.abs(shot[region].astype(int) - rgb2[region]).max(axis=-1)
+        assert np.median(diff) <= 2 and (diff <= 6).mean() > 0.8
+        png, _, cmd = v.save(tmp_path / "browser")
+    finally:
+        v.stop()
+    words = shlex.split(cmd)
+    words[words.index("-o") + 1] = str(tmp_path / "cli.npy")
+    assert cli.main(words[1:]) == 0
+    assert np.array_equal(np.load(tmp_path / "cli.npy"), second.image.rgba)

@@ -340,11 +340,14 @@ def _value(v) -> str:
     return str(v)
 
 
-def command_line(scene, camera_file, output, exposure=0.0, view="filmic", spp=None):
+def command_line(scene, camera_file, output, exposure=0.0, view="filmic", spp=None,
+                 packed=None):
     """`volrender render ...` that renders `scene` (a Session's still scene) identically:
     its input and options (the camera ones replaced by `camera_file`; --estimator auto
-    written as what it resolved to; --spp and --denoise explicit), as one shell line. None
-    for a scene made without an input (an array, Scene.of)."""
+    written as what it resolved to; --spp and --denoise explicit; for glass, `packed`, the
+    spheres.PackedSpheres the viewer built: its --accel and support-cell edge, which the
+    CLI would choose from its own job's size), as one shell line. None for a scene made
+    without an input (an array, Scene.of)."""
     from .scene_file import options
     req = scene.request
     if req is None or req.origin == "array":
@@ -358,6 +361,10 @@ def command_line(scene, camera_file, output, exposure=0.0, view="filmic", spp=No
         given["estimator"] = s.estimator
         if s.estimator == "march":
             given["ms_octaves"] = s.ms_octaves if s.ms_octaves is not None else s.octaves
+    if packed is not None:
+        given["accel"] = packed.accel
+        if packed.cells is not None:
+            given["cell_size"] = float(packed.cells.cell)
     given["spp"] = int(spp if spp is not None else s.spp)
     given["denoise"] = "on" if s.denoise in ("on", "auto") and _can_denoise() else "off"
     words = ["volrender", "render", str(req.source), "--camera", str(camera_file)]

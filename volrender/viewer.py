@@ -147,9 +147,7 @@ class Viewer:
     # client's first camera message is handled, and the cameras apply in the order sent
     # (sync callbacks run on a thread pool, in any order).
     async def _connect(self, client):
-        cam = self.session.camera
-        client.camera.position, client.camera.look_at = cam.origin, cam.target
-        client.camera.up_direction, client.camera.fov = cam.up, math.radians(cam.fov)
+        # the browser starts at server.initial_camera (or its URL's initialCamera* parameters)
         client.camera.on_update(self._camera_moved)
 
     async def _camera_moved(self, handle):
@@ -323,8 +321,9 @@ class Viewer:
         frame.image.save(png, exposure=self.exposure, tonemap=self.view)
         write_camera_file(frame.image.camera, cam)
         scene = self.session.scene()
+        packed = scene.content.prepare(self.session.dev) if scene.kind == "glass" else None
         cmd = command_line(scene, cam, stem.with_name(stem.name + "_cli.png"), self.exposure,
-                           self.view, spp=frame.target)
+                           self.view, spp=frame.target, packed=packed)
         if cmd is not None:
             note = ("" if frame.state == "converged" else f"# saved at {frame.spp} of "
                     f"{frame.target} spp: this renders all {frame.target}\n")
@@ -361,6 +360,10 @@ class Viewer:
         if server is not None:
             with contextlib.redirect_stdout(io.StringIO()):   # viser's "Server stopped"
                 server.stop()
+                thread = getattr(getattr(server, "_websock_server", None), "_server_thread",
+                                 None)                        # prints as it ends
+                if thread is not None:
+                    thread.join(timeout=10)
 
     def show_inline(self, height=600):
         """Show the viewer in a Jupyter notebook (an IFrame of the URL)."""
