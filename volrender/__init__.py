@@ -4,6 +4,7 @@
     scene = volrender.load_scene("smoke.vdb", size=(320, 240), density_scale=2.0)
     image = volrender.render(scene)              # PoCL, or device="nvidia"
     image.save("smoke.exr")
+    viewer = volrender.view(scene)               # a progressive viewer in the browser
 
 load_scene takes the command line's option names with underscores as keywords
 (`volrender render --help` lists them); render also takes what load_scene takes (a path,

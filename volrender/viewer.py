@@ -104,7 +104,7 @@ class Viewer:
     label."""
 
     def __init__(self, scene, device=None, *, port=DEFAULT_PORT, host=DEFAULT_HOST, size=None,
-                 exposure=0.0, view="filmic", save_dir=".", command=None):
+                 exposure=0.0, view="filmic", save_dir="."):
         from .progressive import Session
         viser = import_viser()
         check_port(host, port)
