@@ -165,6 +165,11 @@ def test_a_change_while_still_restarts_and_a_cancelled_step_is_dropped(ball):
     clock.t += 1.0
     again = s.step()
     assert again.state == "progressive" and again.spp == 1 and again.version == s.version
+    # a value out of range: said, and the render goes on with the last options that worked
+    s.set_options(albedo=(1.5,))
+    assert s.step() is None and "albedo" in s.error and s.options["albedo"] == (0.5,)
+    clock.t += 1.0
+    assert s.step().state == "progressive" and "albedo" in s.error
     # a change between the launches of a step: the step is dropped, not shown half-done
     acc = s._accum
     assert acc.advance(cancelled=lambda: True) is None

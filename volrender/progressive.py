@@ -202,7 +202,7 @@ class Session:
         with self._lock:
             new = {**self.options, **options}
             if new != self.options:
-                self.options = new
+                self.options, self.error = new, None
                 self._changed()
 
     def wake(self):
@@ -246,7 +246,7 @@ class Session:
                 self.error = str(exc)
                 self.options = dict(self._good)
             return None
-        self._good, self.error = dict(self.options), None
+        self._good = dict(self.options)
         return scene
 
     def denoise_on(self, scene) -> bool:

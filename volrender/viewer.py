@@ -343,9 +343,16 @@ class Viewer:
             self._stop_server()
 
     def start(self) -> "Viewer":
-        self._thread = threading.Thread(target=self.run, name="volrender-view", daemon=True)
+        self._thread = threading.Thread(target=self._run_in_thread, name="volrender-view",
+                                        daemon=True)
         self._thread.start()
         return self
+
+    def _run_in_thread(self):
+        try:
+            self.run()
+        except Exception as exc:           # said once; the server is stopped (run's finally)
+            print(f"volrender: the viewer stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
 
     def stop(self):
         """Stop rendering and serving (waits for the step under way)."""
