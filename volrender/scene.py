@@ -472,7 +472,8 @@ class Request:
         hint, why = getattr(held, "up_axis", None), getattr(held, "up_axis_reason", "")
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
-        camera = self.view.camera(lo, hi, hint, extent=content.extent())
+        framed = self.view.origin is None            # a given camera needs no content extent
+        camera = self.view.camera(lo, hi, hint, extent=content.extent() if framed else None)
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_sky
