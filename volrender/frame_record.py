@@ -48,6 +48,14 @@ class FrameRecord:
         if self.status is not None:
             self.status = FrameStatus(self.status)
 
+    def set(self, **fields) -> "FrameRecord":
+        """Set fields by name (an unknown name raises TypeError); returns the record."""
+        for k, v in fields.items():
+            if k not in FIELDS:
+                raise TypeError(f"FrameRecord has no field {k!r}")
+            setattr(self, k, FrameStatus(v) if k == "status" and v is not None else v)
+        return self
+
     def to_json(self) -> dict:
         """The record's row on disk: the fields that are set, in this order."""
         out = {}

@@ -27,6 +27,7 @@ class RenderInfo:
     launch_ends_s: tuple = ()            # each launch's end, from the first's start
     row_cost: object = None              # per-row cost profile (the next pass's launch sizes)
     transparent: bool = False            # the scene's --transparent (Image.save's default)
+    spp_target: int | None = None        # progressive.Progressive: the samples it accumulates to
     # glass (glass.plan)
     accel: str | None = None             # "grid" or "tree": what the field read
     model: str | None = None             # the glass model, said in the status line

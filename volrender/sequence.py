@@ -483,6 +483,7 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
+    from .pipeline import frame_times      # (concurrent.futures: off the start-up path)
     frame, src, out = job
     rec = FrameRecord(frame, str(src), str(out), worker=worker, pid=os.getpid())
     t0 = time.perf_counter()
@@ -512,10 +513,7 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
             t2 = time.perf_counter()
             img.save(out, **save_kw)
             t3 = time.perf_counter()
-            build_s = (img.info.tree_ms + img.info.cells_ms) / 1e3
-            rec.status, rec.device = FrameStatus.OK, img.device
-            rec.load_s, rec.build_s, rec.setup_s = t1 - t0, build_s, img.info.setup_ms / 1e3
-            rec.kernel_s, rec.render_s, rec.write_s = img.kernel_ms / 1e3, t2 - t1, t3 - t2
+            rec.set(**frame_times(img, t1 - t0, t2 - t1, t3 - t2))
         except UserError as exc:
             rec.status, rec.error = FrameStatus.FAILED, str(exc)
         except MemoryError:
@@ -787,14 +785,20 @@ def _check_every_frame(first, overrides, device, serial):
 
 
 def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
-    """Render the jobs here, appending each frame's record to `records` as it is done."""
+    """Render the jobs here, appending each frame's record to `records` as it is done: as
+    a pipeline (volrender/pipeline.py), or one frame after another with --skip-existing
+    (whose claims and deferrals render_chunk makes)."""
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
     bar = Progress(len(jobs), "frames", progress, unit="frame")
     try:
-        for job in jobs:
-            records += render_chunk([job], frame_kw, save_kw, skip_existing)
-            bar.update()
+        if skip_existing or len(jobs) < 2:
+            for job in jobs:
+                records += render_chunk([job], frame_kw, save_kw, skip_existing)
+                bar.update()
+        else:
+            from .pipeline import run_frames
+            run_frames(jobs, frame_kw, save_kw, records, bar.update, worker=_worker_name())
     finally:
         bar.close()
     return records
