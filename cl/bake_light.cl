@@ -89,7 +89,9 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
    per channel: volrender/light_cache.py) and writes the cache's ms channels. Orders 2
    and up scatter isotropically (the phase's shape is kept for the first scattering
    only), with the medium's albedo and extinction per channel (alb, ext:
-   volume.ms_medium). src/dst/total: 3 floats per node (rgb). */
+ volume.ms_medium). The gather marches step about half a grey mean free path, between
+   the shadow step and dt. src/dst/total: 3 floats per node (rgb). */
+#define VR_MS_MFP 0.25f       /* the gather's step, grey mean free paths (docs/error_time.md) */
 __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
                         __global const int4* bricks, __global const float* cache,
                         __global float* src, int n_bricks)
@@ -163,7 +165,7 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
                         __global const float* data, __global const float4* dirs,
                         __global const int4* bricks, __global const float* src,
                         __global float* dst, __global float* total, __global float* total1,
-                        int n_bricks, float4 alb, float4 ext, int first)
+                        int n_bricks, float4 alb, float4 ext, float dt, int first)
 {
     int gid = get_global_id(0);
     if (gid >= n_bricks * VR_CACHE_NODES)
@@ -175,7 +177,6 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
                       node % VR_CACHE_N);
     float3 o = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
     VrGrid g = { vp->dims, table, data };
-    float dt = vp->shadow_step;
     float3 sum = (float3)(0.0f), mx = sum, my = sum, mz = sum;
     for (int j = 0; j < VR_CACHE_DIRS; ++j) {
         float4 q = dirs[j];
@@ -183,24 +184,30 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
         float3 inv_d = 1.0f / dl;
         float t1 = vr_ray_box(o, inv_d, (float3)(0.0f), vp->box_hi.xyz).y;
         float3 T = (float3)(1.0f), acc = (float3)(0.0f);
+        /* steps of VR_MS_MFP grey mean free paths (from the sample before), between the
+           shadow step and dt, sampled at their midpoints */
+        float t = 0.0f, h = vp->shadow_step;
         for (int k = 0; k < VR_MAX_RAY_SAMPLES; ++k) {
-            float t = ((float)k + 0.5f) * dt;
-            if (t >= t1 || T.x + T.y + T.z < 3e-3f)
+            if (t + 0.5f * h >= t1 || T.x + T.y + T.z < 3e-3f)
                 break;
-            float3 p = o + t * dl;
+            float3 p = o + (t + 0.5f * h) * dl;
             float3 cf = floor(p);
             int3 c = convert_int3(cf);
             int slot = vr_brick_slot(&g, c);
             if (slot < 0) {
 #if VR_SKIP_EMPTY
-                float te = VR_EMPTY_EXIT(&g, o, inv_d, p);
-                k = max(k, (int)ceil(te / dt - 0.5f) - 1);
+                t = fmax(VR_EMPTY_EXIT(&g, o, inv_d, p), t + h);
+#else
+                t += h;
 #endif
+                h = vp->shadow_step;
                 continue;
             }
             float3 f = p - cf;
-            float3 st = vp->density_scale * vr_trilinear(data, slot, c, f) * ext.xyz;
-            float3 a = 1.0f - exp(-st * dt);
+            float sigma = vp->density_scale * vr_trilinear(data, slot, c, f);
+            float3 a = 1.0f - exp(-sigma * ext.xyz * h);
+            t += h;
+            h = clamp(VR_MS_MFP / fmax(sigma, 1e-30f), vp->shadow_step, dt);
             float3 sk;
             if (first)          /* S_1 through the phase towards o (the light's direction) */
                 sk = vr_once_scattered(vp, lights, cache, slot, c, f, p, dl, q.xyz);

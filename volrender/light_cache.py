@@ -40,6 +40,9 @@ MS_CH = 12                     # the propagated orders' channels (L1 harmonics, 
 # the geometric tail after the last propagated order (cl/bake_light.cl ms_finish): its
 # ratio to the order before, at most this (and the albedo)
 MS_TAIL = 0.9
+# the gather marches' longest step, node spacings (the step is shorter where the medium is
+# dense: cl/bake_light.cl VR_MS_MFP; 1 spacing: WDAS 26 % against 24 %, docs/error_time.md)
+MS_STEP_CELLS = 0.5
 
 
 def near_length(bricks, cell: int) -> float:
@@ -248,6 +251,13 @@ def ms_dirs() -> np.ndarray:
     return out
 
 
+def ms_step(bricks, cell, params) -> float:
+    """Longest world step of the orders' gather marches (cl/bake_light.cl ms_gather:
+    they step a quarter of a mean free path, between the shadow step and this):
+    MS_STEP_CELLS node spacings, at least the shadow step."""
+    return max(float(params["shadow_step"][0]), MS_STEP_CELLS * cell * float(bricks.voxel_size))
+
+
 def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
          similar=None) -> LightCache:
     """Run cl/bake_light.cl over every node of every occupied brick (then, with
@@ -282,7 +292,7 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
             gather(q, glob, (local,), params_buf, lights_buf, out, table, data, dirs, occ_buf,
                    orders[k % 3],
                    orders[(k + 1) % 3], total, total1, np.int32(len(occ)), alb, ext,
-                   np.int32(k == 0))
+                   np.float32(ms_step(bricks, choice.cell, params)), np.int32(k == 0))
         r_max = np.minimum(np.asarray(similar[0], np.float64), MS_TAIL)
         device.kernel("bake_light", flags, "ms_finish")(
             q, glob, (local,), occ_buf, total, total1, orders[max(n - 2, 0) % 3], orders[(n - 1) % 3],
