@@ -191,7 +191,10 @@ class VolumeSettings(CommonSettings):
                           "orders 2 to N+1 propagated over the cache's nodes from the baked "
                           "light (the rest as a geometric tail; volrender/light_cache.py) "
                           "instead of the octave bands; 0: the octave bands",
-                          check=in_range(0, 16, integer=True), toml=("volume", "ms_orders"))
+                          check=lambda v: None if isinstance(v, int) and not isinstance(v, bool)
+                          and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
+                          "2 to 16 (one order's tail, from the phase-weighted first, overshoots)",
+                          toml=("volume", "ms_orders"))
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
