@@ -43,6 +43,10 @@ MS_TAIL = 0.9
 # the gather marches' longest step, node spacings (the step is shorter where the medium is
 # dense: cl/bake_light.cl VR_MS_MFP; 1 spacing: WDAS 26 % against 24 %, docs/error_time.md)
 MS_STEP_CELLS = 0.5
+# with scattering orders, auto bakes where that costs up to this many times the exact
+# march (which takes the octave bands): on the real files the orders' covered-pixel error
+# is 0.2-0.9x the bands' (docs/error_time.md)
+MS_WORTH = 2.0
 
 
 def near_length(bricks, cell: int) -> float:
@@ -152,7 +156,8 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     that is below the exact march's count. Cell 0 where the mode is off, the estimator is
     not the march or nothing lights the medium. ms_orders: scattering orders to propagate
     over the nodes (each a march along the ENV_DIRS directions per node, counted twice: it
-    reads the nodes at every step)."""
+    reads the nodes at every step); auto then bakes up to MS_WORTH x the exact march's
+    count."""
     mode = settings.light_cache
     channels = n_lights + (ENV_CH if env else 0) + (MS_CH if ms_orders else 0)
     per_node = n_lights + (ENV_DIRS if env else 0) + 2 * ENV_DIRS * ms_orders
@@ -182,10 +187,12 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     else:
         cell = min([c for c in CELLS if c in fits] or [8], key=cost)
         why = f"{cell}-voxel nodes cost least"
-        if mode == "auto" and cost(cell) >= exact:
+        worth = MS_WORTH if ms_orders else 1.0
+        if mode == "auto" and cost(cell) >= worth * exact:
             return Choice(0, 0, channels, cost(cell), exact,
                           f"auto: its bake and near marches, ~{cost(cell) / 1e6:.3g}M samples, "
-                          f"would cost more than the exact march's ~{exact / 1e6:.3g}M")
+                          f"would cost more than {'%g x ' % worth if worth != 1 else ''}the "
+                          f"exact march's ~{exact / 1e6:.3g}M")
     return Choice(cell, slots * nodes_per_brick(cell), channels, cost(cell), exact, why,
                   ms_orders)
 

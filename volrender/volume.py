@@ -46,6 +46,11 @@ AUTO_PATH_NOISE = 1.0               # its relative RMSE on covered pixels at 1 s
 # buy a clear gain (0190 at 320x240 on a CPU: 9 % in ~7 s of kernel against 12 % in 0.3 s)
 AUTO_PATH_GAIN = 0.5
 AUTO_MARCH_ERROR = (-2.361, 0.691, 0.162)
+# the march with the light cache's scattering orders (--ms-orders, where auto bakes it):
+# ln error = c0 + c1 L + c2 n, fitted on the four scattering real files (160x120, weighted
+# 3 each) and six synthetic media against the path estimator (0.52 rms in ln;
+# docs/error_time.md)
+AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -316,26 +321,36 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     """auto's model of error and cost (docs/error_time.md, "auto"): for a medium of
     typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
     n = -ln(1 - a):
-    * the march's error with the octave bands (relative RMSE on covered pixels):
-      AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1] e^(AUTO_MARCH_ERROR[2] n);
+    * the march's error (relative RMSE on covered pixels): with the light cache's
+      scattering orders (--ms-orders > 0, --light-cache not off) exp(AUTO_ORDERS_ERROR .
+      (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
       (CPU: per AUTO_CPU_UNITS compute units);
-    the path's samples: enough for AUTO_TARGET, at most what AUTO_BUDGET_MS allows, or
-    --spp where it is above 1 (a count the user chose is kept)."""
+    the path's samples: enough for AUTO_TARGET (or AUTO_PATH_GAIN x the march's error
+    where that is lower: what it must reach to be chosen), at most what AUTO_BUDGET_MS
+    allows, or --spp where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
-    c0, c1, c2 = AUTO_MARCH_ERROR
-    march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
+    orders = settings.ms_orders > 0 and settings.light_cache != "off"
+    if orders:
+        c0, c1, c2 = AUTO_ORDERS_ERROR
+        march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
+    else:
+        c0, c1, c2 = AUTO_MARCH_ERROR
+        march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
     per = AUTO_PATH_MS["gpu" if gpu else "cpu"]
     if not gpu and compute_units:
         per *= AUTO_CPU_UNITS / compute_units
     sample_ms = pixels * per * (1.0 + o["tau"]) ** AUTO_PATH_SLOPE
-    want = math.ceil((AUTO_PATH_NOISE / AUTO_TARGET) ** 2)
+    # the path estimator aims at AUTO_TARGET, or lower: what it must reach to be chosen
+    want = math.ceil((AUTO_PATH_NOISE / min(AUTO_TARGET, AUTO_PATH_GAIN * march_error)) ** 2)
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
-    return {**o, "march_error": march_error, "path_sample_ms": sample_ms, "path_spp": spp,
+    return {**o, "march_error": march_error, "march_orders": orders,
+            "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
 
@@ -371,8 +386,10 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
                 f"estimator auto: single scattering (march; {why}, below "
                 f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
     gain = octave_gain(settings, m["tau"])
-    march = (f"march with {AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted error "
-             f"{m['march_error']:.0%}")
+    how = ("the light cache's scattering orders where baked, else "
+           if m["march_orders"] else "")
+    march = (f"march with {how}{AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted "
+             f"error {m['march_error']:.0%}")
     fields = VolumeSettings.__dataclass_fields__
     tuned = (settings.step, settings.shadow_step) != (fields["step"].default,
                                                       fields["shadow_step"].default)
