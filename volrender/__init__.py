@@ -31,6 +31,8 @@ if _argv[:1] and _argv[0].rsplit("/", 1)[-1] == "volrender" or _argv == ["-m", "
             if _signal.getsignal(sig) is not _signal.SIG_IGN:   # nohup, a background job
                 _signal.signal(sig, _starting)
     _start()
+    from . import process as _process
+    _process.route_signals(_starting)   # before numpy: its threads inherit the block
 del _argv
 
 __version__ = "0.1.0"

@@ -877,10 +877,11 @@ def _start_client(workers, scheduler, device):
         env[KILL_HOOK] = os.environ[KILL_HOOK]
     # SIGINT is held back while the workers start, so they start with it blocked and keep
     # it so: a terminal's Ctrl-C reaches the whole process group, and this process stops
-    # them (they printed tracebacks of their own); here it is delivered right after
+    # them (they printed tracebacks of their own); here it is delivered right after.
+    # SIGTERM and SIGHUP reach them as usual (not the command line's routed block).
     cluster = None
     try:
-        with _sigint_held():
+        with process.children_unblocked(), _sigint_held():
             cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
                                      dashboard_address=":0", env=env, silence_logs=logging.ERROR)
         client = Client(cluster)
