@@ -220,8 +220,10 @@ def test_auto_weighs_error_per_second(monkeypatch):
     m = volume.auto_model(dense, VolumeSettings(), big)
     assert m["path_error"] >= m["march_error"] and m["path_ms"] <= volume.AUTO_BUDGET_MS
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
-    # the path estimator aims at AUTO_TARGET or half the march's predicted error, the lower
-    aim = min(volume.AUTO_TARGET, volume.AUTO_PATH_GAIN * m["march_error"])
+    # the path estimator aims at AUTO_TARGET, or half the march's predicted error where
+    # lower (not below AUTO_TARGET / 2)
+    aim = max(volume.AUTO_TARGET / 2, min(volume.AUTO_TARGET, volume.AUTO_PATH_GAIN * m["march_error"]))
+    assert aim == volume.path_aim(m["march_error"]) < volume.AUTO_TARGET
     want = math.ceil((volume.AUTO_PATH_NOISE / aim) ** 2)
     assert (s.estimator, s.spp) == ("path", want), note
     assert note.startswith(f"estimator auto: path, {want} spp: predicted error "

@@ -316,6 +316,13 @@ def optical_size(bricks, settings: VolumeSettings) -> dict:
     return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
 
 
+def path_aim(march_error: float) -> float:
+    """The error auto's path samples aim at: AUTO_TARGET, or what the path estimator must
+    reach to be chosen (AUTO_PATH_GAIN x the march's) where lower, but not below half of
+    AUTO_TARGET (at most 4x its samples)."""
+    return max(0.5 * AUTO_TARGET, min(AUTO_TARGET, AUTO_PATH_GAIN * march_error))
+
+
 def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
                compute_units: int | None = None) -> dict:
     """auto's model of error and cost (docs/error_time.md, "auto"): for a medium of
@@ -328,9 +335,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
       (CPU: per AUTO_CPU_UNITS compute units);
-    the path's samples: enough for AUTO_TARGET (or AUTO_PATH_GAIN x the march's error
-    where that is lower: what it must reach to be chosen), at most what AUTO_BUDGET_MS
-    allows, or --spp where it is above 1 (a count the user chose is kept)."""
+    the path's samples: enough for path_aim, at most what AUTO_BUDGET_MS allows, or --spp
+    where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
     orders = settings.ms_orders > 0 and settings.light_cache != "off"
@@ -344,8 +350,7 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     if not gpu and compute_units:
         per *= AUTO_CPU_UNITS / compute_units
     sample_ms = pixels * per * (1.0 + o["tau"]) ** AUTO_PATH_SLOPE
-    # the path estimator aims at AUTO_TARGET, or lower: what it must reach to be chosen
-    want = math.ceil((AUTO_PATH_NOISE / min(AUTO_TARGET, AUTO_PATH_GAIN * march_error)) ** 2)
+    want = math.ceil((AUTO_PATH_NOISE / path_aim(march_error)) ** 2)
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
