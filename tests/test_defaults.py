@@ -218,6 +218,7 @@ def test_auto_weighs_error_per_second(monkeypatch):
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, None)
     assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
     m = volume.auto_model(dense, VolumeSettings(), big)
+    assert m["march_orders"]          # the light cache's orders at 640x480 (AUTO_ORDERS_PIXELS)
     assert m["path_error"] >= m["march_error"] and m["path_ms"] <= volume.AUTO_BUDGET_MS
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
     # the path estimator aims at AUTO_TARGET, or half the march's predicted error where
@@ -229,7 +230,10 @@ def test_auto_weighs_error_per_second(monkeypatch):
     assert note.startswith(f"estimator auto: path, {want} spp: predicted error "
                            f"{volume.AUTO_PATH_NOISE / math.sqrt(want):.0%}") and "GPU" in note
     s, _ = volume.auto_estimator(dense, VolumeSettings(), 64 * 48, None)
-    assert s.estimator == "path" and s.spp == want
+    small = volume.auto_model(dense, VolumeSettings(), 64 * 48)    # the bands' error here
+    assert not small["march_orders"] and small["march_error"] > m["march_error"]
+    want_small = math.ceil((volume.AUTO_PATH_NOISE / volume.path_aim(small["march_error"])) ** 2)
+    assert s.estimator == "path" and s.spp == want_small
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2, noise_target=0.05), 64 * 48, None)
     assert (s.estimator, s.spp) == ("path", 2)            # passes keep their own samples
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2), 64 * 48, None)

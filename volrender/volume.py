@@ -51,6 +51,9 @@ AUTO_MARCH_ERROR = (-2.361, 0.691, 0.162)
 # 3 each) and six synthetic media against the path estimator (0.52 rms in ln;
 # docs/error_time.md)
 AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
+# ... from this many pixels (auto runs before the camera exists, so before the cache's
+# cost model: at 640x480 it bakes for the four files, at 160x120 for 0190 alone)
+AUTO_ORDERS_PIXELS = 320 * 240
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -329,8 +332,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
     n = -ln(1 - a):
     * the march's error (relative RMSE on covered pixels): with the light cache's
-      scattering orders (--ms-orders > 0, --light-cache not off) exp(AUTO_ORDERS_ERROR .
-      (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      scattering orders (--ms-orders > 0, --light-cache on, or auto from
+      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
       e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
@@ -339,7 +342,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
-    orders = settings.ms_orders > 0 and settings.light_cache != "off"
+    orders = settings.ms_orders > 0 and settings.light_cache != "off" and \
+        (pixels >= AUTO_ORDERS_PIXELS or settings.light_cache == "on")
     if orders:
         c0, c1, c2 = AUTO_ORDERS_ERROR
         march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
