@@ -4,6 +4,7 @@
     scene = volrender.load_scene("smoke.vdb", size=(320, 240), density_scale=2.0)
     image = volrender.render(scene)              # PoCL, or device="nvidia"
     image.save("smoke.exr")
+    viewer = volrender.view(scene)               # a progressive viewer in the browser
 
 load_scene takes the command line's option names with underscores as keywords
 (`volrender render --help` lists them); render also takes what load_scene takes (a path,
@@ -42,6 +43,7 @@ from .lights import PointLight, Sun  # noqa: E402
 from .render import Image, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
 from .sequence import render_sequence  # noqa: E402
+from .viewer import view  # noqa: E402
 
-__all__ = ["load_scene", "render", "render_sequence", "Scene", "Image", "Sun", "PointLight",
+__all__ = ["load_scene", "render", "render_sequence", "view", "Scene", "Image", "Sun", "PointLight",
            "UserError", "__version__"]

@@ -331,3 +331,13 @@ def stdout_failed(command) -> int | None:
     print(f"volrender: error: cannot write to standard output ({getattr(exc, 'strerror', None) or exc})",
           file=sys.stderr)
     return 2
+
+
+def hold_in_this_thread():
+    """SIGINT/SIGTERM/SIGHUP blocked in the calling thread for good: the initializer of a
+    helper thread (sequence.py's loader and writer, quantise.py's pool), so that the kernel
+    delivers those signals to the main thread, whose handlers raise."""
+    try:
+        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    except (AttributeError, ValueError, OSError):      # no pthreads
+        pass
