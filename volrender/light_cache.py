@@ -4,7 +4,9 @@ lights on the device (cl/bake_light.cl) and read trilinearly by the marcher
 
 Nodes sit every `cell` voxels inside each occupied brick (8 / cell + 1 per axis, the faces
 shared with the neighbours); each holds every light's shadow optical depth and, with an
-environment, the L1 harmonics of its banded light over 14 fixed directions. The cache
+environment, the L1 harmonics of its banded light over 14 fixed directions, and, with
+multiple scattering (choice.ms_orders), the L1 harmonics of scattering orders 2 and up
+propagated over the nodes along the same directions (cl/bake_light.cl ms_gather). The cache
 belongs to the volume's content like the uploaded bricks: `Scene.replace` with another
 camera reuses it, other lights, environment or medium settings bake it again.
 
