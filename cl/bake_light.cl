@@ -75,6 +75,194 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
 #endif
 }
 
+#if VR_MS_CACHE
+/* Multiple scattering on the cache's nodes (VR_MS_CACHE; volrender/light_cache.py runs
+   these after bake_light). S_1, the once-scattered light per unit scattering coefficient
+   averaged over directions (its fluence / 4 pi), comes from the baked channels; each
+   ms_gather gives the next order at every node,
+       S_{k+1}(x) = (1/4 pi) int dw int_0^inf sigma_s(y) exp(-tau(x, y)) S_k(y) ds,
+   y = x + s w, over the VR_CACHE_DIRS directions (weights: their cells' solid angles),
+   S_k read trilinearly from the nodes, and sums them, with their first moments over the
+   directions (total1: the L1 harmonics' a1 of the light each order gathered, so the
+   marcher folds the phase in as for the sky, a0 + g a1 . d); ms_finish adds the geometric tail
+   S_K k (k = r / (1 - r), r: the ratio of the last two orders summed over all nodes,
+   per channel: volrender/light_cache.py) and writes the cache's ms channels. Orders 2
+   and up scatter isotropically (the phase's shape is kept for the first scattering
+   only), with the medium's albedo and extinction per channel (alb, ext:
+ volume.ms_medium). The gather marches step about half a grey mean free path, between
+   the shadow step and dt. src/dst/total: 3 floats per node (rgb). */
+#define VR_MS_MFP 0.25f       /* the gather's step, grey mean free paths (docs/error_time.md) */
+__kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
+                        __global const int4* bricks, __global const float* cache,
+                        __global float* src, int n_bricks)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_bricks * VR_CACHE_NODES)
+        return;
+    int4 b = bricks[gid / VR_CACHE_NODES];
+    int node = gid % VR_CACHE_NODES;
+    int at = b.w * VR_CACHE_NODES + node;
+    __global const float* in = cache + at * VR_CACHE_CH;
+    float3 s = (float3)(0.0f);
+#if VR_CACHE_LIGHTS > 0
+    int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
+                      node % VR_CACHE_N);
+    float3 p = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
+    for (int i = 0; i < VR_CACHE_LIGHTS; ++i) {
+        float3 dl, prop;
+        float tmax, atten;
+        if (vr_light_at(vp, lights, i, p, &dl, &tmax, &prop, &atten))
+            s += exp(-in[i] * (float3)(VR_EXTINCTION(vp))) * lights[i].radiance.xyz
+               / (4.0f * M_PI_F * atten);
+    }
+#else
+    (void)lights;
+#endif
+#if VR_ENV
+    s += (float3)(in[VR_CACHE_LIGHTS], in[VR_CACHE_LIGHTS + 1], in[VR_CACHE_LIGHTS + 2]);
+#endif
+    src[3 * at] = s.x; src[3 * at + 1] = s.y; src[3 * at + 2] = s.z;
+}
+
+/* The once-scattered light at local p (cell c, fraction f of brick `slot`) leaving
+   towards -w (w: world), from the baked channels as the marcher reads them (the lights'
+   optical depth, the sky's harmonics) through the phase. dl: unused. */
+inline float3 vr_once_scattered(__constant VolumeParams* vp, __constant Light* lights,
+                                __global const float* cache, int slot, int3 c, float3 f,
+                                float3 p, float3 dl, float3 w)
+{
+    VrCacheTap t;
+    vr_cache_tap(slot, c, f, &t);
+    float3 s = (float3)(0.0f);
+    (void)dl;
+#if VR_CACHE_LIGHTS > 0
+    for (int i = 0; i < VR_CACHE_LIGHTS; ++i) {
+        float3 l, prop;
+        float tmax, atten;
+        if (vr_light_at(vp, lights, i, p, &l, &tmax, &prop, &atten))
+        {
+            float3 tr = (float3)(0.0f);     /* the nodes' transmittance, interpolated */
+            for (int n = 0; n < 8; ++n)
+                tr += t.w[n] * exp(-cache[t.base + i + t.off[n]] * (float3)(VR_EXTINCTION(vp)));
+            s += vr_phase(dot(prop, -w), vp->phase) * tr * lights[i].radiance.xyz / atten;
+        }
+    }
+#else
+    (void)lights;
+#endif
+#if VR_ENV
+    s += vr_cached_env(vp, cache, &t, w);
+#endif
+    return s;
+}
+
+/* One order: dst = the next order of src at every node (see above), total += it (total
+   = it with `first`, which gathers S_1 from the baked channels through the phase:
+   vr_once_scattered; src is S_1's isotropic part then, for the tail's ratio). dirs: per direction its world vector (xyz) and its cell's solid
+   angle / 4 pi (w). */
+__kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
+                        __global const float* cache, __global const int* table,
+                        __global const float* data, __global const float4* dirs,
+                        __global const int4* bricks, __global const float* src,
+                        __global float* dst, __global float* total, __global float* total1,
+                        int n_bricks, float4 alb, float4 ext, float dt, int first)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_bricks * VR_CACHE_NODES)
+        return;
+    int4 b = bricks[gid / VR_CACHE_NODES];
+    int node = gid % VR_CACHE_NODES;
+    int at = b.w * VR_CACHE_NODES + node;
+    int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
+                      node % VR_CACHE_N);
+    float3 o = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
+    VrGrid g = { vp->dims, table, data };
+    float3 sum = (float3)(0.0f), mx = sum, my = sum, mz = sum;
+    for (int j = 0; j < VR_CACHE_DIRS; ++j) {
+        float4 q = dirs[j];
+        float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, q.xyz);
+        float3 inv_d = 1.0f / dl;
+        float t1 = vr_ray_box(o, inv_d, (float3)(0.0f), vp->box_hi.xyz).y;
+        float3 T = (float3)(1.0f), acc = (float3)(0.0f);
+        /* steps of VR_MS_MFP grey mean free paths (from the sample before), between the
+           shadow step and dt, sampled at their midpoints */
+        float t = 0.0f, h = vp->shadow_step;
+        for (int k = 0; k < VR_MAX_RAY_SAMPLES; ++k) {
+            if (t + 0.5f * h >= t1 || T.x + T.y + T.z < 3e-3f)
+                break;
+            float3 p = o + (t + 0.5f * h) * dl;
+            float3 cf = floor(p);
+            int3 c = convert_int3(cf);
+            int slot = vr_brick_slot(&g, c);
+            if (slot < 0) {
+#if VR_SKIP_EMPTY
+                t = fmax(VR_EMPTY_EXIT(&g, o, inv_d, p), t + h);
+#else
+                t += h;
+#endif
+                h = vp->shadow_step;
+                continue;
+            }
+            float3 f = p - cf;
+            float sigma = vp->density_scale * vr_trilinear(data, slot, c, f);
+            float3 a = 1.0f - exp(-sigma * ext.xyz * h);
+            t += h;
+            h = clamp(VR_MS_MFP / fmax(sigma, 1e-30f), vp->shadow_step, dt);
+            float3 sk;
+            if (first)          /* S_1 through the phase towards o (the light's direction) */
+                sk = vr_once_scattered(vp, lights, cache, slot, c, f, p, dl, q.xyz);
+            else {
+                VrCacheTap tap;
+                vr_cache_tap_n(slot, c, f, 3, &tap);
+                sk = (float3)(vr_cache_read(src, &tap, 0), vr_cache_read(src, &tap, 1),
+                              vr_cache_read(src, &tap, 2));
+            }
+            acc += T * a * sk;
+            T *= 1.0f - a;
+        }
+        sum += q.w * acc;
+        mx += q.w * q.x * acc; my += q.w * q.y * acc; mz += q.w * q.z * acc;
+    }
+    sum *= alb.xyz;
+    /* the order's first moment over the directions (L1: a1 = 3 mean(w L)), x, y, z rgb */
+    __global float* t1 = total1 + 9 * at;
+    float3 m[3] = { 3.0f * alb.xyz * mx, 3.0f * alb.xyz * my, 3.0f * alb.xyz * mz };
+    for (int a = 0; a < 3; ++a) {
+        float3 v = m[a] + (first ? (float3)(0.0f) : (float3)(t1[3 * a], t1[3 * a + 1], t1[3 * a + 2]));
+        t1[3 * a] = v.x; t1[3 * a + 1] = v.y; t1[3 * a + 2] = v.z;
+    }
+    float3 tot = sum + (first ? (float3)(0.0f)
+                              : (float3)(total[3 * at], total[3 * at + 1], total[3 * at + 2]));
+    total[3 * at] = tot.x; total[3 * at + 1] = tot.y; total[3 * at + 2] = tot.z;
+    dst[3 * at] = sum.x; dst[3 * at + 1] = sum.y; dst[3 * at + 2] = sum.z;
+}
+
+/* The cache's ms channels: total plus the geometric tail after the last order S_K,
+   S_K r / (1 - r) per channel, r the smaller of the last two orders' ratios
+   (S_K / S_{K-1}, S_{K-1} / S_{K-2}; the ratio grows with the order where the light's
+   shape is still settling, so the smaller is the safer), at most r_max. */
+__kernel void ms_finish(__global const int4* bricks, __global const float* total,
+                        __global const float* total1, __global const float* s2, __global const float* s1,
+                        __global const float* s0, __global float* cache, int n_bricks,
+                        float4 r_max)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_bricks * VR_CACHE_NODES)
+        return;
+    int at = 3 * (bricks[gid / VR_CACHE_NODES].w * VR_CACHE_NODES + gid % VR_CACHE_NODES);
+    float3 a = (float3)(s0[at], s0[at + 1], s0[at + 2]);        /* S_K */
+    float3 b = (float3)(s1[at], s1[at + 1], s1[at + 2]);        /* S_{K-1} */
+    float3 c = (float3)(s2[at], s2[at + 1], s2[at + 2]);        /* S_{K-2} */
+    float3 r = fmin(a / fmax(b, 1e-30f), b / fmax(c, 1e-30f));
+    r = clamp(r, 0.0f, r_max.xyz);
+    float3 tot = (float3)(total[at], total[at + 1], total[at + 2]) + a * r / (1.0f - r);
+    __global float* out = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_MS;
+    out[0] = tot.x; out[1] = tot.y; out[2] = tot.z;
+    for (int i = 0; i < 9; ++i)
+        out[3 + i] = total1[3 * at + i];
+}
+#endif
+
 /* The cache's channels as the marcher reads them at local points (tests). */
 __kernel void probe_light_cache(__global const float4* pts, __global const int* table,
                                 int4 dims, __global const float* cache, __global float* out)

@@ -14,6 +14,11 @@
                        on the host: light_cache.env_quadrature, so F = 1 gives the map's
                        own L1 projection exactly). The phase folds in exactly
                        (Funk-Hecke: a0 + g_mean a1 . d for a Henyey-Greenstein mixture).
+     then, with VR_MS_CACHE, 12 floats: the multiply scattered light (scattering orders
+                       2 and up, per unit scattering coefficient) as the sky's: a0 rgb, then
+                       a1 x rgb, y rgb, z rgb, propagated over the nodes by
+                       cl/bake_light.cl's ms_gather (a1: of the orders it gathered, not the
+                       geometric tail).
    Layout: cache[(slot * nodes + (i * n + j) * n + k) * VR_CACHE_CH + ch].
    Include after volume.h and lights.h. */
 #ifndef VR_LIGHT_CACHE_H
@@ -24,7 +29,8 @@
 #define VR_CACHE_NODES (VR_CACHE_N * VR_CACHE_N * VR_CACHE_N)
 #define VR_CACHE_LIGHTS (VR_N_SUNS + VR_N_POINTS)
 #define VR_CACHE_ENV_CH 12
-#define VR_CACHE_CH (VR_CACHE_LIGHTS + (VR_ENV ? VR_CACHE_ENV_CH : 0))
+#define VR_CACHE_MS (VR_CACHE_LIGHTS + (VR_ENV ? VR_CACHE_ENV_CH : 0))   /* first ms channel */
+#define VR_CACHE_CH (VR_CACHE_MS + (VR_MS_CACHE ? VR_CACHE_ENV_CH : 0))
 #define VR_CACHE_DIRS 14
 
 /* The eight nodes around local point (cell c, fraction f) of brick `slot` and their
@@ -36,17 +42,23 @@ typedef struct {
     float w[8];
 } VrCacheTap;
 
-inline void vr_cache_tap(int slot, int3 c, float3 f, VrCacheTap* t)
+inline void vr_cache_tap_n(int slot, int3 c, float3 f, int nch, VrCacheTap* t)
 {
     float3 q = (convert_float3(c & (VR_BRICK - 1)) + f) * (1.0f / (float)VR_LIGHT_CACHE);
     int3 i = min(convert_int3(q), (int3)(VR_CACHE_N - 2));
     float3 r = clamp(q - convert_float3(i), 0.0f, 1.0f);
-    t->base = (slot * VR_CACHE_NODES + (i.x * VR_CACHE_N + i.y) * VR_CACHE_N + i.z) * VR_CACHE_CH;
+    t->base = (slot * VR_CACHE_NODES + (i.x * VR_CACHE_N + i.y) * VR_CACHE_N + i.z) * nch;
     for (int n = 0; n < 8; ++n) {
         int dx = n >> 2, dy = (n >> 1) & 1, dz = n & 1;
-        t->off[n] = ((dx * VR_CACHE_N + dy) * VR_CACHE_N + dz) * VR_CACHE_CH;
+        t->off[n] = ((dx * VR_CACHE_N + dy) * VR_CACHE_N + dz) * nch;
         t->w[n] = (dx ? r.x : 1.0f - r.x) * (dy ? r.y : 1.0f - r.y) * (dz ? r.z : 1.0f - r.z);
     }
+}
+
+/* The same for the cache's layout (VR_CACHE_CH floats per node). */
+inline void vr_cache_tap(int slot, int3 c, float3 f, VrCacheTap* t)
+{
+    vr_cache_tap_n(slot, c, f, VR_CACHE_CH, t);
 }
 
 /* Channel ch of the cache at the tap. */
@@ -125,19 +137,38 @@ inline float3 vr_cached_inscatter(const VrGrid* g, __constant VolumeParams* vp,
 }
 #endif
 
-#if VR_ENV
-/* The environment's in-scattered light towards the camera ray's world direction d. */
-inline float3 vr_cached_env(__constant VolumeParams* vp, __global const float* cache,
-                            const VrCacheTap* t, float3 d)
+#if VR_ENV || VR_MS_CACHE
+/* L1 harmonics stored from channel ch (a0 rgb, a1 x/y/z rgb) seen through the phase
+   towards the camera ray's world direction d: a0 + g_mean a1 . d, at least 0. */
+inline float3 vr_cached_l1(__constant VolumeParams* vp, __global const float* cache,
+                           const VrCacheTap* t, int ch, float3 d)
 {
     float a[VR_CACHE_ENV_CH];
-    for (int ch = 0; ch < VR_CACHE_ENV_CH; ++ch)
-        a[ch] = vr_cache_read(cache, t, VR_CACHE_LIGHTS + ch);
+    for (int c = 0; c < VR_CACHE_ENV_CH; ++c)
+        a[c] = vr_cache_read(cache, t, ch + c);
     float g = vp->phase.z * vp->phase.x + (1.0f - vp->phase.z) * vp->phase.y;   /* mean cosine */
     float3 a0 = (float3)(a[0], a[1], a[2]);
     float3 a1 = d.x * (float3)(a[3], a[4], a[5]) + d.y * (float3)(a[6], a[7], a[8])
               + d.z * (float3)(a[9], a[10], a[11]);
     return fmax(a0 + g * a1, (float3)(0.0f));
+}
+#endif
+
+#if VR_ENV
+/* The environment's in-scattered light towards the camera ray's world direction d. */
+inline float3 vr_cached_env(__constant VolumeParams* vp, __global const float* cache,
+                            const VrCacheTap* t, float3 d)
+{
+    return vr_cached_l1(vp, cache, t, VR_CACHE_LIGHTS, d);
+}
+#endif
+
+#if VR_MS_CACHE
+/* The multiply scattered light towards the camera ray's world direction d at the tap. */
+inline float3 vr_cached_ms(__constant VolumeParams* vp, __global const float* cache,
+                           const VrCacheTap* t, float3 d)
+{
+    return vr_cached_l1(vp, cache, t, VR_CACHE_MS, d);
 }
 #endif
 

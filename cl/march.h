@@ -62,25 +62,34 @@ inline float vr_shadow(const VrGrid* g, __constant VolumeParams* vp, float3 p, f
 }
 
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
+#if VR_MS_OCTAVES > 1
+/* Band k's transmittance through the channels' optical depth ext_tau: exp(-A_k ext_tau),
+   A_k = A_inf^(k / (N - 1)), ms_decay holding ln A_inf per channel. */
+inline VrSpec vr_band_transmit(__constant VolumeParams* vp, VrSpec ext_tau, int k)
+{
+#if VR_CHROMATIC
+    float3 ln_a = vp->ms_decay.xyz;
+#else
+    float ln_a = vp->ms_decay.x;
+#endif
+    return vr_spec_transmit(exp((float)k * (1.0f / (float)(VR_MS_OCTAVES - 1)) * ln_a) * ext_tau);
+}
+#endif
+
 /* The band sum at cosine mu over shadow optical depth tau (see the top; one octave: p T).
    `light` 1: a light's bands (gain G, phase broadened), 0: the environment's (gain 1,
-   the phase kept). ms_decay holds ln A_inf per channel. */
+   the phase kept). */
 inline VrSpec vr_octaves(__constant VolumeParams* vp, float mu, float tau, int light)
 {
     VrSpec ext_tau = tau * VR_EXTINCTION(vp);
     VrSpec prev = vr_spec_transmit(ext_tau);
     VrSpec sum = vr_phase(mu, vp->phase) * prev;
 #if VR_MS_OCTAVES > 1
-#if VR_CHROMATIC
-    float3 ln_a = vp->ms_decay.xyz;
-#else
-    float ln_a = vp->ms_decay.x;
-#endif
     VrSpec gain = (light ? vp->ms.x : 1.0f) * VR_ALBEDO(vp);   /* scattered once more */
     float du = 1.0f / (float)(VR_MS_OCTAVES - 1);
     for (int k = 1; k < VR_MS_OCTAVES; ++k) {
         float u = (float)k * du;
-        VrSpec tk = vr_spec_transmit(exp(u * ln_a) * ext_tau);
+        VrSpec tk = vr_band_transmit(vp, ext_tau, k);
         float ph = vr_phase(mu, vp->phase);
         if (light) {            /* the phase at the band's middle: N -> inf converges */
             float ck = pow(vp->ms.y, u - 0.5f * du);
@@ -103,15 +112,9 @@ inline VrSpec vr_env_bands(__constant VolumeParams* vp, float tau)
     VrSpec prev = vr_spec_transmit(ext_tau);
     VrSpec sum = prev;
 #if VR_MS_OCTAVES > 1
-#if VR_CHROMATIC
-    float3 ln_a = vp->ms_decay.xyz;
-#else
-    float ln_a = vp->ms_decay.x;
-#endif
     VrSpec gain = VR_ALBEDO(vp);
-    float du = 1.0f / (float)(VR_MS_OCTAVES - 1);
     for (int k = 1; k < VR_MS_OCTAVES; ++k) {
-        VrSpec tk = vr_spec_transmit(exp((float)k * du * ln_a) * ext_tau);
+        VrSpec tk = vr_band_transmit(vp, ext_tau, k);
         sum += gain * (tk - prev);
         prev = tk;
     }

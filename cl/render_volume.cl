@@ -3,7 +3,8 @@
    the lights and the environment (VR_ENV 1 uniform, 2 a map: one direction per step).
    Flags: VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_PHASE_MIXED, VR_SKIP_EMPTY,
           VR_EMISSION, VR_DEPTH, VR_TILED, VR_TILE_W, VR_TILE_H, VR_TILE_CAP,
-          VR_CHROMATIC, VR_ENV, VR_MS_OCTAVES, VR_TEMPERATURE, VR_LIGHT_CACHE.
+          VR_CHROMATIC, VR_ENV, VR_MS_OCTAVES, VR_TEMPERATURE, VR_LIGHT_CACHE,
+          VR_MS_CACHE (scattering orders 2+ read from the light cache).
 
    Dispatch (volrender/dispatch.py):
    fragment (VR_TILED 0): independent work-items, any local size, no local memory.
@@ -21,7 +22,7 @@
     !defined(VR_DEPTH) || !defined(VR_TILED) || !defined(VR_TILE_W) || \
     !defined(VR_TILE_H) || !defined(VR_TILE_CAP) || !defined(VR_CHROMATIC) || \
     !defined(VR_ENV) || !defined(VR_MS_OCTAVES) || !defined(VR_TEMPERATURE) || \
-    !defined(VR_LIGHT_CACHE)
+    !defined(VR_LIGHT_CACHE) || !defined(VR_MS_CACHE)
 #error "render_volume.cl: a VR_* feature flag is missing (see volrender/features.py)"
 #endif
 
@@ -145,6 +146,9 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
 #endif
 #if VR_ENV
                 S += vr_cached_env(vp, light_cache, &tap, dir);
+#endif
+#if VR_MS_CACHE
+                S += vr_cached_ms(vp, light_cache, &tap, dir);
 #endif
 #else
 #if VR_N_SUNS + VR_N_POINTS > 0

@@ -34,9 +34,11 @@ def test_white_furnace_every_octave_count(cl_device, density):
     """Albedo 1 inside a uniform environment L: the octave bands return L within 2% at
     every count (exactly, up to float: they telescope), single scattering (1 octave) and
     the tracker's single scattering lose light, and auto (multiple scattering here) is
-    exact too. The path estimator's furnace is tests/test_path.py's."""
+    exact too (ms_orders 0: the bands even where the light cache is baked; the cache's
+    propagated orders have their furnace in test_light_cache_ms.py). The path
+    estimator's furnace is tests/test_path.py's."""
     for n in (2, 3, 4, 8, 16):
-        r, _ = furnace(cl_device, density, estimator="march", ms_octaves=n, spp=4)
+        r, _ = furnace(cl_device, density, estimator="march", ms_octaves=n, spp=4, ms_orders=0)
         assert np.all(np.abs(r - 1) < 0.02), (n, r.min(), r.max())
     ss, _ = furnace(cl_device, density, estimator="march", ms_octaves=1, spp=16)
     assert ss.mean() < 0.97
@@ -44,7 +46,7 @@ def test_white_furnace_every_octave_count(cl_device, density):
     assert tr.mean() < 0.97                              # the same estimand, unbiased
     if density <= 1.0:                                   # (dense: the march's step bias)
         assert abs(tr.mean() / ss.mean() - 1) < 0.03
-    auto, img = furnace(cl_device, density, spp=4, ms_octaves=volume.AUTO_OCTAVES)
+    auto, img = furnace(cl_device, density, spp=4, ms_octaves=volume.AUTO_OCTAVES, ms_orders=0)
     assert img.info.estimator == "march" and img.info.ms_octaves == volume.AUTO_OCTAVES
     assert "4 octave bands" in img.info.estimator_note
     assert np.all(np.abs(auto - 1) < 0.02)
@@ -216,13 +218,22 @@ def test_auto_weighs_error_per_second(monkeypatch):
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, None)
     assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
     m = volume.auto_model(dense, VolumeSettings(), big)
+    assert m["march_orders"]          # the light cache's orders at 640x480 (AUTO_ORDERS_PIXELS)
     assert m["path_error"] >= m["march_error"] and m["path_ms"] <= volume.AUTO_BUDGET_MS
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
-    want = math.ceil((volume.AUTO_PATH_NOISE / volume.AUTO_TARGET) ** 2)
+    # the path estimator aims at AUTO_TARGET, or half the march's predicted error where
+    # lower (not below AUTO_TARGET / 2)
+    aim = max(volume.AUTO_TARGET / 2, min(volume.AUTO_TARGET, volume.AUTO_PATH_GAIN * m["march_error"]))
+    assert aim == volume.path_aim(m["march_error"]) < volume.AUTO_TARGET
+    want = math.ceil((volume.AUTO_PATH_NOISE / aim) ** 2)
     assert (s.estimator, s.spp) == ("path", want), note
-    assert note.startswith(f"estimator auto: path, {want} spp: predicted error 8%") and "GPU" in note
+    assert note.startswith(f"estimator auto: path, {want} spp: predicted error "
+                           f"{volume.AUTO_PATH_NOISE / math.sqrt(want):.0%}") and "GPU" in note
     s, _ = volume.auto_estimator(dense, VolumeSettings(), 64 * 48, None)
-    assert s.estimator == "path" and s.spp == want
+    small = volume.auto_model(dense, VolumeSettings(), 64 * 48)    # the bands' error here
+    assert not small["march_orders"] and small["march_error"] > m["march_error"]
+    want_small = math.ceil((volume.AUTO_PATH_NOISE / volume.path_aim(small["march_error"])) ** 2)
+    assert s.estimator == "path" and s.spp == want_small
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2, noise_target=0.05), 64 * 48, None)
     assert (s.estimator, s.spp) == ("path", 2)            # passes keep their own samples
     s, _ = volume.auto_estimator(dense, VolumeSettings(spp=2), 64 * 48, None)

@@ -34,6 +34,7 @@ class VolumeFeatures:
     ms_octaves: int = 1        # marcher: multiple-scattering octaves (1: single scattering)
     temperature: bool = False  # per-voxel blackbody colour from a temperature grid
     light_cache: int = 0       # marcher: the baked light's node spacing in voxels (0: exact shadow marches)
+    ms_cache: bool = False     # marcher: orders 2+ read from the light cache (its ms channels)
     # tiled dispatch (volrender.dispatch): work-groups of tile_w x tile_h pixels cull the
     # occupied bricks against their tile's frustum into a local list of tile_cap entries.
     # Fragment dispatch keeps the defaults, so it compiles no local-memory code.

@@ -4,7 +4,9 @@ lights on the device (cl/bake_light.cl) and read trilinearly by the marcher
 
 Nodes sit every `cell` voxels inside each occupied brick (8 / cell + 1 per axis, the faces
 shared with the neighbours); each holds every light's shadow optical depth and, with an
-environment, the L1 harmonics of its banded light over 14 fixed directions. The cache
+environment, the L1 harmonics of its banded light over 14 fixed directions, and, with
+multiple scattering (choice.ms_orders), the L1 harmonics of scattering orders 2 and up
+propagated over the nodes along the same directions (cl/bake_light.cl ms_gather). The cache
 belongs to the volume's content like the uploaded bricks: `Scene.replace` with another
 camera reuses it, other lights, environment or medium settings bake it again.
 
@@ -25,7 +27,7 @@ import numpy as np
 
 from . import layout
 from .dispatch import upload
-from .environment import env_mode
+from .environment import env_mode, uniform
 
 MODES = ("auto", "on", "off")
 # node spacings the cost model picks from; 8 (brick corners) is valid when asked for, but
@@ -39,6 +41,17 @@ MAX_BYTES = 512 << 20          # the cache is coarsened until it fits
 # voxel of their lit surface, sharper than trilinear nodes can hold
 NEAR_CELLS = 2.0
 T_CUT_TAU = math.log(1e5)      # camera rays stop below transmittance 1e-5 (render_volume.cl)
+MS_CH = 12                     # the propagated orders' channels (L1 harmonics, as the sky's)
+# the geometric tail after the last propagated order (cl/bake_light.cl ms_finish): its
+# ratio to the order before, at most this (and the albedo)
+MS_TAIL = 0.9
+# the gather marches' longest step, node spacings (the step is shorter where the medium is
+# dense: cl/bake_light.cl VR_MS_MFP; 1 spacing: WDAS 26 % against 24 %, docs/error_time.md)
+MS_STEP_CELLS = 0.5
+# with scattering orders, auto bakes where that costs up to this many times the exact
+# march (which takes the octave bands): on the real files the orders' covered-pixel error
+# is 0.2-0.9x the bands' (docs/error_time.md)
+MS_WORTH = 2.0
 
 
 def near_length(bricks, cell: int) -> float:
@@ -54,6 +67,7 @@ class Choice:
     cost: float                # predicted shadow-march samples: bake + the near parts
     exact: float               # the same for the exact march
     reason: str
+    ms_orders: int = 0         # scattering orders propagated over the nodes (0: none)
 
     @property
     def nbytes(self) -> int:
@@ -62,7 +76,9 @@ class Choice:
     def note(self) -> str:
         if not self.cell:
             return f"light cache off ({self.reason})"
-        return (f"light cache: nodes every {self.cell} voxel{'s' if self.cell > 1 else ''} "
+        ms = (f", scattering orders 2-{self.ms_orders + 1} propagated over them"
+              if self.ms_orders else "")
+        return (f"light cache: nodes every {self.cell} voxel{'s' if self.cell > 1 else ''}{ms} "
                 f"({self.nodes / 1e3:.0f}k nodes x {self.channels} channels, "
                 f"{self.nbytes / 2**20:.1f} MB): bake and near marches ~{self.cost / 1e6:.3g}M "
                 f"shadow samples against ~{self.exact / 1e6:.3g}M for the exact march "
@@ -134,7 +150,7 @@ def camera_samples(bricks, camera, step_world, spp) -> float:
 
 
 def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
-           tau: float = 0.0) -> Choice:
+           tau: float = 0.0, ms_orders: int = 0) -> Choice:
     """The cache for this scene, from a cost model counted in shadow-march samples:
     a bake costs nodes(c) x (marches per node) x the chord, the cached render's exact near
     parts (camera samples) x lights x 2c / shadow step, the exact march (camera samples) x
@@ -142,15 +158,18 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     bricks' volume over the shadow step. The node spacing c minimises bake + near parts
     over CELLS (settings.light_cache_cell fixes it), within MAX_BYTES; `auto` bakes where
     that is below the exact march's count. Cell 0 where the mode is off, the estimator is
-    not the march or nothing lights the medium."""
+    not the march or nothing lights the medium. ms_orders: scattering orders to propagate
+    over the nodes (each a march along the ENV_DIRS directions per node, counted twice: it
+    reads the nodes at every step); auto then bakes up to MS_WORTH x the exact march's
+    count."""
     mode = settings.light_cache
-    channels = n_lights + (ENV_CH if env else 0)
-    per_node = n_lights + (ENV_DIRS if env else 0)
+    channels = n_lights + (ENV_CH if env else 0) + (MS_CH if ms_orders else 0)
+    per_node = n_lights + (ENV_DIRS if env else 0) + 2 * ENV_DIRS * ms_orders
     per_sample = n_lights + (1 if env else 0)
     slots = int(bricks.n_slots)
 
     def off(why):
-        return Choice(0, 0, channels, 0.0, 0.0, why)
+        return Choice(0, 0, channels, 0.0, 0.0, why, 0)
     if mode == "off":
         return off("--light-cache off")
     if settings.estimator != "march":
@@ -172,11 +191,14 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     else:
         cell = min([c for c in CELLS if c in fits] or [8], key=cost)
         why = f"{cell}-voxel nodes cost least"
-        if mode == "auto" and cost(cell) >= exact:
+        worth = MS_WORTH if ms_orders else 1.0
+        if mode == "auto" and cost(cell) >= worth * exact:
             return Choice(0, 0, channels, cost(cell), exact,
                           f"auto: its bake and near marches, ~{cost(cell) / 1e6:.3g}M samples, "
-                          f"would cost more than the exact march's ~{exact / 1e6:.3g}M")
-    return Choice(cell, slots * nodes_per_brick(cell), channels, cost(cell), exact, why)
+                          f"would cost more than {'%g x ' % worth if worth != 1 else ''}the "
+                          f"exact march's ~{exact / 1e6:.3g}M")
+    return Choice(cell, slots * nodes_per_brick(cell), channels, cost(cell), exact, why,
+                  ms_orders)
 
 
 def occupied_slots(bricks) -> np.ndarray:
@@ -202,10 +224,11 @@ def builds(content) -> int:
 
 
 def get(content, device, features, params, lights_packed, environment,
-        choice: Choice) -> LightCache:
+        choice: Choice, similar=None) -> LightCache:
     """The content's cache on `device` for these features (the marcher's flags), params,
     packed lights and environment: baked on the first call, reused while they stay the
-    same (only the latest per device is kept)."""
+    same (only the latest per device is kept). similar: (albedo, extinction) per channel
+    of the medium the propagated orders scatter in (volume.ms_medium)."""
     memo = content.store.get("env_quadrature")
     if memo is None or memo[0] is not environment:
         memo = (environment, env_quadrature(environment))
@@ -214,21 +237,40 @@ def get(content, device, features, params, lights_packed, environment,
     flags = dataclasses.replace(features, light_cache=choice.cell, tiled=False, tile_w=1,
                                 tile_h=1, tile_cap=0, depth=False).flags()
     key = (tuple(sorted(flags.items())), params.tobytes(), np.asarray(lights_packed).tobytes(),
-           np.asarray(env).tobytes())
+           np.asarray(env).tobytes(), choice.ms_orders, np.asarray(similar).tobytes())
     slot = ("light_cache", device.device.int_ptr)
     hit = content.store.get(slot)
     if hit is not None and hit[0] == key:
         return hit[1]
     content.store.pop(slot, None)          # free the old one before baking anew
     cache = bake(content.bricks, device, flags, params, lights_packed, env, choice,
-                 content.buffer(device, "table"), content.buffer(device, "data"))
+                 content.buffer(device, "table"), content.buffer(device, "data"), similar)
     content.store[slot] = (key, cache)
     content.store["light_cache_builds"] = builds(content) + 1
     return cache
 
 
-def bake(bricks, device, flags, params, lights_packed, env, choice, table, data) -> LightCache:
-    """Run cl/bake_light.cl over every node of every occupied brick."""
+def ms_dirs() -> np.ndarray:
+    """(ENV_DIRS, 4) float32: the fixed directions and their cells' solid angles / 4 pi
+    (env_quadrature of a unit sky), for cl/bake_light.cl's ms_gather."""
+    q = env_quadrature(uniform((1.0, 1.0, 1.0))).reshape(ENV_DIRS, 5, 4)
+    out = np.zeros((ENV_DIRS, 4), np.float32)
+    out[:, :3] = env_dirs()
+    out[:, 3] = q[:, 1, 0] / q[:, 1, 0].sum()
+    return out
+
+
+def ms_step(bricks, cell, params) -> float:
+    """Longest world step of the orders' gather marches (cl/bake_light.cl ms_gather:
+    they step a quarter of a mean free path, between the shadow step and this):
+    MS_STEP_CELLS node spacings, at least the shadow step."""
+    return max(float(params["shadow_step"][0]), MS_STEP_CELLS * cell * float(bricks.voxel_size))
+
+
+def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
+         similar=None) -> LightCache:
+    """Run cl/bake_light.cl over every node of every occupied brick (then, with
+    choice.ms_orders, its ms_source and that many ms_gather passes)."""
     import pyopencl as cl
     ctx, q = device.context, device.queue
     occ = occupied_slots(bricks)
@@ -238,9 +280,31 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data)
     kernel = device.kernel("bake_light", flags)
     local = 64
     t0 = time.perf_counter()
-    kernel(q, (-(-n // local) * local,), (local,), upload(ctx, params), upload(ctx, lights_packed),
-           table, data, upload(ctx, np.asarray(env, np.float32)), upload(ctx, occ), out,
+    glob = (-(-n // local) * local,)
+    lights_buf, params_buf, occ_buf = upload(ctx, lights_packed), upload(ctx, params), upload(ctx, occ)
+    kernel(q, glob, (local,), params_buf, lights_buf,
+           table, data, upload(ctx, np.asarray(env, np.float32)), occ_buf, out,
            np.int32(len(occ)))
+    if choice.ms_orders:
+        nbytes = max(4, 4 * 3 * int(bricks.n_slots) * nodes_per_brick(choice.cell))
+        orders = [cl.Buffer(ctx, cl.mem_flags.READ_WRITE, nbytes) for _ in range(3)]
+        total = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, nbytes)
+        total1 = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 3 * nbytes)
+        device.kernel("bake_light", flags, "ms_source")(
+            q, glob, (local,), params_buf, lights_buf, occ_buf, out, orders[0], np.int32(len(occ)))
+        alb, ext = (cl.cltypes.make_float4(*map(float, v), 0.0) for v in similar)
+        gather = device.kernel("bake_light", flags, "ms_gather")
+        dirs = upload(ctx, ms_dirs())
+        n = choice.ms_orders
+        for k in range(n):
+            gather(q, glob, (local,), params_buf, lights_buf, out, table, data, dirs, occ_buf,
+                   orders[k % 3],
+                   orders[(k + 1) % 3], total, total1, np.int32(len(occ)), alb, ext,
+                   np.float32(ms_step(bricks, choice.cell, params)), np.int32(k == 0))
+        r_max = np.minimum(np.asarray(similar[0], np.float64), MS_TAIL)
+        device.kernel("bake_light", flags, "ms_finish")(
+            q, glob, (local,), occ_buf, total, total1, orders[max(n - 2, 0) % 3], orders[(n - 1) % 3],
+            orders[n % 3], out, np.int32(len(occ)), cl.cltypes.make_float4(*map(float, r_max), 0.0))
     q.finish()
     return LightCache(out, choice, 1e3 * (time.perf_counter() - t0))
 

@@ -47,6 +47,14 @@ AUTO_PATH_NOISE = 1.0               # its relative RMSE on covered pixels at 1 s
 # buy a clear gain (0190 at 320x240 on a CPU: 9 % in ~7 s of kernel against 12 % in 0.3 s)
 AUTO_PATH_GAIN = 0.5
 AUTO_MARCH_ERROR = (-2.361, 0.691, 0.162)
+# the march with the light cache's scattering orders (--ms-orders, where auto bakes it):
+# ln error = c0 + c1 L + c2 n, fitted on the four scattering real files (160x120, weighted
+# 3 each) and six synthetic media against the path estimator (0.52 rms in ln;
+# docs/error_time.md)
+AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
+# ... from this many pixels (auto runs before the camera exists, so before the cache's
+# cost model: at 640x480 it bakes for the four files, at 160x120 for 0190 alone)
+AUTO_ORDERS_PIXELS = 320 * 240
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -188,6 +196,14 @@ class VolumeSettings(CommonSettings):
                                         check=lambda v: None if v in (None, 1, 2, 4, 8)
                                         else "must be 1, 2, 4 or 8", toml=("volume",
                                         "light_cache_cell"), kind=int, show_default=False)
+    ms_orders: int = knob(3, "march with the light cache and multiple scattering: scattering "
+                          "orders 2 to N+1 propagated over the cache's nodes from the baked "
+                          "light (the rest as a geometric tail; volrender/light_cache.py) "
+                          "instead of the octave bands; 0: the octave bands",
+                          check=lambda v: None if isinstance(v, int) and not isinstance(v, bool)
+                          and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
+                          "2 to 16 (one order's tail, from the phase-weighted first, overshoots)",
+                          toml=("volume", "ms_orders"))
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
@@ -304,31 +320,47 @@ def optical_size(bricks, settings: VolumeSettings) -> dict:
     return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
 
 
+def path_aim(march_error: float) -> float:
+    """The error auto's path samples aim at: AUTO_TARGET, or what the path estimator must
+    reach to be chosen (AUTO_PATH_GAIN x the march's) where lower, but not below half of
+    AUTO_TARGET (at most 4x its samples)."""
+    return max(0.5 * AUTO_TARGET, min(AUTO_TARGET, AUTO_PATH_GAIN * march_error))
+
+
 def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
                compute_units: int | None = None) -> dict:
     """auto's model of error and cost (docs/error_time.md, "auto"): for a medium of
     typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
     n = -ln(1 - a):
-    * the march's error with the octave bands (relative RMSE on covered pixels):
-      AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1] e^(AUTO_MARCH_ERROR[2] n);
+    * the march's error (relative RMSE on covered pixels): with the light cache's
+      scattering orders (--ms-orders > 0, --light-cache on, or auto from
+      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
       (CPU: per AUTO_CPU_UNITS compute units);
-    the path's samples: enough for AUTO_TARGET, at most what AUTO_BUDGET_MS allows, or
-    --spp where it is above 1 (a count the user chose is kept)."""
+    the path's samples: enough for path_aim, at most what AUTO_BUDGET_MS allows, or --spp
+    where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
-    c0, c1, c2 = AUTO_MARCH_ERROR
-    march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
+    orders = settings.ms_orders > 0 and settings.light_cache != "off" and \
+        (pixels >= AUTO_ORDERS_PIXELS or settings.light_cache == "on")
+    if orders:
+        c0, c1, c2 = AUTO_ORDERS_ERROR
+        march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
+    else:
+        c0, c1, c2 = AUTO_MARCH_ERROR
+        march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
     per = AUTO_PATH_MS["gpu" if gpu else "cpu"]
     if not gpu and compute_units:
         per *= AUTO_CPU_UNITS / compute_units
     sample_ms = pixels * per * (1.0 + o["tau"]) ** AUTO_PATH_SLOPE
-    want = math.ceil((AUTO_PATH_NOISE / AUTO_TARGET) ** 2)
+    want = math.ceil((AUTO_PATH_NOISE / path_aim(march_error)) ** 2)
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
-    return {**o, "march_error": march_error, "path_sample_ms": sample_ms, "path_spp": spp,
+    return {**o, "march_error": march_error, "march_orders": orders,
+            "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
 
@@ -363,8 +395,10 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
                 f"estimator auto: single scattering (march; {why}, below "
                 f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
     gain = octave_gain(settings, m["tau"])
-    march = (f"march with {AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted error "
-             f"{m['march_error']:.0%}")
+    how = ("the light cache's scattering orders where baked, else "
+           if m["march_orders"] else "")
+    march = (f"march with {how}{AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted "
+             f"error {m['march_error']:.0%}")
     fields = VolumeSettings.__dataclass_fields__
     tuned = (settings.step, settings.shadow_step) != (fields["step"].default,
                                                       fields["shadow_step"].default)
@@ -561,7 +595,8 @@ def plan(scene, device, variant=None, launch=None):
             else np.zeros((0, 4), np.int32)
         cache, cache_info = light_cache_of(scene, device, features, params, inputs)
         if cache is not None:
-            features = dataclasses.replace(features, light_cache=cache.choice.cell)
+            features = dataclasses.replace(features, light_cache=cache.choice.cell,
+                                           **ms_cache_fields(settings, cache.choice))
         extra = [("light_cache", cache.buffer if cache is not None else none),
                  ("occ", occ), ("n_occ", np.int32(len(occ)))]
     W, H = scene.camera.width, scene.camera.height
@@ -575,6 +610,12 @@ def plan(scene, device, variant=None, launch=None):
                       **({"estimator_note": note} if note else {})})
 
 
+def ms_cache_fields(settings, choice) -> dict:
+    """The features that replace the octave bands by the cache's propagated orders
+    (choice.ms_orders > 0): single scattering plus the cache's ms channels."""
+    return {"ms_octaves": 1, "ms_cache": True} if choice.ms_orders else {}
+
+
 def light_cache_choice(scene):
     """light_cache.Choice for a resolved volume scene (its cost model; cell 0: none)."""
     from . import light_cache
@@ -582,7 +623,8 @@ def light_cache_choice(scene):
     bricks, settings = scene.content.bricks, scene.content.settings
     return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
                               env_mode(scene.environment) > 0,
-                              tau=optical_size(bricks, settings)["tau"])
+                              tau=optical_size(bricks, settings)["tau"],
+                              ms_orders=settings.ms_orders if settings.octaves > 1 else 0)
 
 
 def light_cache_of(scene, device, features, params, inputs):
@@ -594,13 +636,25 @@ def light_cache_of(scene, device, features, params, inputs):
         return None, {"light_cache": choice.note()}
     named = dict(inputs)
     before = light_cache.builds(scene.content)
+    features = dataclasses.replace(features, **ms_cache_fields(scene.content.settings, choice))
     cache = light_cache.get(scene.content, device, features, params, named["lights"],
-                            scene.environment, choice)
+                            scene.environment, choice, ms_medium(scene.content.settings))
     params["cache_near"] = light_cache.near_length(scene.content.bricks, choice.cell)
     baked = light_cache.builds(scene.content) > before
     return cache, {"light_cache": choice.note(), "light_cache_baked": baked,
                    "light_cache_bake_ms": cache.bake_ms if baked else 0.0,
                    "light_cache_bytes": choice.nbytes, "light_cache_cell": choice.cell}
+
+
+def ms_medium(settings) -> tuple:
+    """(albedo, extinction) per channel of the medium the cache's orders 2+ scatter in
+    (extinction per unit of the grey sigma_t, as VR_EXTINCTION): the medium's own, with
+    an isotropic phase (docs/error_time.md: the similarity relations' sigma_t (1 - a g),
+    a (1 - g) / (1 - a g) for the forward phase came out darker, WDAS x0.69 against
+    x0.88 of the path estimator)."""
+    a = np.asarray(settings.albedo, np.float64)
+    ext = np.asarray(settings.sigma_t_scale, np.float64) if settings.chromatic else np.ones(3)
+    return a, ext
 
 
 # --------------------------------------------------------------------------- adaptive passes
