@@ -486,3 +486,69 @@ __kernel void build_mark_listed(__global const int4* restrict origins,
     cells[blk[j] * VR_CELL_BRICK * VR_CELL_BRICK * VR_CELL_BRICK +
           (l.z * VR_CELL_BRICK + l.y) * VR_CELL_BRICK + l.x] = (int2)(k, 0);
 }
+
+/* The walk order the renderer reads (cl/cells.h): list k's spheres one by one, entries
+   (sphere, key bits) at entries[walk[k].x, + walk[k].y), key = lo_i - pad (below the
+   sphere's distance from any point of the cell, rounding included), ascending by key. The
+   core (lo_i <= U + pad) is then the list's first walk[k].w entries, and a walk can stop
+   at the first key >= m (pass 1) or >= m + k (pass 2): no later sphere is nearer, or
+   within the blend. counts[k] = (list spheres, core spheres) for the offsets' scan. */
+__kernel void build_walk_count(__global const int4* restrict lists,
+                               __global const int2* restrict runs, int n_lists,
+                               __global int2* counts)
+{
+    int k = get_global_id(0);
+    if (k >= n_lists)
+        return;
+    int4 l = lists[k];
+    int n = 0, nc = 0;
+    for (int j = l.x; j < l.x + l.y; ++j)
+        n += runs[j].y;
+    for (int j = l.z; j < l.z + l.w; ++j)
+        nc += runs[j].y;
+    counts[k] = (int2)(n, nc);
+}
+
+/* list k (cell sel[k] of the last level) into its entries, then sorted by key (Shell
+   sort with Ciura's gaps: lists are tens to hundreds of spheres) */
+__kernel void build_walk_fill(__constant CellBuild* cb, __global const float4* restrict sp,
+                              __global const int* restrict sel,
+                              __global const int4* restrict origins,
+                              __global const int4* restrict lists,
+                              __global const int2* restrict runs,
+                              __global const int4* restrict walk, __global int2* entries,
+                              int n_lists)
+{
+    int k = get_global_id(0);
+    if (k >= n_lists)
+        return;
+    float3 lo, hi;
+    cb_box(cb, origins, sel[k], &lo, &hi);
+    int4 l = lists[k];
+    __global int2* e = entries + walk[k].x;
+    int n = 0;
+    for (int j = l.x; j < l.x + l.y; ++j) {
+        int2 r = runs[j];
+        for (int i = r.x; i < r.x + r.y; ++i) {
+            float dlo, dhi;
+            cb_sphere(sp[i], lo, hi, &dlo, &dhi);
+            e[n++] = (int2)(i, as_int(dlo - cb->pad));
+        }
+    }
+    const int gaps[8] = { 701, 301, 132, 57, 23, 10, 4, 1 };
+    for (int g = 0; g < 8; ++g) {
+        int gap = gaps[g];
+        for (int i = gap; i < n; ++i) {
+            int2 v = e[i];
+            float key = as_float(v.y);
+            int j = i;
+            /* ties by sphere index: the order is a function of the list alone */
+            while (j >= gap && (as_float(e[j - gap].y) > key ||
+                                (as_float(e[j - gap].y) == key && e[j - gap].x > v.x))) {
+                e[j] = e[j - gap];
+                j -= gap;
+            }
+            e[j] = v;
+        }
+    }
+}
