@@ -2,8 +2,9 @@
 
 A sparse world-space grid over the clip box (render frame), cells of edge `cell` in bricks
 of CELL_BRICK^3. Every cell the surface can pass through lists every sphere that can
-contribute to the field anywhere inside it (ascending sphere index, so a fold over the
-list sums in brute force's order); cells and whole bricks wholly outside the glass carry a
+contribute to the field anywhere inside it (built as runs of ascending sphere indices;
+the renderer reads it sphere by sphere by ascending key, the walk, so that its passes stop
+early: Cells.walk and Cells.entries); cells and whole bricks wholly outside the glass carry a
 lower bound of the field and cells wholly inside an upper one, and rays of that side cross
 them without evaluating anything. Bounds and lists are derived in cl/build_cells.cl's
 banner and docs/DESIGN.md; tests/reference.py's `oracle` is the same construction in numpy
@@ -155,6 +156,7 @@ class Cells:
                 "list_max": int(n.max()) if len(n) else 0,
                 "core_mean": float(nc.mean()) if len(nc) else 0.0,
                 "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)),
+                "walk_entries": int(self.n_entries),
                 "bytes": int(self.nbytes), "build_ms": self.build_ms,
                 "build_kernel_ms": self.build_kernel_ms, "build_launches": self.build_launches}
 
