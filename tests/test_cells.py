@@ -86,11 +86,17 @@ def clouds(draw):
     return PointCloud(c, radii), blend, cell, seed
 
 
-def check_walk(g, code, q, pts, c, r, members):
+WALK_BINS = 64     # cl/build_cells.cl CB_WALK_BINS
+
+
+def check_walk(g, code, q, pts, c, r, members, blend):
     """The render's walk of listed cell `code` (at cell coordinates q, points pts in it):
-    the list's spheres, by ascending key; each key at most the sphere's distance from
-    every point and within 2 pads of its distance from the cell (float64); the core first."""
-    start, n, _, n_core = g.walk[code]
+    the list's spheres, by non-decreasing key; each key at most the sphere's distance from
+    every point and from the cell (float64) less half a pad, and below the latter by at
+    most 2 pads and one bin of the walk's counting sort (cl/build_cells.cl: WALK_BINS - 1
+    bins over the cell's diagonal + blend + 2 pads); a key -inf (the first bin) only on
+    the lowest bin's spheres."""
+    start, n = g.walk[code, :2]
     e = g.entries[start:start + n]
     key = e[:, 1].view(np.float32).astype(np.float64)
     assert np.array_equal(np.sort(e[:, 0]), members)
@@ -98,9 +104,14 @@ def check_walk(g, code, q, pts, c, r, members):
     d = np.linalg.norm(pts[:, None] - c[None, e[:, 0]], axis=2) - r[None, e[:, 0]]
     assert (key[None] <= d).all(), "a key above a sphere's distance: the walk stops early"
     lo, hi = g.box(q)
-    near = np.linalg.norm(np.maximum(np.maximum(lo - c[e[:, 0]], c[e[:, 0]] - hi), 0), axis=1)
-    assert (key >= near - r[e[:, 0]] - 2 * g.pad - 1e-6).all()
-    assert np.array_equal(np.sort(e[:n_core, 0]), g.core(code))
+    near = np.linalg.norm(np.maximum(np.maximum(lo - c[e[:, 0]], c[e[:, 0]] - hi), 0),
+                          axis=1) - r[e[:, 0]]
+    width = (np.linalg.norm(hi - lo) + blend + 2 * g.pad) / (WALK_BINS - 1)
+    # at most lo_i - pad (float32 rounding is far below the pad): the stops are exact
+    assert (key <= near - 0.5 * g.pad).all(), "a key above the sphere's distance from the cell"
+    finite = np.isfinite(key)
+    assert (key[finite] >= near[finite] - 2 * g.pad - width - 1e-6).all(), "a key too loose"
+    assert (near[~finite] <= near.min() + width + 2 * g.pad + 1e-6).all()
 
 
 @FAST
@@ -130,7 +141,7 @@ def test_lists_hold_the_support_and_bounds_hold(cl_device, case):
             core[g.core(code[j])] = True
             assert core[np.argmin(d, axis=1)].all(), f"cell {q[j]}: nearest not on the core"
             assert np.all(np.diff(lists[j]) > 0)          # ascending: brute force's order
-            check_walk(g, code[j], q[j], pts, c, r, lists[j])
+            check_walk(g, code[j], q[j], pts, c, r, lists[j], blend)
         else:
             f = reference.smooth_union(pts, c, r, blend)
             if code[j] == cells.OUTSIDE:

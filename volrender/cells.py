@@ -496,7 +496,7 @@ class _Builder:
             raise TooLarge(f"over {self.max_runs} list entries (the list runs' budget)")
         entries = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, 8 * max(n_entries, 1))
         self._run("build_walk_fill", n, self.prm[1], self.sp, lv.sel.data, lv.origins.data,
-                  lv.lists.data, lv.runs, walk.data, entries, np.int32(n))
+                  lv.out.data, lv.lists.data, lv.runs, walk.data, entries, np.int32(n))
         return walk, entries, n_entries
 
     def tables(self):
