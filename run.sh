@@ -35,9 +35,9 @@ apt_deps() {
 covers() { local e; for e in ${2//,/ }; do [[ ",$1," == *",$e,"* ]] || return 1; done; }
 merge_extras() { echo "$1,$2" | tr , '\n' | awk 'NF && !seen[$0]++' | paste -sd, -; }
 
-# The default install renders (and denoises: pyoidn) everything but `volrender tree` (whose pyvista and VTK are
+# The default install renders (denoises: pyoidn; views in the browser: viser) everything but `volrender tree` (whose pyvista and VTK are
 # over half the venv); `--inspect` adds it, and the tests install it to test it.
-EXTRAS=vdb,bench,denoise
+EXTRAS=vdb,bench,denoise,view
 for a in "$@"; do [ "$a" = --inspect ] && EXTRAS=$EXTRAS,inspect; done
 
 venv() {
@@ -71,6 +71,19 @@ venv() {
   fi
   "$VENV/bin/python" -c 'import volrender.vdb as v; v.import_openvdb()' \
     || { echo "run.sh: OpenVDB's Python binding does not import in $VENV" >&2; exit 1; }
+}
+
+# The viewer's browser test (tests/test_viewer.py): Debian's headless Chromium and its
+# WebDriver, where apt can install them; without them that test skips, saying so.
+browser_deps() {
+  command -v chromium >/dev/null && command -v chromedriver >/dev/null && return 0
+  if [ "$(id -u)" != 0 ] && ! command -v sudo >/dev/null; then
+    echo "run.sh: no root to install chromium; the viewer's browser test will skip" >&2; return 0
+  fi
+  echo "run.sh: installing Debian packages: chromium chromium-driver (the viewer's browser test)" >&2
+  { as_root apt-get update -q && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -q \
+      chromium chromium-driver; } >/dev/null \
+    || echo "run.sh: chromium did not install; the viewer's browser test will skip" >&2
 }
 
 # Optional peers for bench/peers.py (docs/peers.md): OpenVDB's vdb_render (Debian's
@@ -150,7 +163,7 @@ case "$cmd" in
            --density-scale 6 --albedo 0.98 --sun=-0.6,-1,-0.5,10 --fov 28 --env 0.32,0.42,0.58 \
            --ms-octaves 3
          echo "run.sh: wrote demo.png" >&2 ;;
-  test)  apt_deps; venv vdb,inspect,bench,denoise,test; shift || true
+  test)  apt_deps; browser_deps; venv vdb,inspect,bench,denoise,view,test; shift || true
          "$VENV/bin/python" -m pytest -q "$@" ;;
   test-pip) apt_deps; pip_env; shift || true
          "$PIP_VENV/bin/python" -m pytest -q -p no:cacheprovider "${PIP_TESTS[@]}" "$@" ;;

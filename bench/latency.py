@@ -48,7 +48,8 @@ COMMAND = ["--size", "192x108", "--spp", "1", "-v", "--no-progress"]
 FRAME = ROOT / "bench" / "data" / "latency_frame_1080p.npy"
 PACKAGES = ("numpy", "pyopencl", "OpenEXR", "PIL", "pyopenvdb", "openvdb", "volrender",
             "dask", "scipy", "matplotlib", "PyOpenColorIO", "png")
-STAGES = ("load", "setup", "kernel", "launch overhead", "write")
+STAGES = ("load", "radii", "tree", "cells", "setup", "kernel", "launch overhead", "guides",
+          "denoise", "write")
 
 
 def env_for(root: Path) -> dict:
@@ -85,16 +86,17 @@ def import_times(root: Path, out: Path) -> dict:
     return {p: found.get(p) for p in PACKAGES}
 
 
-def command_run(root: Path, out: Path) -> dict:
+def command_run(root: Path, out: Path, scene=None, command=None) -> dict:
     cpu = []
-    took, err = wall([sys.executable, "-m", "volrender", "render", str(SCENE), *COMMAND,
-                      "-o", str(out)], root, cpu)
+    took, err = wall([sys.executable, "-m", "volrender", "render", str(scene or SCENE),
+                      *(command or COMMAND), "-o", str(out)], root, cpu)
     line = next(ln for ln in err.splitlines() if ln.startswith("volrender: time: "))
     parts = {k: float(v) for k, v in re.findall(r"([a-z ]+?) ([0-9.]+) s", line[17:])}
     parts = {k.strip(" ,"): v for k, v in parts.items()}
     build = [float(v) / 1e3 for v in re.findall(r"built cl/\S+ .* in (\d+) ms", err)]
     row = {"wall_s": took, "cpu_s": cpu[0], **{k: parts.get(k, 0.0) for k in STAGES}, "build_s": sum(build)}
-    row["outside_s"] = took - sum(row[k] for k in STAGES)
+    row["outside_s"] = took - sum(parts.values())
+    row["other_stages"] = sorted(set(parts) - set(STAGES))
     return row
 
 
@@ -116,11 +118,11 @@ def startup(root: Path, repeat: int) -> dict:
             "vdb_load_own_cpu_s": med(x[0] for x in ld), "vdb_load_wall_s": med(x[1] for x in ld)}
 
 
-def frame(path: Path) -> np.ndarray:
+def frame(path: Path, scene: Path = SCENE) -> np.ndarray:
     if not path.is_file():
         print(f"rendering {path} (1920x1080, 1 spp, once)", flush=True)
         path.parent.mkdir(parents=True, exist_ok=True)
-        wall([sys.executable, "-m", "volrender", "render", str(SCENE), "--size", "1920x1080",
+        wall([sys.executable, "-m", "volrender", "render", str(scene), "--size", "1920x1080",
               "--spp", "1", "--no-progress", "-o", str(path)], ROOT)
     return np.load(path)
 
@@ -158,13 +160,112 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
             "write_image_s": statistics.median(whole), "write_runs_s": whole}
 
 
+TONE_VIEWS = ("filmic", "clamp", "standard", "aces")
+TONE_PROBE = """
+import json, sys, time, warnings
+import numpy as np
+from volrender import image
+rgba = np.load(sys.argv[1])
+out, codes = {}, {}
+for view in VIEWS:
+    try:
+        image.check_view(view)
+    except Exception:                   # OpenColorIO missing here
+        continue
+    for alpha in ("opaque", "straight"):
+        ts = []
+        for _ in range(REPEAT):
+            t = time.perf_counter()
+            px = image.png_pixels(rgba, 0.0, view, alpha=alpha)
+            ts.append(time.perf_counter() - t)
+        out[f"{view}/{alpha}"] = sorted(ts)[len(ts) // 2]
+        out[f"{view}/{alpha} first"] = ts[0]      # a command's one call: tables made
+        codes[f"{view}/{alpha}"] = px
+np.savez(sys.argv[2], **{k.replace("/", "__"): v for k, v in codes.items()})
+print(json.dumps(out))
+"""
+
+
+def tone_times(roots: dict, frame_path: Path, repeat: int, tmp: Path) -> dict:
+    """{checkout: {"view/alpha": median s}} of image.png_pixels on the 1080p frame, each
+    checkout in its own process, and the codes that differ from this checkout's."""
+    import json
+    code = TONE_PROBE.replace("VIEWS", repr(TONE_VIEWS)).replace("REPEAT", str(repeat))
+    res, px = {}, {}
+    for k, r in roots.items():
+        _, out = wall([sys.executable, "-c", code, str(frame_path), str(tmp / f"{k}.npz")], r,
+                      out=True)
+        res[k] = json.loads(out.strip().splitlines()[-1])
+        px[k] = np.load(tmp / f"{k}.npz")
+        print("tone map", k, {n: round(v, 3) for n, v in res[k].items()}, flush=True)
+    if "baseline" in px:
+        res["codes_differing_from_baseline"] = {
+            n.replace("__", "/"): {"count": int(np.count_nonzero(px["this"][n] != px["baseline"][n])),
+                                   "max": int(np.abs(px["this"][n].astype(int) - px["baseline"][n]).max())}
+            for n in px["this"].files}
+        print("codes differing", res["codes_differing_from_baseline"], flush=True)
+    return res
+
+
+SHARED = Path(os.environ.get("VOLRENDER_SHARED_DATA", ROOT.parent / "shared" / "data"))
+FRAMED = ("blob:100000", "blob:1000000", "scenes/demo_cloud.vdb", SHARED / "vdb" / "smoke.vdb",
+          SHARED / "points" / "bun_zipper.ply")
+FRAMING_PROBE = """
+import json, sys, time
+import numpy as np
+import volrender
+out = {}
+for src in SOURCES:
+    sc = volrender.load_scene(src, size=(1920, 1080))
+    c, req = sc.content, sc.request
+    lo, hi = c.bounds()
+    ext, cam, fit = [], [], []
+    for _ in range(REPEAT):
+        t = time.perf_counter()
+        e = c.extent()
+        t1 = time.perf_counter()
+        camera = req.view.camera(lo, hi, None, extent=e)
+        t2 = time.perf_counter()
+        ext.append(t1 - t)
+        fit.append(t2 - t1)
+    out[src] = {"extent_s": sorted(ext)[len(ext) // 2], "fit_s": sorted(fit)[len(fit) // 2],
+                "points": int(np.asarray(e[0]).size // 3), "origin": list(camera.origin),
+                "target": list(camera.target)}
+print(json.dumps(out))
+"""
+
+
+def framing_times(roots: dict, repeat: int) -> dict:
+    """{checkout: {source: extent and fit medians, camera}} and the cameras' distance
+    apart (relative to this checkout's camera distance)."""
+    import json
+    sources = [s if ":" in str(s) else str((ROOT / s).resolve()) for s in FRAMED]
+    sources = [s for s in sources if ":" in s or Path(s).is_file()]
+    code = FRAMING_PROBE.replace("SOURCES", repr(sources)).replace("REPEAT", str(repeat))
+    res = {}
+    for k, r in roots.items():
+        _, out = wall([sys.executable, "-c", code], r, out=True)
+        res[k] = json.loads(out.strip().splitlines()[-1])
+        print("framing", k, {Path(n).name: (round(v["extent_s"], 3), round(v["fit_s"], 3))
+                             for n, v in res[k].items()}, flush=True)
+    if "baseline" in res:
+        apart = {}
+        for n, v in res["this"].items():
+            b = res["baseline"][n]
+            d = np.linalg.norm(np.subtract(v["origin"], v["target"]))
+            apart[n] = max(np.abs(np.subtract(v[f], b[f])).max() for f in ("origin", "target")) / d
+        res["camera_apart_relative"] = apart
+        print("cameras apart (relative)", apart, flush=True)
+    return res
+
+
 def plot(payload, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     labels = list(payload["command"])
-    keys = ["outside_s", "load", "setup", "kernel", "launch overhead", "write"]
+    keys = ["outside_s", *STAGES]
     bottom = np.zeros(len(labels))
     for k in keys:
         v = np.array([payload["command"][c]["median"][k] for c in labels])
@@ -187,6 +288,9 @@ def plot(payload, path):
     fig.savefig(path, dpi=110)
 
 
+PARTS = ("start", "command", "png", "tone", "framing")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench latency", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -195,40 +299,62 @@ def main(argv=None):
                     help="another checkout whose command runs interleaved with this one's")
     ap.add_argument("--frame", type=Path, default=FRAME, help=f"1080p linear frame (.npy; default {FRAME})")
     ap.add_argument("--tag", default=None, help="added to the results' name: latency_<device>-<tag>.json")
+    ap.add_argument("--scene", type=Path, default=None,
+                    help=f"the command part's input (default: {SCENE.relative_to(ROOT)})")
+    ap.add_argument("--args", default=None,
+                    help=f"the command part's render options (default: {' '.join(COMMAND)}); "
+                         "-v and --no-progress are added")
+    ap.add_argument("--only", default=",".join(PARTS),
+                    help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
     args = ap.parse_args(argv)
+    parts = set(args.only.split(","))
+    scene = args.scene.resolve() if args.scene else SCENE
+    command = COMMAND if args.args is None else [*args.args.split(), "-v", "--no-progress"]
+    if parts - set(PARTS):
+        ap.error(f"--only: unknown part(s) {', '.join(sorted(parts - set(PARTS)))}")
     from volrender import device
     dev = device.get(None)
     roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
     tmp = Path(tempfile.mkdtemp())
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
-               "command_argv": [str(SCENE.relative_to(ROOT)), *COMMAND]}
-    payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
-    payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
-    for k in roots:
-        print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
-              {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
-    runs = {k: [] for k in roots}
-    for r in roots.values():                         # warm: programs built, files cached
-        command_run(r, tmp / "w.png")
-    for _ in range(args.repeat):
-        for k, r in roots.items():
-            runs[k].append(command_run(r, tmp / f"{k}.png"))
-    payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]},
-                              "runs": rs} for k, rs in runs.items()}
-    for k, v in payload["command"].items():
-        print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
-    if args.baseline:
-        m = {k: v["median"] for k, v in payload["command"].items()}
-        payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
-        payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
-        print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
-              f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
-    payload["png"] = png_levels(frame(args.frame), args.repeat)
-    print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
-          f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
+               "command_argv": [str(scene), *command], "parts": sorted(parts)}
+    if "start" in parts:
+        payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
+        payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
+        for k in roots:
+            print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
+                  {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
+    if "command" in parts:
+        runs = {k: [] for k in roots}
+        for r in roots.values():                     # warm: programs built, files cached
+            command_run(r, tmp / "w.png", scene, command)
+        for _ in range(args.repeat):
+            for k, r in roots.items():
+                runs[k].append(command_run(r, tmp / f"{k}.png", scene, command))
+        payload["command"] = {k: {"median": {f: statistics.median(x[f] for x in rs) for f in rs[0]
+                                             if f != "other_stages"},
+                                  "runs": rs} for k, rs in runs.items()}
+        for k, v in payload["command"].items():
+            print(k, {f: round(x, 3) for f, x in v["median"].items()}, flush=True)
+        if args.baseline:
+            m = {k: v["median"] for k, v in payload["command"].items()}
+            payload["ratio_wall_this_to_baseline"] = m["this"]["wall_s"] / m["baseline"]["wall_s"]
+            payload["ratio_cpu_this_to_baseline"] = m["this"]["cpu_s"] / m["baseline"]["cpu_s"]
+            print(f"this/baseline: wall {payload['ratio_wall_this_to_baseline']:.3f}, "
+                  f"cpu {payload['ratio_cpu_this_to_baseline']:.3f}")
+    if "png" in parts:
+        payload["png"] = png_levels(frame(args.frame, scene), args.repeat)
+        print(f"tone map {payload['png']['tone_map_s']:.3f} s, write_image at level "
+              f"{payload['png']['volrender_level']} {payload['png']['write_image_s']:.3f} s")
+    if "tone" in parts:
+        frame(args.frame, scene)
+        payload["tone"] = tone_times(roots, args.frame, args.repeat, tmp)
+    if "framing" in parts:
+        payload["framing"] = framing_times(roots, args.repeat)
     payload["load_end"] = os.getloadavg()
     path = write_json(result_path("latency", dev, args.tag), payload)
-    plot(payload, path.with_suffix(".png"))
+    if {"command", "png"} <= parts:
+        plot(payload, path.with_suffix(".png"))
     print(f"wrote {path}")
 
 

@@ -59,8 +59,10 @@ def make_point_frames(n_points: int, n: int, folder: Path) -> Path:
     return folder / "frame_####.npy"
 
 
-def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt):
-    """The sequence in this process (workers=0): no Dask, one device."""
+def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True):
+    """The sequence in this process (workers=0): no Dask, one device; as the pipeline
+    render_sequence runs (volrender/pipeline.py), or (piped=False) one frame after another
+    as before it (sequence.render_chunk per frame, the same camera)."""
     import os
     if dev_spec:
         os.environ["VOLRENDER_DEVICE"] = dev_spec
@@ -68,10 +70,25 @@ def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt):
     cam = sequence.sequence_camera({1: frame1}, {**opts, "size": size})[0]
     kw = {**opts, "size": size, **sequence.camera_overrides(cam)}
     sequence.render_chunk([(1, frame1, out / f"warm.{fmt}")], kw, {})       # programs
+    if not piped:
+        pat = sequence.parse_pattern(str(pattern))
+        t = time.perf_counter()             # render_sequence's camera and options, as it does
+        cam, _, extra, _ = sequence.sequence_camera({f: pat.path(f) for f in range(1, n_frames + 1)},
+                                                    {**opts, "size": size})
+        kw = {**opts, "size": size, **extra, **sequence.camera_overrides(cam)}
+        records = [r for f in range(1, n_frames + 1) for r in sequence.render_chunk(
+            [(f, pat.path(f), out / f"u_{f:04d}.{fmt}")], kw, {"exposure": 0.0, "tonemap": "filmic"})]
+        res = summarise(records, time.perf_counter() - t)
+        res.update(workers="0, one frame after another", cluster_start_s=0.0, gpus=[], chunk=None)
+        return res
     r = sequence.render_sequence(str(pattern), str(out / f"f_####.{fmt}"), f"1-{n_frames}",
                                  workers=0, size=size, **opts)
     res = summarise(r.records, r.wall_s)
     res.update(workers=0, cluster_start_s=0.0, gpus=[], chunk=None)
+    unpiped = sorted(out.glob(f"u_*.{fmt}"))
+    if unpiped:                 # the one-by-one run's files, where it ran first: same bytes?
+        res["same_bytes_as_one_by_one"] = all(
+            u.read_bytes() == (out / f"f_{u.name[2:]}").read_bytes() for u in unpiped)
     return res
 
 
@@ -146,6 +163,9 @@ def main(argv=None):
                          "glass_model=fast; repeatable")
     ap.add_argument("--points", type=int, default=0, metavar="N",
                     help="a point-cloud sequence of N-sphere blobs instead of a volume")
+    ap.add_argument("--unpiped", action="store_true",
+                    help="with --workers 0: first render the frames one after another as "
+                         "before the pipeline (issue 35), for its frames/s and bytes")
     ap.add_argument("--tag", default=None, help="added to the results' name: sequence_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -174,12 +194,14 @@ def main(argv=None):
             make_frames(src, args.frames, folder)
         what = f"{args.points}-sphere clouds" if args.points else src.name
         print(f"made {args.frames} frames of {what} in {time.perf_counter() - t0:.1f} s", flush=True)
+        if args.unpiped and 0 in counts:
+            counts = ["unpiped"] + counts
         for n in counts:
-            out = folder / f"out{n}"
-            out.mkdir()
-            if n == 0:
+            out = folder / f"out{0 if n == 'unpiped' else n}"
+            out.mkdir(exist_ok=True)
+            if n in (0, "unpiped"):
                 row = run_serial(pattern, args.frames, out, (width, height), opts, args.device,
-                                 args.format)
+                                 args.format, piped=n == 0)
             else:
                 row = run(pattern, args.frames, out, n, (width, height), opts, args.chunk,
                           args.device, args.format)

@@ -126,6 +126,99 @@ def test_skip_existing_renders_only_the_missing_frames(frames, serial, tmp_path)
     _same_files(serial, out)
 
 
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+def test_a_pipelined_sequence_writes_the_bytes_of_one_frame_after_another(frames, tmp_path,
+                                                                         suffix):
+    """pipeline.run_frames (the serial path's) against render_chunk frame by frame, with a
+    frame that fails (a damaged file) among them: the same files, byte for byte, and the
+    same records but for the timings."""
+    from volrender import pipeline
+    (frames.parent / "broken").mkdir(exist_ok=True)
+    broken = frames.parent / "broken" / "cloud_0004.npz"
+    broken.write_bytes((frames / "cloud_0004.npz").read_bytes()[:300])
+    kw = {"size": SIZE, "density_scale": 5.0}
+    camera = sequence.sequence_camera({f: frames / f"cloud_{f:04d}.npz" for f in range(1, 7)}, kw)[0]
+    kw.update(sequence.camera_overrides(camera))
+    save = {"exposure": 0.5, "tonemap": "filmic"}
+    runs = {}
+    for way in ("piped", "one by one"):
+        out = tmp_path / way.replace(" ", "_")
+        out.mkdir()
+        jobs = [(f, broken if f == 4 else frames / f"cloud_{f:04d}.npz", out / f"f_{f:04d}{suffix}")
+                for f in range(1, 7)]
+        if way == "piped":
+            calls = []
+            recs = pipeline.run_frames(jobs, kw, save, [], lambda: calls.append(1))
+            assert len(calls) == 6
+        else:
+            recs = [r for job in jobs for r in sequence.render_chunk([job], kw, save)]
+        runs[way] = (out, sorted(recs, key=lambda r: r["frame"]))
+    (a, ra), (b, rb) = runs["piped"], runs["one by one"]
+    assert sorted(p.name for p in a.iterdir()) == sorted(p.name for p in b.iterdir())
+    assert len(list(a.iterdir())) == 5
+    for f in (1, 2, 3, 5, 6):
+        assert (a / f"f_{f:04d}{suffix}").read_bytes() == (b / f"f_{f:04d}{suffix}").read_bytes(), f
+    timing = {"seconds", "load_s", "build_s", "setup_s", "kernel_s", "render_s", "write_s"}
+    assert [{k: v for k, v in r.items() if k not in timing | {"output"}} for r in ra] == \
+        [{k: v for k, v in r.items() if k not in timing | {"output"}} for r in rb]
+    assert ra[3]["status"] == "failed" and "cloud_0004.npz" in ra[3]["error"]
+    if suffix == ".exr":                                  # frames that show the cloud
+        assert all(image.read_image(a / f"f_{f:04d}.exr")[..., 3].max() > 0.5 for f in (1, 6))
+    assert all(r["seconds"] >= r["load_s"] + r["render_s"] + r["write_s"] - 1e-6
+               for r in ra if r["status"] == "ok")
+
+
+def test_the_pipeline_overlaps_its_stages_and_keeps_the_device_in_one_thread(monkeypatch,
+                                                                              tmp_path):
+    """Frame n renders only once frame n+1's load and frame n-1's write have begun (each
+    waits for the other: a pipeline that ran the stages one after another would time out
+    here), loads and writes run in their own threads, every render in the calling one."""
+    import importlib
+    import threading
+    import types
+    from volrender import pipeline
+    render_mod, scene_mod = (importlib.import_module(f"volrender.{m}") for m in ("render", "scene"))
+    began = {k: {f: threading.Event() for f in range(1, 6)} for k in ("load", "write")}
+    threads = {"load": set(), "render": set(), "write": set()}
+
+    class Img:
+        info, device, kernel_ms = {}, "fake", 0.0
+
+        def __init__(self, frame):
+            self.frame = frame
+
+        def save(self, out, **kw):
+            threads["write"].add(threading.current_thread().name)
+            began["write"][self.frame].set()
+            assert began["load"][min(self.frame + 2, 5)].wait(20)   # n+1 renders meanwhile
+            out = type(tmp_path)(out)
+            out.write_text(str(self.frame))
+
+    def load(src, **kw):
+        frame = int(str(src)[-1])
+        threads["load"].add(threading.current_thread().name)
+        began["load"][frame].set()
+        return types.SimpleNamespace(frame=frame)
+
+    def render(scene, device=None):
+        threads["render"].add(threading.current_thread().name)
+        n = scene.frame
+        assert began["load"][min(n + 1, 5)].wait(20), f"frame {n + 1} was not loading"
+        if n > 1:
+            assert began["write"][n - 1].wait(20), f"frame {n - 1} was not being written"
+        return Img(n)
+
+    monkeypatch.setattr(scene_mod, "load_scene", load)
+    monkeypatch.setattr(render_mod, "render", render)
+    jobs = [(f, f"in_{f}", tmp_path / f"o_{f}") for f in range(1, 6)]
+    recs = pipeline.run_frames(jobs, {}, {}, [])
+    assert [r["status"] for r in recs] == ["ok"] * 5
+    assert [(tmp_path / f"o_{f}").read_text() for f in range(1, 6)] == [str(f) for f in range(1, 6)]
+    assert threads["render"] == {threading.current_thread().name}
+    assert len(threads["load"]) == len(threads["write"]) == 1
+    assert not (threads["load"] | threads["write"]) & threads["render"]
+
+
 @pytest.mark.parametrize("text, frame, path", [
     ("a/smoke_####.vdb", 7, "a/smoke_0007.vdb"),
     ("smoke.#.vdb", 12, "smoke.12.vdb"),

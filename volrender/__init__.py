@@ -4,6 +4,7 @@
     scene = volrender.load_scene("smoke.vdb", size=(320, 240), density_scale=2.0)
     image = volrender.render(scene)              # PoCL, or device="nvidia"
     image.save("smoke.exr")
+    viewer = volrender.view(scene)               # a progressive viewer in the browser
 
 load_scene takes the command line's option names with underscores as keywords
 (`volrender render --help` lists them); render also takes what load_scene takes (a path,
@@ -31,6 +32,8 @@ if _argv[:1] and _argv[0].rsplit("/", 1)[-1] == "volrender" or _argv == ["-m", "
             if _signal.getsignal(sig) is not _signal.SIG_IGN:   # nohup, a background job
                 _signal.signal(sig, _starting)
     _start()
+    from . import process as _process
+    _process.route_signals(_starting)   # before numpy: its threads inherit the block
 del _argv
 
 __version__ = "0.1.0"
@@ -40,6 +43,7 @@ from .lights import PointLight, Sun  # noqa: E402
 from .render import Image, render  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
 from .sequence import render_sequence  # noqa: E402
+from .viewer import view  # noqa: E402
 
-__all__ = ["load_scene", "render", "render_sequence", "Scene", "Image", "Sun", "PointLight",
+__all__ = ["load_scene", "render", "render_sequence", "view", "Scene", "Image", "Sun", "PointLight",
            "UserError", "__version__"]

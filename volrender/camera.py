@@ -250,7 +250,7 @@ class View:
         if self.target is not None:
             centre = np.asarray(self.target, np.float64)
         else:
-            centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+            centre = 0.5 * np.add(*framing.box(points))
         f = -view
         r = _unit(np.cross(f, up), "--up")
         basis = (f, r, np.cross(r, f))

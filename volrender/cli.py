@@ -227,6 +227,40 @@ def build_parser():
                    help="progress bar (default: when stderr is a terminal)")
     add_common(r)
 
+    w = sub.add_parser("view", formatter_class=Formatter,
+                       help="view a volume or a point cloud in the browser, progressively",
+                       description="Serve a viewer (viser) that renders INPUT here and shows "
+                                   "it in a browser: small and one sample while the camera "
+                                   "moves, accumulating samples when it stops; controls for "
+                                   "the look; a button saves the image, its camera (for "
+                                   "--camera) and the command that renders it. The still size "
+                                   "follows the browser's canvas unless --size is given. "
+                                   "docs/viewer.md")
+    w.add_argument("input", help="IN.vdb, IN.npz, POINTS (.ply/.xyz/.csv/.txt/.npy/.las/.laz), "
+                                 "GENERATOR:COUNT, or SCENE.toml")
+    before = {a.dest for a in w._actions}
+    add_render_options(w)
+    w.set_defaults(render_dests=(*(a.dest for a in w._actions if a.dest not in before), "camera"))
+    [g for g in w._action_groups if g.title == "image and camera"][0].add_argument(
+        "--camera", default=None, metavar="CAM.toml",
+        help="start from a camera written by --camera-out or by the viewer's save button")
+    wv = w.add_argument_group("viewer")
+    wv.add_argument("--port", type=_int("--port"), default=8080,
+                    help="port it serves (default: 8080)")
+    wv.add_argument("--host", default="127.0.0.1",
+                    help="address it listens on (default: 127.0.0.1, this machine only; a remote "
+                         "one through `ssh -N -L PORT:localhost:PORT HOST`; 0.0.0.0: every "
+                         "interface, unauthenticated)")
+    wv.add_argument("--save-dir", default=".", metavar="DIR",
+                    help="where the save button writes view_NNNN.png, .camera.toml and .sh "
+                         "(default: the current directory)")
+    wv.add_argument("--exposure", type=_exposure, default=0.0,
+                    help="initial exposure in stops (a control in the viewer)")
+    wv.add_argument("--view", "--tonemap", dest="tonemap", choices=list(VIEW_CHOICES),
+                    default="filmic", metavar="{filmic,standard,agx,aces}",
+                    help="initial view transform (a control in the viewer)")
+    add_common(w)
+
     c = sub.add_parser("convert", formatter_class=Formatter,
                        help="convert a VDB grid to volrender's brick file (.npz)",
                        description="Write the sparse brick layout of a VDB grid to .npz, so it "
@@ -534,7 +568,8 @@ BENCHMARKS = {"spheres": "molten glass against sphere count: dispatch, tree, lig
               "build": "acceleration build time (tree, support cells) against sphere count",
               "edge": "support-cell edge against build and render time: the automatic edge's fit",
               "whole": "the whole command a user waits for, default against the alternatives",
-              "latency": "a single command's time outside the kernel: start, imports, PNG"}
+              "latency": "a single command's time outside the kernel: start, imports, PNG",
+              "viewer": "the viewer's frames: per second while moving, time to a converged still"}
 
 
 def bench_dir() -> Path:
@@ -563,8 +598,13 @@ def cmd_bench(args):
     return module.main(extra) or 0
 
 
+def cmd_view(args):
+    from .viewer import cmd_view as view
+    return view(args)
+
+
 COMMANDS = {"render": cmd_render, "convert": cmd_convert, "tree": cmd_tree, "info": cmd_info,
-            "bench": cmd_bench}
+            "bench": cmd_bench, "view": cmd_view}
 
 
 _NUMBER = re.compile(r"^-[0-9.]")

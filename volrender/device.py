@@ -62,7 +62,8 @@ def _cl():
         _CACHE_CHECKED = True
         pocl_cache_dir()
     try:
-        import pyopencl as cl
+        with signals_held():    # a KeyboardInterrupt inside its import aborts the process
+            import pyopencl as cl   # (nanobind's enum_create) or half-builds its caches
     except ImportError as exc:  # pragma: no cover - set-up problem
         raise UserError(f"pyopencl does not import ({exc})", fix="run `bash run.sh setup`") from None
     return cl

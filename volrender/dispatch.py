@@ -89,6 +89,12 @@ def _enqueue(device, kernel, global_size, local_size):
     return ev.profile.end - ev.profile.start, time.perf_counter() - start
 
 
+def enqueue(device, kernel, global_size, local_size):
+    """One launch, waited for (as run_rows makes them): (kernel ns, wall seconds).
+    progressive.py launches its own sample ranges with it."""
+    return _enqueue(device, kernel, global_size, local_size)
+
+
 @dataclass(frozen=True)
 class Launch:
     """How a render is cut into launches (render.render(..., launch=), run_rows). The

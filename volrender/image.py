@@ -17,10 +17,15 @@ All arrays are ``H x W x C`` with the top image row first. Every write goes thro
 ``volrender.atomic`` (a temporary file renamed over the destination once complete), so a
 failed or interrupted write never leaves a half-written image and never touches an
 existing file.
+
+Long file: the writers, their checks and the PNG's view transforms (their float64
+definition, `_codes`, and the table path of float32 renders, `_fast_codes8`) change
+together; the tables themselves are in quantise.py.
 """
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import warnings
@@ -209,7 +214,9 @@ def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) 
     ``tonemap`` (``'filmic'``: identity up to 0.5, then a smooth exponential shoulder
     towards 1, see ``_filmic``, then the exact sRGB OETF; ``'clamp'``: clip to 1, then the
     OETF; ``'standard'``, ``'aces'``, ``'agx'``: OpenColorIO, see ``ocio_processor``,
-    clipped to 0..1), and rounds to the nearest code.
+    clipped to 0..1), and rounds to the nearest code (``_codes``: the definition, in
+    float64). float32 values to 8 bits take a table of the definition's thresholds
+    (volrender/quantise.py), with the same codes.
     NaN becomes 0 and +Inf white, with a ``RuntimeWarning`` naming how many values were
     not finite.
     """
@@ -218,13 +225,25 @@ def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) 
         raise ValueError(f"exposure must be finite, got {exposure!r}")
     if bits not in PNG_BITS:
         raise ValueError(f"bits must be one of {PNG_BITS}, got {bits!r}")
-    x = np.asarray(rgb, dtype=np.float64)
-    bad = np.count_nonzero(~np.isfinite(x))
-    with np.errstate(over='ignore'):
-        x = x * 2.0 ** exposure  # finite values that overflow here become white, unwarned
+    x = np.asarray(rgb)
+    if x.dtype != np.float32:
+        x = np.asarray(x, np.float64)
+    bad = x.size - np.count_nonzero(np.isfinite(x))
     if bad:
         warnings.warn(f"{bad} non-finite value(s) in the image: NaN written as 0, "
                       "+Inf as white, -Inf as 0", RuntimeWarning, stacklevel=2)
+    if bits == 8 and x.dtype == np.float32:
+        fast = _fast_codes8(x, float(exposure), tonemap, bad > 0)
+        if fast is not None:
+            return fast
+    return _codes(x, exposure, tonemap, bits)
+
+
+def _codes(rgb, exposure, tonemap, bits) -> np.ndarray:
+    """to_srgb's definition, in float64 (no checks, no warning)."""
+    x = np.asarray(rgb, dtype=np.float64)
+    with np.errstate(over='ignore'):
+        x = x * 2.0 ** exposure  # finite values that overflow here become white, unwarned
     x = np.nan_to_num(x, nan=0.0, posinf=np.inf, neginf=0.0)
     x = np.maximum(x, 0.0)
     top = (1 << bits) - 1
@@ -235,6 +254,56 @@ def to_srgb(rgb, exposure: float = 0.0, tonemap: str = 'filmic', bits: int = 8) 
     else:
         codes = _ocio_codes(x, tonemap)
     return np.floor(codes * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)
+
+
+def _round8(v):
+    """The 8-bit code of display values v (float32, OpenColorIO's output): as _ocio_codes
+    and _codes round them."""
+    return np.floor(np.clip(np.asarray(v, np.float64), 0.0, 1.0) * 255 + 0.5)
+
+
+@functools.lru_cache(maxsize=16)
+def _table8(tonemap: str, exposure: float):
+    """quantise.table of _codes at 8 bits for a per-value view (filmic, clamp) and
+    exposure, or of _round8 (tonemap None); None where no table fits."""
+    from . import quantise
+    if tonemap is None:
+        cuts = quantise.thresholds(_round8)
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            cuts = quantise.thresholds(lambda v: _codes(v, exposure, tonemap, 8))
+    return quantise.table(cuts)
+
+
+def _fast_codes8(x, exposure, tonemap, nan):
+    """_codes(x, exposure, tonemap, 8) of float32 x through quantise tables; None where
+    it does not apply (OpenColorIO views of grey values, or no table fits)."""
+    from . import quantise
+    if tonemap in ('filmic', 'clamp'):
+        tab = _table8(tonemap, exposure)
+        return None if tab is None else quantise.apply(x, *tab, nan=nan)
+    if x.shape[-1:] != (3,) or _table8(None, 0.0) is None:
+        return None
+    shape = x.shape
+    x = x[None] if x.ndim == 1 else x
+    y = np.empty(x.shape, np.float32)       # what _ocio_codes hands OpenColorIO, exactly
+    flat = y.reshape(-1, 3)
+    proc = ocio_processor(tonemap)
+
+    def run(r0, r1):
+        part = y[r0:r1]
+        with np.errstate(over='ignore', invalid='ignore'):
+            part[...] = x[r0:r1] if exposure == 0.0 else \
+                np.asarray(x[r0:r1], np.float64) * 2.0 ** exposure
+        if nan:
+            np.nan_to_num(part, copy=False, nan=0.0, posinf=np.inf, neginf=0.0)
+        np.clip(part, 0.0, OCIO_LARGEST, out=part)
+        proc.applyRGB(flat[r0 * per:r1 * per])      # per pixel: any split gives the same
+
+    per = x[0].size // 3
+    quantise.in_blocks(run, len(x), x[0].size)
+    return quantise.apply(y, *_table8(None, 0.0), nan=False).reshape(shape)
 
 
 def to_srgb8(rgb, exposure: float = 0.0, tonemap: str = 'filmic') -> np.ndarray:
@@ -258,16 +327,40 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None,
     or environment), so a viewer that ignores alpha still shows the whole picture. Light
     with no opacity (emission where the density is 0) cannot be expressed with straight
     alpha: it survives in EXR/NPY only.
+
+    A float32 render keeps its values (to_srgb's fast path); with straight alpha the
+    colour is computed in float64 and rounded to float32 for 8 bits, which moves a code by
+    at most 1 where it lies on a threshold.
     """
     if alpha not in PNG_ALPHAS:
         raise ValueError(f"alpha must be one of {PNG_ALPHAS}, got {alpha!r}")
-    rgba = np.asarray(rgba, np.float64)
+    rgba = np.asarray(rgba)
+    single = rgba.dtype == np.float32 and bits == 8
+    rgba = rgba if single else np.asarray(rgba, np.float64)
     top = (1 << bits) - 1
     if alpha == 'opaque':
         out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
         out[..., :3] = to_srgb(rgba[..., :3], exposure, tonemap, bits)
         out[..., 3] = top
         return out
+    out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
+    if not single:
+        colour, out[..., 3] = _straight(np.asarray(rgba, np.float64), background, top)
+        out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
+        return out
+    from . import quantise
+    colour = np.empty(rgba.shape[:2] + (3,), np.float32)
+
+    def run(r0, r1):                    # float64 a block at a time, on the pool's threads
+        c, out[r0:r1, :, 3] = _straight(np.asarray(rgba[r0:r1], np.float64), background, top)
+        colour[r0:r1] = np.minimum(c, float(np.finfo(np.float32).max))  # finite stays finite
+    quantise.in_blocks(run, len(rgba), rgba[0].size)
+    out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
+    return out
+
+
+def _straight(rgba, background, top):
+    """png_pixels' straight colour (float64) and alpha codes of float64 pixels."""
     rgb, alpha = rgba[..., :3], rgba[..., 3]
     a = np.where(np.isfinite(alpha), np.clip(alpha, 0.0, 1.0), 1.0)
     covered = a > 0
@@ -279,10 +372,7 @@ def png_pixels(rgba, exposure=0.0, tonemap='filmic', bits=8, background=None,
         with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
             straight = part / np.where(covered, a, 1.0)[..., None]
         colour = np.where(covered[..., None], straight, rgb)
-    out = np.empty(rgba.shape[:2] + (4,), np.uint8 if bits == 8 else np.uint16)
-    out[..., :3] = to_srgb(colour, exposure, tonemap, bits)
-    out[..., 3] = np.floor(a * top + 0.5)
-    return out
+    return colour, np.floor(a * top + 0.5)
 
 
 # ---------------------------------------------------------------------------- writers

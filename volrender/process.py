@@ -4,8 +4,10 @@ One home for signal handling. SIGINT raises KeyboardInterrupt and, while the CLI
 (`handle_signals`), SIGTERM and SIGHUP raise `Interrupted`, so every one of them unwinds
 (atomic.py removes its temporary files) and the command exits with 128 + the signal and one
 line (`interrupted`). `signals_held` holds them back around steps that must not be cut in
-two (atomic.py's create and rename, device.py's program builds). Streams: a closed pipe or
-a full disk on stdout/stderr does not turn a finished render into a failure (`Stream`).
+two (atomic.py's create and rename, device.py's program builds). In the command-line
+process they are routed (`route_signals`): blocked in every thread and taken by one watcher
+thread, so no thread ever runs a handler for them. Streams: a closed pipe or a full disk on
+stdout/stderr does not turn a finished render into a failure (`Stream`).
 """
 from __future__ import annotations
 
@@ -20,6 +22,93 @@ from .errors import printable
 
 SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP"))
                 if s is not None)
+WAKE = getattr(signal, "SIGURG", None)     # the watcher's nudge to a main thread that waits
+
+
+class _Router:
+    """route_signals' state: the main thread, how deep it is in signals_held blocks, a
+    signal taken during one, and whether cli.main has taken over (handle_signals)."""
+
+    def __init__(self, starting):
+        self.lock = threading.Lock()
+        self.main = threading.main_thread().ident
+        self.depth = 0
+        self.pending = None
+        self.forward = False
+        self.starting = starting
+
+
+ROUTER = None
+
+
+def route_signals(starting) -> bool:
+    """The command line's first step: SIGINT/SIGTERM/SIGHUP blocked in the main thread, so
+    in every thread started after it (numpy's OpenBLAS, PoCL's workers, OIDN's pool), and
+    taken by one watcher thread (sigwait). No thread runs a handler for them: PoCL's
+    in-process clang installs LLVM's handler over Python's while it compiles, and a signal
+    landing in any thread then removed the compile's files ('1 error generated.'). Until
+    handle_signals the watcher calls `starting(signum, None)` (it ends the process with the
+    one line); after it, it raises the signal in the main thread (`_raise_in_main`), or at
+    the end of a signals_held block. A signal ignored at the start (nohup) stays ignored.
+    False where pthreads or sigwait are missing (nothing changed)."""
+    global ROUTER
+    if ROUTER is not None or not hasattr(signal, "sigwait") or WAKE is None:
+        return ROUTER is not None
+    try:
+        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    except (AttributeError, ValueError, OSError):
+        return False
+    ROUTER = _Router(starting)
+    threading.Thread(target=_watch, name="volrender-signals", daemon=True).start()
+    return True
+
+
+def _watch():
+    while True:
+        signum = signal.sigwait(SIGNALS)
+        with ROUTER.lock:
+            if not ROUTER.forward:
+                ROUTER.starting(signum, None)
+            elif ROUTER.depth:
+                ROUTER.pending = ROUTER.pending or signum
+            else:
+                _raise_in_main(signum)
+
+
+def _raise_in_main(signum):
+    """As if `signum` had arrived in the main thread: its Python handler runs there at the
+    next bytecode, and WAKE (a no-op handler) ends a wait in a system call (a pipe read, a
+    sleep, a Dask future) so that it does so at once."""
+    import _thread
+    _thread.interrupt_main(signum)
+    try:
+        signal.pthread_kill(ROUTER.main, WAKE)
+    except (OSError, ValueError):
+        pass
+
+
+@contextlib.contextmanager
+def children_unblocked():
+    """The main thread's routed signals unblocked for the block, for code that starts
+    processes (a Dask cluster) or long-lived threads that must get signals as usual
+    (processes inherit the mask)."""
+    if ROUTER is None or threading.get_ident() != ROUTER.main:
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_UNBLOCK, SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def unblock_inherited():
+    """In a process started by the command (the OpenVDB reader): the routed signals'
+    block, inherited with the mask, lifted."""
+    try:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, SIGNALS)
+    except (AttributeError, ValueError, OSError):
+        pass
 
 
 class Interrupted(KeyboardInterrupt):
@@ -33,15 +122,26 @@ class Interrupted(KeyboardInterrupt):
 @contextlib.contextmanager
 def signals_held():
     """Hold SIGINT/SIGTERM/SIGHUP back for the block (they are delivered after it)."""
+    routed = ROUTER is not None and threading.get_ident() == ROUTER.main
+    if routed:
+        with ROUTER.lock:
+            ROUTER.depth += 1
     try:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
     except (AttributeError, ValueError, OSError):      # no pthreads, or not the main thread
-        yield
-        return
+        old = None
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if routed:
+            with ROUTER.lock:
+                ROUTER.depth -= 1
+                pending = ROUTER.pending if not ROUTER.depth else None
+                if pending:
+                    ROUTER.pending = None
+                    _raise_in_main(pending)
 
 
 def handle_signals():
@@ -58,6 +158,9 @@ def handle_signals():
     def interrupted(signum, frame):
         global RECEIVED
         RECEIVED = signum                  # in case Python swallows the raise (lost_signal)
+        if _not_here(frame):               # inside an import or a finalizer: a moment later
+            threading.Thread(target=_again, args=(signum,), daemon=True).start()
+            return
         raise KeyboardInterrupt if signum == signal.SIGINT else Interrupted(signum)
     old = {}
     for name, handler in (("SIGINT", interrupted), ("SIGTERM", interrupted),
@@ -65,10 +168,43 @@ def handle_signals():
         sig = getattr(signal, name, None)
         if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
             old[sig] = signal.signal(sig, handler)
+    if ROUTER is not None:
+        old[WAKE] = signal.signal(WAKE, _woken)
+        with ROUTER.lock:
+            ROUTER.forward = True
     return old
 
 
+def _woken(signum, frame):
+    """WAKE's handler: nothing; its arrival ended a wait so the main thread runs the
+    routed signal's handler now."""
+
+
 RECEIVED = None         # the last signal handle_signals' handlers took, until it is reported
+
+
+def _again(signum):
+    """The signal raised in the main thread again, a moment later (see _not_here)."""
+    import _thread
+    import time
+    time.sleep(0.02)
+    if ROUTER is not None:
+        _raise_in_main(signum)
+    else:
+        _thread.interrupt_main(signum)
+
+
+def _not_here(frame) -> bool:
+    """Whether `frame` runs inside a module's import or a `__del__`, where a raise does harm:
+    in an import it half-builds module state (pyopencl.invoker's cache then fails in its
+    own __del__) or aborts the process (nanobind's enum_create: "Critical nanobind error",
+    status -6); in a finalizer Python prints "Exception ignored" and drops it."""
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "__del__" or code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def lost_signal():
@@ -195,3 +331,13 @@ def stdout_failed(command) -> int | None:
     print(f"volrender: error: cannot write to standard output ({getattr(exc, 'strerror', None) or exc})",
           file=sys.stderr)
     return 2
+
+
+def hold_in_this_thread():
+    """SIGINT/SIGTERM/SIGHUP blocked in the calling thread for good: the initializer of a
+    helper thread (sequence.py's loader and writer, quantise.py's pool), so that the kernel
+    delivers those signals to the main thread, whose handlers raise."""
+    try:
+        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    except (AttributeError, ValueError, OSError):      # no pthreads
+        pass

@@ -229,12 +229,13 @@ class Scene:
             environment = _environment(content.settings.env, "env")
         return cls(camera, tuple(lights), content, environment)
 
-    def replace(self, **changes) -> "Scene":
+    def replace(self, *, device=None, **changes) -> "Scene":
         """A Scene with some keywords changed: load_scene's (density_scale=2, size=(64, 48),
         sun=...) or the Scene's own fields (camera=..., lights=...). Option keywords are
-        checked as load_scene checks them and resolved again (framing, defaults, notes);
-        the volume's bricks, the cloud and what the first render built (uploads, tree,
-        cells) are reused whenever the changed options do not change them."""
+        checked as load_scene checks them and resolved again (framing, defaults, notes;
+        --estimator auto for `device`, as Request.load); the volume's bricks, the cloud and
+        what the first render built (uploads, tree, cells) are reused whenever the changed
+        options do not change them."""
         own = {f.name for f in dataclasses.fields(self)}
         fields = {k: v for k, v in changes.items() if k in own}
         opts = {k: v for k, v in changes.items() if k not in own}
@@ -243,7 +244,7 @@ class Scene:
             if self.request is None:
                 scene = self._with_settings(opts)
             else:
-                scene = self.request.again(opts).load(reuse=self)
+                scene = self.request.again(opts).load(reuse=self, device=device)
         return dataclasses.replace(scene, **fields) if fields else scene
 
     def _with_settings(self, opts) -> "Scene":
@@ -471,7 +472,8 @@ class Request:
         hint, why = getattr(held, "up_axis", None), getattr(held, "up_axis_reason", "")
         if self.view.up_axis == "auto" and hint and self.view.origin is None and self.view.up is None:
             notes.append(f"up axis {hint}: {why}; set --up-axis y to override")
-        camera = self.view.camera(lo, hi, hint, extent=content.extent())
+        framed = self.view.origin is None            # a given camera needs no content extent
+        camera = self.view.camera(lo, hi, hint, extent=content.extent() if framed else None)
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
             from .camera import up_frame
             from .lights import FIRE_LIGHT, default_sky

@@ -475,6 +475,7 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
+    from .pipeline import frame_times
     from .render import render
     from .scene import load_scene
     frame, src, out = job
@@ -507,10 +508,7 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
             t2 = time.perf_counter()
             img.save(out, **save_kw)
             t3 = time.perf_counter()
-            build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
-            rec.update(status="ok", device=img.device, load_s=t1 - t0, build_s=build_s,
-                       setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
-                       render_s=t2 - t1, write_s=t3 - t2)
+            rec.update(frame_times(img, t1 - t0, t2 - t1, t3 - t2))
         except UserError as exc:
             rec.update(status="failed", error=str(exc))
         except MemoryError:
@@ -790,15 +788,21 @@ def _check_every_frame(first, overrides, device, serial):
 
 
 def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
-    """Render the jobs here, appending each frame's record to `records` as it is done."""
+    """Render the jobs here, appending each frame's record to `records` as it is done: as
+    a pipeline (volrender/pipeline.py), or one frame after another with --skip-existing
+    (whose claims and deferrals render_chunk makes)."""
     from .progress import Progress
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
     bar = Progress(len(jobs), "frames", progress, unit="frame")
     try:
-        for job in jobs:
-            records += render_chunk([job], frame_kw, save_kw, skip_existing)
-            bar.update()
+        if skip_existing or len(jobs) < 2:
+            for job in jobs:
+                records += render_chunk([job], frame_kw, save_kw, skip_existing)
+                bar.update()
+        else:
+            from .pipeline import run_frames
+            run_frames(jobs, frame_kw, save_kw, records, bar.update, worker=_worker_name())
     finally:
         bar.close()
     return records
@@ -877,10 +881,11 @@ def _start_client(workers, scheduler, device):
         env[KILL_HOOK] = os.environ[KILL_HOOK]
     # SIGINT is held back while the workers start, so they start with it blocked and keep
     # it so: a terminal's Ctrl-C reaches the whole process group, and this process stops
-    # them (they printed tracebacks of their own); here it is delivered right after
+    # them (they printed tracebacks of their own); here it is delivered right after.
+    # SIGTERM and SIGHUP reach them as usual (not the command line's routed block).
     cluster = None
     try:
-        with _sigint_held():
+        with process.children_unblocked(), _sigint_held():
             cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
                                      dashboard_address=":0", env=env, silence_logs=logging.ERROR)
         client = Client(cluster)

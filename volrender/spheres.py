@@ -133,10 +133,8 @@ def sphere_radii(cloud, settings) -> np.ndarray:
 
 def sphere_bounds(cloud, radii):
     """(lo, hi) float64 of centre +- radius over all points; radii (N,) or one radius."""
-    c = np.asarray(cloud.centers, np.float64)
-    if np.ndim(radii) == 0:
-        return c.min(axis=0) - float(radii), c.max(axis=0) + float(radii)
-    return (c - radii[:, None]).min(axis=0), (c + radii[:, None]).max(axis=0)
+    from .framing import box
+    return box(cloud.centers, radii if np.ndim(radii) == 0 else np.asarray(radii, np.float64))
 
 
 def blend_width(radii, settings) -> float:

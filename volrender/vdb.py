@@ -433,6 +433,8 @@ def _serve():
     import signal
     import sys
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # the caller decides
+    from .process import unblock_inherited
+    unblock_inherited()                                # SIGTERM/SIGHUP end it as usual
     out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)                                      # stray prints go to stderr
     inp = sys.stdin.buffer

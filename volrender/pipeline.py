@@ -1,0 +1,104 @@
+"""A sequence's frames in one process as a pipeline (issue 35): frame n+1 is read in one
+thread and frame n-1 written in another while frame n renders in the calling thread, the
+only one that uses the OpenCL queue. Each frame goes through the same steps as one after
+another (sequence._render_frame: load_scene, render, Image.save), so it writes the same
+bytes; its record's load/render/write seconds are its own stages', and `seconds` runs from
+its load's start to its write's end (they overlap other frames').
+
+Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
+finished and recorded, the next frame's load is dropped, and the exception goes on.
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+from .errors import UserError
+from .process import hold_in_this_thread
+
+
+def _failure(exc) -> str:
+    return "out of host memory" if isinstance(exc, MemoryError) else str(exc)
+
+
+def frame_times(img, load_s, render_s, write_s) -> dict:
+    """A written frame's record fields: status, device and its stages' seconds."""
+    build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
+    return dict(status="ok", device=img.device, load_s=load_s, build_s=build_s,
+                setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
+                render_s=render_s, write_s=write_s)
+
+
+def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="local") -> list:
+    """Render [(frame, input, output)] here, appending each frame's record to `records`
+    when its file is written (or it failed) and calling `done()` then; `worker` names
+    this process in them (sequence.render_chunk's name)."""
+    from .render import render
+    from .scene import load_scene
+    device = os.environ.get("VOLRENDER_DEVICE") or None
+
+    def load(job):
+        t0 = time.perf_counter()
+        try:
+            scene, error = load_scene(job[1], **overrides), None
+        except (UserError, MemoryError) as exc:
+            scene, error = None, _failure(exc)
+        return t0, time.perf_counter(), scene, error
+
+    def write(rec, img, t0, load_s, render_s):
+        t = time.perf_counter()
+        try:
+            img.save(rec["output"], **save_kw)
+            rec.update(frame_times(img, load_s, render_s, time.perf_counter() - t))
+        except (UserError, MemoryError) as exc:
+            rec.update(status="failed", error=_failure(exc))
+        rec["seconds"] = time.perf_counter() - t0
+        return rec
+
+    # the loader keeps the signals: the OpenVDB reader process it may start takes them
+    loader = ThreadPoolExecutor(1, "volrender-load")
+    writer = ThreadPoolExecutor(1, "volrender-write", initializer=hold_in_this_thread)
+    writing = None
+
+    def written():
+        nonlocal writing
+        if writing is not None:
+            rec = writing.result()              # a signal here: the finally waits for it
+            writing = None
+            records.append(rec)
+            done()
+
+    try:
+        loading = loader.submit(load, jobs[0])
+        for i, (frame, src, out) in enumerate(jobs):
+            rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
+                   "pid": os.getpid()}
+            t0, t1, scene, error = loading.result()
+            loading = loader.submit(load, jobs[i + 1]) if i + 1 < len(jobs) else None
+            t2 = time.perf_counter()
+            if error is None:
+                try:
+                    img = render(scene, device)
+                except (UserError, MemoryError) as exc:
+                    error = _failure(exc)
+            scene = None
+            t3 = time.perf_counter()
+            written()                           # frame n-1: written while frame n rendered
+            if error is not None:
+                rec.update(status="failed", error=error, seconds=t3 - t0)
+                records.append(rec)
+                done()
+                continue
+            writing = writer.submit(write, rec, img, t0, t1 - t0, t3 - t2)
+            img = None
+        written()
+    finally:
+        loader.shutdown(wait=False, cancel_futures=True)
+        if writing is not None:                 # stopped: the frame being written counts
+            try:
+                records.append(writing.result())
+            except BaseException:               # noqa: BLE001 - the stop goes on regardless
+                pass
+        writer.shutdown(wait=True)
+    return records
