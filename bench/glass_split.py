@@ -10,8 +10,8 @@ Reference per scene: every branch traced (split at every event, roulette 0) at -
 samples per pixel, in 4 batches whose spread gives its own noise (removed from each
 setting's mean squared error: rmse_corrected). Every setting is unbiased, so its error is
 noise: the pixel footprint (the same for all) plus the branch choices. Time: CPU ms of
-the launches / compute units (median of --repeat, shuffled rounds: a shared host's load
-does not inflate it). `efficiency` = 1 / (MSE x time), higher is better: the settings
+the launches / compute units on CPUs (median of --repeat, shuffled rounds: a shared host's
+load does not inflate it), kernel ms on GPUs. `efficiency` = 1 / (MSE x time), higher is better: the settings
 compare at equal time by it. Writes bench/results/glass_split_<device>[-TAG].json.
 """
 from __future__ import annotations
@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 from bench.common import device_info, render_points, result_path, write_json  # noqa: E402
 from bench.error import errors, pareto, sweep  # noqa: E402
 from volrender import device, generators, glass, scene as scene_mod  # noqa: E402
+from volrender.dispatch import is_gpu  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 
 SPLITS = (64, 2, 1, 0)
@@ -77,7 +78,7 @@ def main(argv=None):
         jobs = [(j, (lambda st=replace(base, split_events=k, roulette=rr, spp=spp):
                      render_points(cloud, cam, lights, st, dev)))
                 for j, (k, rr, spp) in enumerate(rows)]
-        done = sweep(jobs, args.repeat, ("cpu", cores))
+        done = sweep(jobs, args.repeat, ("kernel", 1) if is_gpu(dev) else ("cpu", cores))
         out = []
         for j, (k, rr, spp) in enumerate(rows):
             img, t = done[j]
@@ -93,7 +94,7 @@ def main(argv=None):
         record["scenes"].append({"scene": name, "points": len(cloud), "rows": out,
                                  "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
                                  "bench_s": time.perf_counter() - t0})
-    path = write_json(result_path("glass_split", dev, args.out), record)
+        path = write_json(result_path("glass_split", dev, args.out), record)   # per scene
     print(f"wrote {path}")
 
 

@@ -486,3 +486,88 @@ __kernel void build_mark_listed(__global const int4* restrict origins,
     cells[blk[j] * VR_CELL_BRICK * VR_CELL_BRICK * VR_CELL_BRICK +
           (l.z * VR_CELL_BRICK + l.y) * VR_CELL_BRICK + l.x] = (int2)(k, 0);
 }
+
+/* The walk order the renderer reads (cl/cells.h): list k's spheres one by one, entries
+   (sphere, key bits) at entries[walk[k].x, + walk[k].y), in non-decreasing key, each key
+   at most lo_i - pad (below the sphere's distance from any point of the cell, rounding
+   included). A walk can then stop at the first key >= m (pass 1) or >= m + k (pass 2): no
+   later sphere is nearer, or within the blend. counts[k] = (list spheres, core spheres)
+   for the offsets' scan. */
+__kernel void build_walk_count(__global const int4* restrict lists,
+                               __global const int2* restrict runs, int n_lists,
+                               __global int2* counts)
+{
+    int k = get_global_id(0);
+    if (k >= n_lists)
+        return;
+    int4 l = lists[k];
+    int n = 0, nc = 0;
+    for (int j = l.x; j < l.x + l.y; ++j)
+        n += runs[j].y;
+    for (int j = l.z; j < l.z + l.w; ++j)
+        nc += runs[j].y;
+    counts[k] = (int2)(n, nc);
+}
+
+#define CB_WALK_BINS 64
+
+/* list k (cell sel[k] of the last level, classified as out[sel[k]]) into its entries by a
+   counting sort on CB_WALK_BINS bins: bin 0 has lower edge -inf, bins 1.. split [U - diag
+   - pad, U + k + pad] evenly, where every key lies (lo_i <= U + k + pad on the list; the
+   sphere j with lo_j = M has U <= hi_j <= M + diag). A sphere goes to the last bin whose
+   edge is at most its key, and the entry keeps that edge as its key (a lower bound, so the
+   walk's stops stay exact; any key lands somewhere, rounding included). Two passes over
+   the list and no sort in global memory (a Shell sort there cost the bunny's build on
+   PoCL x1.6 in kernel time). */
+__kernel void build_walk_fill(__constant CellBuild* cb, __global const float4* restrict sp,
+                              __global const int* restrict sel,
+                              __global const int4* restrict origins,
+                              __global const int4* restrict out,
+                              __global const int4* restrict lists,
+                              __global const int2* restrict runs,
+                              __global const int4* restrict walk, __global int2* entries,
+                              int n_lists)
+{
+    int k = get_global_id(0);
+    if (k >= n_lists)
+        return;
+    float3 lo, hi;
+    cb_box(cb, origins, sel[k], &lo, &hi);
+    int4 l = lists[k];
+    __global int2* e = entries + walk[k].x;
+    float U = as_float(out[sel[k]].w), blend = cb->blend > VR_BLEND_MIN ? cb->blend : 0.0f;
+    float diag = length(hi - lo), base = U - diag - cb->pad;
+    float width = (diag + blend + 2.0f * cb->pad) * (1.0f / (CB_WALK_BINS - 1));
+    float edge[CB_WALK_BINS];
+    int start[CB_WALK_BINS];
+    for (int b = 0; b < CB_WALK_BINS; ++b) {
+        edge[b] = b == 0 ? -INFINITY : base + (float)(b - 1) * width;
+        start[b] = 0;
+    }
+    for (int pass = 0; pass < 2; ++pass) {
+        for (int j = l.x; j < l.x + l.y; ++j)
+            for (int i = runs[j].x; i < runs[j].x + runs[j].y; ++i) {
+                float dlo, dhi;
+                cb_sphere(sp[i], lo, hi, &dlo, &dhi);
+                float key = dlo - cb->pad;
+                float f = width > 0.0f ? fmin((key - base) / width, (float)CB_WALK_BINS) : 0.0f;
+                int b = f >= 0.0f ? min((int)f + 1, CB_WALK_BINS - 1) : 0;   /* NaN: 0 */
+                while (b > 0 && !(edge[b] <= key))
+                    --b;
+                while (b < CB_WALK_BINS - 1 && edge[b + 1] <= key)
+                    ++b;
+                if (pass == 0)
+                    ++start[b];                       /* counts, then offsets */
+                else
+                    e[start[b]++] = (int2)(i, as_int(edge[b]));
+            }
+        if (pass == 0) {
+            int sum = 0;
+            for (int b = 0; b < CB_WALK_BINS; ++b) {
+                int c = start[b];
+                start[b] = sum;
+                sum += c;
+            }
+        }
+    }
+}

@@ -3,10 +3,11 @@
    VR_CELL_BRICK^3 cells. bricks[b] = (code, bound bits): code >= 0 is the block of the
    brick's cells in `cells`; VR_CELL_OUTSIDE / VR_CELL_INSIDE: the whole brick lies outside
    the glass (F >= bound > tau) or inside it (F <= bound < -tau). cells[block * B^3 + local]
-   likewise: code >= 0 is the cell's list, lists[code] = (start, count, core start, core
-   count) into `runs`: runs (first, count) of consecutive indices of every sphere that can
-   matter in the cell, ascending, and of those that can be the nearest (the core, enough
-   for m). A ray on one side of the
+   likewise: code >= 0 is the cell's list, lists[code] = (start, count, start, core count)
+   into `entries`: (sphere, key bits) of every sphere that can matter in the cell, by
+   ascending key, a lower bound of the sphere's distance from any point of the cell
+   (cl/build_cells.cl, build_walk_fill). The spheres that can be the nearest (the core)
+   come first, and sdf.h's passes stop at the first key beyond m or m + k. A ray on one side of the
    surface crosses skippable cells of its side without evaluating the field (DDA to the exit
    of the cell or brick). Include from sdf.h (SdfScene holds the grid). */
 #ifndef VR_CELLS_H

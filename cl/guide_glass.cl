@@ -22,7 +22,7 @@ __kernel void guide_glass(__constant Camera* cam, __constant GlassParams* gp,
                           __global const float4* restrict colors,
                           __global const int2* restrict bricks,
                           __global const int2* restrict cells, __global const int4* restrict lists,
-                          __global const int2* restrict runs,
+                          __global const int2* restrict entries,
                           __global float4* albedo_out, __global float4* normal_out,
                           int y0, int s0, int s1)
 {
@@ -30,7 +30,7 @@ __kernel void guide_glass(__constant Camera* cam, __constant GlassParams* gp,
     if (x >= cam->width || y >= cam->height)
         return;
     uint pixel = (uint)(y * cam->width + x);
-    SdfScene sc = sdf_scene(gp, spheres, nodes, colors, bricks, cells, lists, runs);
+    SdfScene sc = sdf_scene(gp, spheres, nodes, colors, bricks, cells, lists, entries);
     float3 o = cam->origin.xyz;
     float4 a_sum = s0 > 0 ? albedo_out[pixel] : (float4)(0.0f);
     float4 n_sum = s0 > 0 ? normal_out[pixel] : (float4)(0.0f);

@@ -47,8 +47,8 @@ typedef struct {
 #if VR_GRID
     __global const int2* bricks;      /* cl/cells.h */
     __global const int2* cells;
-    __global const int4* lists;       /* (start, count, core start, core count) into runs */
-    __global const int2* runs;        /* (first sphere, count), ascending per list */
+    __global const int4* lists;       /* (start, count, -, core count) into entries */
+    __global const int2* entries;     /* (sphere, key bits), ascending key per list */
     float3 grid_lo;                   /* min corner of cell (0, 0, 0) */
     float cell, inv_cell;             /* cell edge and its inverse */
     float nudge;                      /* step past a skipped cell's exit face */
@@ -79,7 +79,7 @@ typedef struct {
 inline SdfScene sdf_scene(__constant GlassParams* gp, __global const float4* spheres,
                           __global const TreeNode* nodes, __global const float4* colors,
                           __global const int2* bricks, __global const int2* cells,
-                          __global const int4* lists, __global const int2* runs)
+                          __global const int4* lists, __global const int2* entries)
 {
     SdfScene sc;
     sc.spheres = spheres;
@@ -95,7 +95,7 @@ inline SdfScene sdf_scene(__constant GlassParams* gp, __global const float4* sph
     sc.bricks = bricks;
     sc.cells = cells;
     sc.lists = lists;
-    sc.runs = runs;
+    sc.entries = entries;
     sc.grid_lo = gp->grid_lo.xyz;
     sc.cell = gp->grid_lo.w;
     sc.inv_cell = gp->grid_inv;
@@ -146,7 +146,7 @@ inline float sdf_node_bound(const SdfScene* sc, int node, float3 x)
 
 /* Pass 1: the nearest sphere, m = min_i d_i (returned) and its index *arg (-1: none).
    The traversal visits the nearer child first and prunes against the running m; with
-   VR_GRID it scans the cell's core list. */
+   VR_GRID it walks the cell's list by key up to the first key >= m (within the core). */
 inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, int* arg)
 {
     float m = INFINITY;
@@ -166,10 +166,11 @@ inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, 
     }
 #endif
 #if VR_GRID
-    for (int j = list.z; j < list.z + list.w; ++j) {     /* the core holds the nearest */
-        int2 r = sc->runs[j];
-        for (int i = r.x; i < r.x + r.y; ++i)
-            SDF_NEAREST(sc->spheres[i], i)
+    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m */
+        int2 e = sc->entries[j];
+        if (as_float(e.y) >= m)
+            break;
+        SDF_NEAREST(sc->spheres[e.x], e.x)
     }
 #elif VR_TREE
     int stack[VR_TREE_STACK];
@@ -248,10 +249,11 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
 #endif
     {
 #if VR_GRID
-    for (int j = list.x; j < list.x + list.y; ++j) {
-        int2 r = sc->runs[j];
-        for (int i = r.x; i < r.x + r.y; ++i)
-            SDF_ACCUMULATE(sc->spheres[i], i)
+    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m + k */
+        int2 e = sc->entries[j];
+        if (as_float(e.y) >= thr)
+            break;
+        SDF_ACCUMULATE(sc->spheres[e.x], e.x)
     }
 #elif VR_TREE
     int stack[VR_TREE_STACK];
@@ -317,8 +319,7 @@ inline SdfSample sdf_eval_in(const SdfScene* sc, float3 x, int4 list)
 #endif
     int a, in_tile = sdf_in_tile(sc, x);
 #if VR_GRID && VR_TILED
-    /* with cells the tile's list serves only where it is the shorter (fewer spheres than
-       the cell's list has runs) */
+    /* with cells the tile's list serves only where it is the shorter */
     in_tile = in_tile && sc->tile_n < list.y;
 #endif
     float m;

@@ -326,25 +326,33 @@ inline int glass_eye_inside(const SdfScene* sc, __constant GlassParams* gp, floa
     return inside;
 }
 
+/* Where a camera path starts (glass_path): the ray, whether it starts in glass and the
+   glow tint there, the hit-threshold floor near the eye, and vr_rand's (seed, pixel,
+   sample). */
+typedef struct {
+    float3 o, d, tint;
+    float floor_len;
+    int inside;
+    uint seed, pixel, sample;
+} GlassStart;
+
 /* Radiance along one camera ray (render_glass.cl); *covered = the ray starts in or hits
    glass. Inside glass each segment absorbs and glows (glass_segment); at a surface event
    the Fresnel share F is reflected and 1 - F refracted (total internal reflection: all
    reflected; glass_event). A branch that leaves the clip box reads the environment along
    its direction; one that has used its `bounces` events returns 0 if it meets glass or
    is inside it (a path tracer's depth bounces + 1). rng: (seed, pixel, sample) of
-   vr_rand. */
+   vr_rand. glass_path (below) starts the path, glass_walk (one per model) follows it. */
 #if !VR_FULL
 /* --glass-model fast: the path follows the refracted branch; the reflection at an outer
    surface reads the environment only, and at an exit it is dropped. */
-inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
-                         __constant Light* lights, __global const float4* env,
-                         float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
+inline float3 glass_walk(const SdfScene* sc, __constant GlassParams* gp, __constant Light* lights,
+                         __global const float4* env, const GlassStart* st, int* covered)
 {
-    float3 rgb = (float3)(0.0f), thr = (float3)(1.0f), tint;
-    float path = 0.0f, floor_len = 1e-2f * gp->scale;   /* hit-threshold floor near the eye */
-    int inside = glass_eye_inside(sc, gp, o, &tint);
-    *covered = inside;
-    uint dim = 2u;
+    float3 o = st->o, d = st->d, tint = st->tint, rgb = (float3)(0.0f), thr = (float3)(1.0f);
+    float path = 0.0f, floor_len = st->floor_len;
+    int inside = st->inside;
+    uint seed = st->seed, pixel = st->pixel, sample = st->sample, dim = 2u;
     for (int events = 0;; ++events) {
         float t;
         SdfSample s;
@@ -408,18 +416,14 @@ typedef struct {
    sees what that one sees: energy is kept, the direction approximated). Past
    gp->split_events events one branch goes on, chosen in proportion to its weight (and
    divided by that probability): unbiased, and nothing waits. */
-inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
-                         __constant Light* lights, __global const float4* env,
-                         float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
+inline float3 glass_walk(const SdfScene* sc, __constant GlassParams* gp, __constant Light* lights,
+                         __global const float4* env, const GlassStart* st, int* covered)
 {
-    float3 rgb = (float3)(0.0f), thr = (float3)(1.0f), tint;
-    float path = 0.0f, floor_len = 1e-2f * gp->scale;   /* hit-threshold floor near the eye */
-    int inside = glass_eye_inside(sc, gp, o, &tint);
-    *covered = inside;
-    int events = 0;
     GlassBranch stack[VR_GLASS_STACK];
-    int sp = 0, splits = 0;
-    uint dim = 2u;
+    int sp = 0, splits = 0, events = 0, inside = st->inside;
+    float3 o = st->o, d = st->d, tint = st->tint, rgb = (float3)(0.0f), thr = (float3)(1.0f);
+    float path = 0.0f, floor_len = st->floor_len;
+    uint seed = st->seed, pixel = st->pixel, sample = st->sample, dim = 2u;
     for (;;) {
         float t;
         SdfSample s;
@@ -516,5 +520,21 @@ inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
     return rgb;
 }
 #endif
+
+inline float3 glass_path(const SdfScene* sc, __constant GlassParams* gp,
+                         __constant Light* lights, __global const float4* env,
+                         float3 o, float3 d, uint seed, uint pixel, uint sample, int* covered)
+{
+    GlassStart st;
+    st.o = o;
+    st.d = d;
+    st.floor_len = 1e-2f * gp->scale;
+    st.inside = glass_eye_inside(sc, gp, o, &st.tint);
+    st.seed = seed;
+    st.pixel = pixel;
+    st.sample = sample;
+    *covered = st.inside;
+    return glass_walk(sc, gp, lights, env, &st, covered);
+}
 
 #endif

@@ -15,8 +15,8 @@ SOURCE = """
 
 #define PROBE_ARGS __global const float4* spheres, __global const TreeNode* nodes, \\
     __constant GlassParams* gp, __global const int2* bricks, __global const int2* cells, \\
-    __global const int4* lists, __global const int2* runs
-#define PROBE_SCENE sdf_scene(gp, spheres, nodes, 0, bricks, cells, lists, runs)
+    __global const int4* lists, __global const int2* entries
+#define PROBE_SCENE sdf_scene(gp, spheres, nodes, 0, bricks, cells, lists, entries)
 
 /* out: grad xyz, F */
 __kernel void field(PROBE_ARGS, __global const float4* pts, __global float4* out)

@@ -86,11 +86,40 @@ def clouds(draw):
     return PointCloud(c, radii), blend, cell, seed
 
 
+WALK_BINS = 64     # cl/build_cells.cl CB_WALK_BINS
+
+
+def check_walk(g, code, q, pts, c, r, members, blend):
+    """The render's walk of listed cell `code` (at cell coordinates q, points pts in it):
+    the list's spheres, by non-decreasing key; each key at most the sphere's distance from
+    every point and from the cell (float64) less half a pad, and below the latter by at
+    most 2 pads and one bin of the walk's counting sort (cl/build_cells.cl: WALK_BINS - 1
+    bins over the cell's diagonal + blend + 2 pads); a key -inf (the first bin) only on
+    the lowest bin's spheres."""
+    start, n = g.walk[code, :2]
+    e = g.entries[start:start + n]
+    key = e[:, 1].view(np.float32).astype(np.float64)
+    assert np.array_equal(np.sort(e[:, 0]), members)
+    assert np.all(np.diff(key) >= 0)
+    d = np.linalg.norm(pts[:, None] - c[None, e[:, 0]], axis=2) - r[None, e[:, 0]]
+    assert (key[None] <= d).all(), "a key above a sphere's distance: the walk stops early"
+    lo, hi = g.box(q)
+    near = np.linalg.norm(np.maximum(np.maximum(lo - c[e[:, 0]], c[e[:, 0]] - hi), 0),
+                          axis=1) - r[e[:, 0]]
+    width = (np.linalg.norm(hi - lo) + blend + 2 * g.pad) / (WALK_BINS - 1)
+    # at most lo_i - pad (float32 rounding is far below the pad): the stops are exact
+    assert (key <= near - 0.5 * g.pad).all(), "a key above the sphere's distance from the cell"
+    finite = np.isfinite(key)
+    assert (key[finite] >= near[finite] - 2 * g.pad - width - 1e-6).all(), "a key too loose"
+    assert (near[~finite] <= near.min() + width + 2 * g.pad + 1e-6).all()
+
+
 @FAST
 @given(clouds())
 def test_lists_hold_the_support_and_bounds_hold(cl_device, case):
     """At random points of random cells: every sphere with d_i < m + k (float64, brute
-    force) is on the cell's list and the nearest one on its core; a cell skipped as
+    force) is on the cell's list and the nearest one on its core, and the render's walk
+    holds them by key (check_walk); a cell skipped as
     outside has F > tau / 2 there (the kernel's hit thresholds are below it), one skipped
     as inside F < -tau / 2."""
     cloud, blend, cell, seed = case
@@ -112,6 +141,7 @@ def test_lists_hold_the_support_and_bounds_hold(cl_device, case):
             core[g.core(code[j])] = True
             assert core[np.argmin(d, axis=1)].all(), f"cell {q[j]}: nearest not on the core"
             assert np.all(np.diff(lists[j]) > 0)          # ascending: brute force's order
+            check_walk(g, code[j], q[j], pts, c, r, lists[j], blend)
         else:
             f = reference.smooth_union(pts, c, r, blend)
             if code[j] == cells.OUTSIDE:
@@ -187,8 +217,10 @@ def _seam_cloud():
 @pytest.mark.parametrize("cell_factor", [0.4, 1.0, 3.0])
 @pytest.mark.parametrize("bounces", [1, 3])
 def test_cells_give_the_brute_force_image(cl_device, name, cloud, blend, cell_factor, bounces):
-    """Shadows on, two lights. Listed everywhere: the tree walk's image bit for bit (the
-    same field at the same points). Skipping: assert_like_brute_force."""
+    """Shadows on, two lights. Listed everywhere: the tree walk's image up to float32
+    summation order (the same terms, summed in the walk's key order): the coverage bit for
+    bit, 99% of the pixels within 1e-4 (refracted paths grazing a surface may part).
+    Skipping: assert_like_brute_force."""
     r = float(np.median(cloud.radii))
     kw = dict(blend=blend, bounces=bounces)
     none = render(cl_device, cloud, accel="none", **kw)
@@ -196,7 +228,8 @@ def test_cells_give_the_brute_force_image(cl_device, name, cloud, blend, cell_fa
     assert none[..., 3].mean() > 0.2
     listed = render(cl_device, cloud, accel="grid", cell_skip=False,
                     cell_size=cell_factor * r, **kw)
-    np.testing.assert_array_equal(listed, tree)
+    np.testing.assert_array_equal(listed[..., 3], tree[..., 3])
+    assert differ(listed, tree, atol=1e-4) <= 0.01
     grid = render(cl_device, cloud, accel="grid", cell_size=cell_factor * r, **kw)
     half = render(cl_device, cloud, accel="none", epsilon=0.5e-4, **kw)
     assert_like_brute_force(grid, none, half)

@@ -70,7 +70,7 @@ def test_cells_and_images_from_the_device_tree_are_the_same(cl_device, request, 
     dev = spheres.pack_scene(cloud, s, cl_device, tree_on="device")
     np.testing.assert_array_equal(dev.spheres, host.spheres)
     np.testing.assert_array_equal(dev.nodes, host.nodes)
-    for field in ("bricks", "cells", "lists", "runs"):
+    for field in ("bricks", "cells", "lists", "runs", "walk", "entries"):
         np.testing.assert_array_equal(getattr(dev.cells, field), getattr(host.cells, field))
     cam = glass.default_camera(cloud, 24, 18, radius=kw.get("radius"))
     img = {}

@@ -2,8 +2,9 @@
 
 A sparse world-space grid over the clip box (render frame), cells of edge `cell` in bricks
 of CELL_BRICK^3. Every cell the surface can pass through lists every sphere that can
-contribute to the field anywhere inside it (ascending sphere index, so a fold over the
-list sums in brute force's order); cells and whole bricks wholly outside the glass carry a
+contribute to the field anywhere inside it (built as runs of ascending sphere indices;
+the renderer reads it sphere by sphere by ascending key, the walk, so that its passes stop
+early: Cells.walk and Cells.entries); cells and whole bricks wholly outside the glass carry a
 lower bound of the field and cells wholly inside an upper one, and rays of that side cross
 them without evaluating anything. Bounds and lists are derived in cl/build_cells.cl's
 banner and docs/DESIGN.md; tests/reference.py's `oracle` is the same construction in numpy
@@ -78,6 +79,8 @@ class Cells:
     build_launches: int = 0
     buffers: tuple = ()       # device bricks, cells, lists (the builder's context): renders
                               # there read them; the host cells and lists are copied on use
+    walk_device: tuple = ()   # device walk lists and entries, what renders read (walk)
+    n_entries: int = 0
 
     def _host(self, key, buffer, rows, cols):
         host = self.__dict__.get(key)
@@ -107,8 +110,21 @@ class Cells:
         return self._host("_runs", self.runs_device, self.n_runs, 2)
 
     @property
+    def walk(self) -> np.ndarray:
+        """int32 (n_lists, 4): the render's lists, start, count, start, core count in
+        entries (cl/build_cells.cl, build_walk_fill)."""
+        return self._host("_walk", self.walk_device[0], self.n_lists, 4)
+
+    @property
+    def entries(self) -> np.ndarray:
+        """int32 (n_entries, 2): sphere, key bits (float32 lo_i - pad: at most the sphere's
+        distance from any point of its cell), each list by ascending key."""
+        return self._host("_entries", self.walk_device[1], self.n_entries, 2)
+
+    @property
     def nbytes(self) -> int:
-        return self.bricks.nbytes + 8 * self.n_cell_rows + 16 * self.n_lists + 8 * self.n_runs
+        return (self.bricks.nbytes + 8 * self.n_cell_rows + 32 * self.n_lists
+                + 8 * self.n_runs + 8 * self.n_entries)
 
     def lengths(self, core=False):
         """Spheres on each list (or core)."""
@@ -141,6 +157,7 @@ class Cells:
                 "list_max": int(n.max()) if len(n) else 0,
                 "core_mean": float(nc.mean()) if len(nc) else 0.0,
                 "entries": int(n.sum() + nc.sum()), "runs": int(len(self.runs)),
+                "walk_entries": int(self.n_entries),
                 "bytes": int(self.nbytes), "build_ms": self.build_ms,
                 "build_kernel_ms": self.build_kernel_ms, "build_launches": self.build_launches}
 
@@ -279,12 +296,14 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
             break
         cell *= max(1.1, (level.kept * B3 / max_cells) ** 0.5)
     level = b.cells(level)
+    walk, entries, n_entries = b.walk(level)
     bricks, n_cell_rows = b.tables()
     kernel_ms = b.kernel_ms()
     return Cells(lo, cell, dims, bdims, bricks, n_cell_rows, level.kept, level.runs,
                  level.total, device.queue, float(tau), pad, 1e3 * (time.perf_counter() - t0),
                  kernel_ms, b.launches,
-                 buffers=(b.table.data, b.cells_table.data, level.lists.data))
+                 buffers=(b.table.data, b.cells_table.data, level.lists.data),
+                 walk_device=(walk.data, entries), n_entries=n_entries)
 
 
 TOP_BOXES = 1 << 15           # boxes of the first (tree-walking) level, at most
@@ -320,7 +339,7 @@ class _Builder:
         self.k = {n: device.kernel("build_cells", flags, n) for n in (
             "build_classify", "build_classify_sub", "build_fill", "build_expand",
             "build_paint_bricks", "build_mark_mixed", "build_paint_cells",
-            "build_mark_listed")}
+            "build_mark_listed", "build_walk_count", "build_walk_fill")}
         self.scans = _scans(device.context)
         mf = cl.mem_flags
         self.sp = cl.Buffer(device.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
@@ -460,6 +479,26 @@ class _Builder:
                 return lv
             parent, lv = lv, self._expand(lv)
 
+    def walk(self, lv):
+        """The render's lists (cl/cells.h): each listed cell's spheres one by one with their
+        keys, sorted on the device. Returns (walk lists, entries buffer, entries)."""
+        cla, cl = self.cla, self.cl
+        n = lv.kept
+        counts = cla.empty(self.q, max(n, 1), cl.cltypes.int2)
+        walk = cla.empty(self.q, max(n, 1), cl.cltypes.int4)
+        total = cla.zeros(self.q, 1, np.int64)
+        self._run("build_walk_count", n, lv.lists.data, lv.runs, np.int32(n), counts.data)
+        if n:
+            self.scans["walk"](counts, np.int32(n), walk, total,
+                               size=self.padded(n, self.device), queue=self.q)
+        n_entries = int(total.get()[0])
+        if n_entries > self.max_runs:
+            raise TooLarge(f"over {self.max_runs} list entries (the list runs' budget)")
+        entries = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, 8 * max(n_entries, 1))
+        self._run("build_walk_fill", n, self.prm[1], self.sp, lv.sel.data, lv.origins.data,
+                  lv.out.data, lv.lists.data, lv.runs, walk.data, entries, np.int32(n))
+        return walk, entries, n_entries
+
     def tables(self):
         """The host copy of the brick table (small) and the cell table's rows; the cells
         and lists stay on the device until read (Cells.cells, Cells.lists)."""
@@ -476,7 +515,7 @@ class _Builder:
 def _scans(context):
     """The build's pyopencl scans and reduction, built once per context: the compaction of
     unclassified boxes (sel), the list offsets (lists, and the total of runs in int64),
-    and the longest brick list."""
+    the walk's offsets (walk, the total of entries) and the longest brick list."""
     from pyopencl.reduction import ReductionKernel
     from pyopencl.scan import GenericScanKernel
     keep = GenericScanKernel(
@@ -496,10 +535,18 @@ def _scans(context):
         scan_expr="a + b", neutral="0",
         output_statement="if (i < n) { int4 o = out[sel[i]]; lists[i] = (int4)((int)prev_item, "
                          "o.y, (int)(prev_item + o.y), o.z); } if (i == n - 1) total[0] = item;")
+    walk = GenericScanKernel(
+        context, np.int64,
+        arguments="__global const int2 *counts, int n, __global int4 *walk, "
+                  "__global long *total",
+        input_expr="i < n ? (long)counts[i].x : 0",
+        scan_expr="a + b", neutral="0",
+        output_statement="if (i < n) { int2 c = counts[i]; walk[i] = (int4)((int)prev_item, "
+                         "c.x, (int)prev_item, c.y); } if (i == n - 1) total[0] = item;")
     longest = ReductionKernel(context, np.int32, neutral="0", reduce_expr="max(a, b)",
                               map_expr="out[sel[i]].y",
                               arguments="__global const int4 *out, __global const int *sel")
-    return {"keep": keep, "lists": lists, "longest": longest}
+    return {"keep": keep, "lists": lists, "walk": walk, "longest": longest}
 
 
 def _occupancy(c, edge):

@@ -226,7 +226,7 @@ def plan(scene, device, variant=None, launch=None):
     inputs = [("cam", scene.camera.pack(w2f, settings.spp, settings.seed)), ("gp", params),
               ("lights", lights_mod.pack(scene.lights, w2f)), ("spheres", spheres),
               ("nodes", packed.nodes), ("env", env), ("colors", colors),
-              *zip(("bricks", "cells", "lists", "runs"), grid_arrays)]
+              *zip(("bricks", "cells", "lists", "entries"), grid_arrays)]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
                 PIXELS_PER_LAUNCH, info=info,
@@ -261,9 +261,10 @@ def build_options(features, device) -> tuple:
 
 
 def kernel_arrays(packed: PackedSpheres, params, context=None):
-    """The spheres and the four support-cell arrays the kernel reads (cl/cells.h), with the
-    grid's fields of the GlassParams record `params` set; stand-ins without cells. The
-    runs stay the builder's device buffer when `context` is the builder's (no copy)."""
+    """The spheres and the four support-cell arrays the kernel reads (cl/cells.h: bricks,
+    cells, the walk's lists and entries), with the grid's fields of the GlassParams record
+    `params` set; stand-ins without cells. They stay the builder's device buffers when
+    `context` is the builder's (no copy)."""
     grid = packed.cells
     if grid is None:
         return packed.spheres, [np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int32),
@@ -276,6 +277,5 @@ def kernel_arrays(packed: PackedSpheres, params, context=None):
     params["grid_skips"] = 4 * int(grid.dims.sum() + grid.bdims.sum()) + 64
     same = context is not None and grid.runs_device.context.int_ptr == context.int_ptr
     if same and grid.buffers:
-        return packed.spheres, [*grid.buffers, grid.runs_device]
-    return packed.spheres, [grid.bricks, grid.cells, grid.lists,
-                            grid.runs_device if same else grid.runs]
+        return packed.spheres, [*grid.buffers[:2], *grid.walk_device]
+    return packed.spheres, [grid.bricks, grid.cells, grid.walk, grid.entries]

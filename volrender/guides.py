@@ -23,7 +23,7 @@ from .dispatch import Dispatch, Plan, run_rows, upload
 
 ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
         "glass": ("cam", "gp", "spheres", "nodes", "env", "colors", "bricks", "cells", "lists",
-                  "runs")}
+                  "entries")}
 UNTILED = ("tiled", "tile_w", "tile_h", "tile_cap")
 
 
