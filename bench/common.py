@@ -99,21 +99,21 @@ def device_tag(dev) -> str:
 
 
 def render_points(cloud, camera, lights, settings, device, progress=None, variant=None,
-                  launch=None) -> dict:
-    """A PointCloud rendered through the public path (Scene.of, render): Image.as_dict().
+                  launch=None):
+    """A PointCloud rendered through the public path (Scene.of, render): a render.Image.
     The one render wrapper of bench/ and tests/ (tests/helpers.py imports it)."""
     from volrender.render import render
     from volrender.scene import GlassContent, Scene
     scene = Scene.of(camera, lights, GlassContent(cloud, settings))
-    return render(scene, device, progress=progress, variant=variant, launch=launch).as_dict()
+    return render(scene, device, progress=progress, variant=variant, launch=launch)
 
 
-def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None) -> dict:
-    """Bricks rendered through the public path (Scene.of, render): Image.as_dict()."""
+def render_volume(bricks, camera, lights, settings, device, progress=None, launch=None):
+    """Bricks rendered through the public path (Scene.of, render): a render.Image."""
     from volrender.render import render
     from volrender.scene import Scene, VolumeContent
     scene = Scene.of(camera, lights, VolumeContent(bricks, settings))
-    return render(scene, device, progress=progress, launch=launch).as_dict()
+    return render(scene, device, progress=progress, launch=launch)
 
 
 # The tiled volume kernel's culling alone (cl/volume_tile.h vr_tile_cull), per tile: how

@@ -161,7 +161,7 @@ def sweep(jobs, repeat, basis):
     (basis 'kernel') or median CPU ms / compute units (basis 'cpu')."""
     out = {}
     for key, render in jobs:
-        out[key] = {"rgba": render()["rgba"], "kernel": [], "wall": [], "cpu": []}
+        out[key] = {"rgba": render().rgba, "kernel": [], "wall": [], "cpu": []}
     order = list(jobs)
     rng = random.Random(1)
     for _ in range(repeat):
@@ -169,9 +169,9 @@ def sweep(jobs, repeat, basis):
         for key, render in order:
             r = render()
             o = out[key]
-            o["kernel"].append(r["kernel_ms"])
-            o["wall"].append(r["wall_ms"])
-            o["cpu"].append(r["cpu_ms"])
+            o["kernel"].append(r.kernel_ms)
+            o["wall"].append(r.wall_ms)
+            o["cpu"].append(r.cpu_ms)
     result = {}
     for key, o in out.items():
         t = {"kernel_ms": stats(o["kernel"]), "wall_ms": stats(o["wall"])}
@@ -253,8 +253,8 @@ def volume_reference(dev, b, cam, lights, base, batches, spp):
     for k in range(batches):
         r = render_volume(b, cam, lights, replace(base, estimator="track", spp=spp, seed=10_000 + k),
                           dev)
-        imgs.append(r["rgba"].astype(np.float64))
-        ms += r["kernel_ms"]
+        imgs.append(r.rgba.astype(np.float64))
+        ms += r.kernel_ms
     imgs = np.stack(imgs)
     ref = imgs.mean(0)
     var = imgs.var(0, ddof=1) / batches
@@ -348,8 +348,8 @@ def path_reference(dev, b, cam, lights, base, batches, spp):
     imgs, ms = [], 0.0
     for k in range(batches):
         r = render_volume(b, cam, lights, replace(base, estimator="path", spp=spp, seed=20_000 + k), dev)
-        imgs.append(r["rgba"].astype(np.float64))
-        ms += r["kernel_ms"]
+        imgs.append(r.rgba.astype(np.float64))
+        ms += r.kernel_ms
     imgs = np.stack(imgs)
     ref, var = imgs.mean(0), imgs.var(0, ddof=1) / batches
     summary = {"estimator": "path", "max_depth": base.max_depth, "spp": batches * spp,
@@ -397,7 +397,7 @@ def octave_fit(dev, scenes, refs, args):
         total = 0.0
         for (name, b, cam, lights, base), (ref, var, summ) in zip(scenes, refs):
             st = replace(base, ms_octaves=n, ms_octave_scales=(a, bb, c), spp=2, seed=3)
-            img = render_volume(b, cam, lights, st, dev)["rgba"]
+            img = render_volume(b, cam, lights, st, dev).rgba
             e = errors(img, ref, var)
             row["scenes"][name] = {"rel_rmse": e["rmse_corrected"] / summ["value_rms"],
                                    "mean_ratio": float(img[..., :3].mean() / ref[..., :3].mean())}
@@ -427,7 +427,7 @@ def run_ms(dev, args, record):
         ref, var, summ = path_reference(dev, b, cam, lights, base, args.ref_batches, args.ms_ref_spp)
         refs.append((ref, var, summ))
         single = render_volume(b, cam, lights, replace(base, estimator="path", max_depth=1,
-                                                       spp=args.ms_ref_spp, seed=7), dev)["rgba"]
+                                                       spp=args.ms_ref_spp, seed=7), dev).rgba
         summ["single_over_multiple"] = float(single[..., :3].mean() / max(ref[..., :3].mean(), 1e-30))
         print(f"[{name}] MS reference: path {summ['spp']} spp, depth {summ['max_depth']}, "
               f"{summ['kernel_ms_total'] / 1e3:.1f} s kernel; se {summ['se_rel']:.2%} of the value rms; "
@@ -555,7 +555,7 @@ def run_defaults(dev, args, record):
                 *[("octaves", f"march {n} octaves", with_(ms_octaves=n)) for n in (2, 4, 8)],
                 *[("path", f"path {n} spp", with_(estimator="path", spp=n, seed=7 + n))
                   for n in (1, 4, 16)]]
-        done = sweep([(i, (lambda sc_=sc_: render(sc_, dev).as_dict()))
+        done = sweep([(i, (lambda sc_=sc_: render(sc_, dev)))
                       for i, (_, _, sc_) in enumerate(jobs)], args.repeat, args.basis)
         for i, (group, label, _) in enumerate(jobs):
             img, t = done[i]
@@ -578,8 +578,8 @@ def run_defaults(dev, args, record):
             row = {"group": "adaptive", "label": f"path to noise {target:g}",
                    "time_ms": 1e3 * (time.process_time() - c1) / args.basis[1]
                    if args.basis[0] == "cpu" else r.kernel_ms,
-                   "wall_ms": 1e3 * (time.perf_counter() - t1), "spp": r.info["spp"],
-                   "passes": r.info["passes"], "noise_estimate": r.info["noise"],
+                   "wall_ms": 1e3 * (time.perf_counter() - t1), "spp": r.info.spp,
+                   "passes": r.info.passes, "noise_estimate": r.info.noise,
                    **default_errors(r.rgba, ref, var)}
             sc["rows"].append(row)
         single = next(r for r in sc["rows"] if r["group"] == "single")
@@ -676,8 +676,8 @@ def run_denoise(dev, args, record):
         for n in spps:
             img = render(scene.replace(spp=n, seed=n, denoise="on"), dev)
             base = img.cpu_ms / cores if cpu else img.kernel_ms
-            extra = ((img.info["guides_cpu_ms"] + img.info["denoise_cpu_ms"]) / cores if cpu
-                     else img.info["guides_ms"] + img.info["denoise_ms"])
+            extra = ((img.info.guides_cpu_ms + img.info.denoise_cpu_ms) / cores if cpu
+                     else img.info.guides_ms + img.info.denoise_ms)
             c1, t1 = time.process_time(), time.perf_counter()
             plain = denoise.denoise(img.noisy)            # OIDN on the colour alone
             alone = 1e3 * ((time.process_time() - c1) / cores if cpu else time.perf_counter() - t1)
@@ -686,7 +686,7 @@ def run_denoise(dev, args, record):
                 row = {"group": group, "label": f"{group} {n} spp", "spp": n, "time_ms": t,
                        **masked_errors(pic, ref, var, covered)}
                 if group == "path + OIDN":
-                    row.update(guides_ms=img.info["guides_ms"], denoise_ms=img.info["denoise_ms"])
+                    row.update(guides_ms=img.info.guides_ms, denoise_ms=img.info.denoise_ms)
                 sc["rows"].append(row)
                 print(f"[{name}] {row['label']:34s} {t:9.1f} ms  rel rmse (covered) "
                       f"{row['rel_rmse']:.2%}  mean x{row['mean_ratio']:.3f}", flush=True)
@@ -819,12 +819,12 @@ def run_glass(dev, width, height, args, record):
     for i, (name, cloud, cam, lights, base) in enumerate(glass_scenes(width, height, args.quick)):
         t0 = time.perf_counter()
         r = render_points(cloud, cam, lights, replace(base, **GLASS_REF), dev)
-        ref = r["rgba"].astype(np.float64)
-        summary = {**describe_glass(replace(base, **GLASS_REF)), "kernel_ms": r["kernel_ms"],
+        ref = r.rgba.astype(np.float64)
+        summary = {**describe_glass(replace(base, **GLASS_REF)), "kernel_ms": r.kernel_ms,
                    "value_rms": float(np.sqrt((ref[..., :3] ** 2).mean())),
                    "coverage": float((ref[..., 3] > 0.5).mean())}
         print(f"[{name}] reference: eps 1e-6, 4096 steps, 12 bounces, brute force, "
-              f"{r['kernel_ms'] / 1e3:.1f} s kernel (value rms {summary['value_rms']:.3g})", flush=True)
+              f"{r.kernel_ms / 1e3:.1f} s kernel (value rms {summary['value_rms']:.3g})", flush=True)
         scene = {"scene": name, "points": len(cloud), "reference": summary, "rows": []}
         record["glass"].append(scene)
         settings = [(g, lab, replace(base, **kw))

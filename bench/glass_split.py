@@ -68,7 +68,7 @@ def main(argv=None):
         t0 = time.perf_counter()
         ref_s = replace(base, split_events=64, roulette=0.0)
         batches = [render_points(cloud, cam, lights, replace(ref_s, spp=args.ref_spp // 4,
-                                                             seed=100 + b), dev)["rgba"]
+                                                             seed=100 + b), dev).rgba
                    for b in range(4)]
         ref = np.mean(batches, axis=0).astype(np.float64)
         ref_var = np.var(batches, axis=0, ddof=1) / 4          # variance of the mean

@@ -61,7 +61,7 @@ def overhead(dev, size, spp, repeat):
                 times[name].append(time.perf_counter() - t)
                 cpu[name].append(time.process_time() - c)
                 images[name] = img.rgba
-                launches[name] = img.info["launches"]
+                launches[name] = img.info.launches
         base = statistics.median(times["bands"])
         base_cpu = statistics.median(cpu["bands"])
         row = {"scene": str(source.name if isinstance(source, Path) else source),

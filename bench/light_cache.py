@@ -22,6 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import device_info, find_volume, missing_data, result_path, write_json  # noqa: E402
+from volrender.render_info import FIELDS  # noqa: E402
 
 FILES = ("smoke", "wdas_cloud_sixteenth")
 
@@ -53,9 +54,9 @@ def timed(scene, dev):
     from volrender.render import render
     t0 = time.perf_counter()
     img = render(scene, dev)
-    return img, {"wall_s": img.info.get("setup_ms", 0.0) / 1e3 + img.wall_ms / 1e3,
+    return img, {"wall_s": img.info.setup_ms / 1e3 + img.wall_ms / 1e3,
                  "host_s": time.perf_counter() - t0, "kernel_ms": img.kernel_ms,
-                 **{k: v for k, v in img.info.items() if k.startswith("light_cache")}}
+                 **{k: getattr(img.info, k) for k in sorted(FIELDS) if k.startswith("light_cache")}}
 
 
 def main(argv=None):

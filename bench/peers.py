@@ -123,7 +123,7 @@ def vr_render(b, cam, sun, scene, phase, step, shadow_step, spp, seed, dev):
                        step=step, shadow_step=shadow_step, spp=spp, seed=seed)
     with Clock() as c:
         r = render_volume(b, cam, [sun], s, dev)
-    return r["rgba"][..., :3].astype(np.float64), c, r["kernel_ms"]
+    return r.rgba[..., :3].astype(np.float64), c, r.kernel_ms
 
 
 def scaled_camera(cam, f):
@@ -575,7 +575,7 @@ def path_section(args, dev, mi, variant):
     for k in range(args.path_batches):
         with Clock() as c:
             r = render_volume(b, cam, [sun], replace(s, seed=500 + k), dev)
-        vr_imgs.append(r["rgba"][..., :3])
+        vr_imgs.append(r.rgba[..., :3])
         vr_secs.append(c.wall)
         vr_cpu.append(c.cpu)
     v_mean, v_var, v_stats = noise_stats(vr_imgs, vr_secs, args.path_vr_spp)

@@ -93,18 +93,18 @@ def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True):
 
 
 def summarise(records, wall_s) -> dict:
-    ok = [r for r in records if r["status"] == "ok"]
-    secs = sorted(r["seconds"] for r in ok)
+    ok = [r for r in records if r.status == "ok"]
+    secs = sorted(r.seconds for r in ok)
 
     def mean(key):
-        return statistics.fmean(r[key] for r in ok) if ok else 0.0
+        return statistics.fmean(getattr(r, key) for r in ok) if ok else 0.0
     return {"frames": len(ok), "failed": len(records) - len(ok), "wall_s": wall_s,
             "fps": len(ok) / wall_s if wall_s > 0 else 0.0,
             "frame_s": {"min": secs[0], "median": statistics.median(secs), "max": secs[-1]} if secs else {},
             "mean_s": {k: mean(f"{k}_s") for k in ("load", "build", "setup", "kernel", "render",
                                                    "write")},
-            "workers_used": sorted({r.get("worker") for r in ok}),
-            "devices": sorted({r.get("device") for r in ok})}
+            "workers_used": sorted({r.worker for r in ok}),
+            "devices": sorted({r.device for r in ok})}
 
 
 def run(pattern, n_frames, out, n_workers, size, opts, chunk, dev_spec, fmt):

@@ -40,7 +40,7 @@ def display_seconds(img) -> float:
     from PIL import Image as PILImage
     from volrender.image import png_pixels
     t0 = time.perf_counter()
-    rgb = png_pixels(img.rgba, 0.0, "filmic", background=img.info.get("background"),
+    rgb = png_pixels(img.rgba, 0.0, "filmic", background=img.info.background,
                      alpha="opaque")[..., :3]
     PILImage.fromarray(np.ascontiguousarray(rgb)).save(io.BytesIO(), format="JPEG", quality=90)
     return time.perf_counter() - t0

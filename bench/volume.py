@@ -25,6 +25,7 @@ bench/data/, e.g. `volrender convert ../shared/data/vdb/smoke.vdb bench/data/smo
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -82,7 +83,7 @@ def timed(b, cam, lights, s, dev, cpu: bool):
     t = time.process_time()
     r = render_volume(b, cam, lights, s, dev)
     if cpu:
-        r["cpu_ms"] = 1e3 * (time.process_time() - t)
+        r = dataclasses.replace(r, cpu_ms=1e3 * (time.process_time() - t))
     return r
 
 
@@ -138,14 +139,13 @@ def main(argv=None):
         runs = {k: {"kernel_ms": [], "wall_ms": [], "cpu_ms": []} for k in configs}
         images = {}
         for key, s in configs.items():
-            images[key] = render_volume(b, cam, [sun], s, dev)["rgba"]   # warm-up (and build)
+            images[key] = render_volume(b, cam, [sun], s, dev).rgba   # warm-up (and build)
         for _ in range(args.repeat):          # interleaved: one round of every config
             for key, s in configs.items():
                 r = timed(b, cam, [sun], s, dev, cpu)
                 for m in runs[key]:
-                    if m in r:
-                        runs[key][m].append(r[m])
-                images[key] = r["rgba"]
+                    runs[key][m].append(getattr(r, m))
+                images[key] = r.rgba
         for key in configs:
             row[key] = {m: stats(v) for m, v in runs[key].items() if v}
         diff = np.abs(images["skip"] - images["plain"])

@@ -1,7 +1,6 @@
 """Shared helpers of the tests: renders through the public path (`render.render` of a
-`Scene.of(...)`) as an Image (volume_image, render_glass) or as Image.as_dict()
-(render_points, render_volume: 'rgba', each AOV by name, the timings and the info; the
-wrapper is bench/common.py's, shared with the benchmarks), and,
+`Scene.of(...)`) as an Image (volume_image, render_glass, and render_points, render_volume:
+bench/common.py's wrappers, shared with the benchmarks), and,
 for the closed-form tests (test_optics, test_depth, test_env_sampling), grids with a known
 world transform, cameras and reference formulas.
 

@@ -29,16 +29,16 @@ def test_a_small_object_in_a_large_sky_is_rendered_until_it_is_clean(cl_device):
     info = img.info
     covered = img.rgba[..., 3] > volume.COVERED_ALPHA
     assert 0.01 < covered.mean() < 0.15
-    assert info["stopped"].startswith("noise") and info["noise"] <= target
-    whole_met = [n for n, _, whole in info["history"][volume.ADAPTIVE_MIN_PASSES - 2:]
+    assert info.stopped.startswith("noise") and info.noise <= target
+    whole_met = [n for n, _, whole in info.history[volume.ADAPTIVE_MIN_PASSES - 2:]
                  if whole <= target]
-    assert whole_met and whole_met[0] < info["spp"] / 2, info["history"]
-    assert info["spp"] == info["samples_taken"] == info["history"][-1][0]
+    assert whole_met and whole_met[0] < info.spp / 2, info.history
+    assert info.spp == info.samples_taken == info.history[-1][0]
     ref = render(small_blob(), cl_device, spp=2048, seed=99, **SKY)
     m = ref.rgba[..., 3] > volume.COVERED_ALPHA
     true = np.sqrt(((img.rgba - ref.rgba)[..., :3][m] ** 2).mean()) / np.sqrt(
         (ref.rgba[..., :3][m] ** 2).mean())
-    assert target / 3 < true < 1.5 * target, (true, info["noise"])
+    assert target / 3 < true < 1.5 * target, (true, info.noise)
 
 
 def test_the_time_limit_holds_when_one_pass_of_spp_would_overrun_it(cl_device):
@@ -47,16 +47,16 @@ def test_the_time_limit_holds_when_one_pass_of_spp_would_overrun_it(cl_device):
     launch's length)."""
     kw = dict(SKY, size=(64, 48), fill=1.0)
     img = render(small_blob(), cl_device, spp=1024, time_limit=0.6, **kw)
-    assert img.info["stopped"].startswith("time limit"), img.info["stopped"]
+    assert img.info.stopped.startswith("time limit"), img.info.stopped
     assert img.wall_ms < 600 + 400, img.wall_ms
-    assert img.info["spp"] >= 1 and img.info["spp"] == img.info["samples_taken"]
+    assert img.info.spp >= 1 and img.info.spp == img.info.samples_taken
 
 
 def test_an_unreachable_target_stops_at_the_cap_and_says_what_it_reached(cl_device):
     img = render(small_blob(), cl_device, spp=2, noise_target=1e-4, max_spp=16, **SKY)
-    assert img.info["spp"] == img.info["samples_taken"] == 16
-    assert "the cap of 16 spp (--max-spp) before the target" in img.info["stopped"]
-    assert f"{img.info['noise']:.3g}" in img.info["adaptive"]
+    assert img.info.spp == img.info.samples_taken == 16
+    assert "the cap of 16 spp (--max-spp) before the target" in img.info.stopped
+    assert f"{img.info.noise:.3g}" in img.info.adaptive
 
 
 def test_the_status_line_reports_the_samples_taken(cl_device):

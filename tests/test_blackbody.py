@@ -123,7 +123,7 @@ def test_temperature_grid_colours_each_voxel(cl_device, estimator):
     s = VolumeSettings(density_scale=0.0, emission_grid="emission", temperature_grid="temperature",
                        temperature_scale=1e4, emission_scale=2.0, estimator=estimator,
                        spp=1 if estimator == "march" else 256, emission_law="colour")
-    img = render_volume(b, cam, [], s, cl_device)["rgba"][..., :3].astype(np.float64)
+    img = render_volume(b, cam, [], s, cl_device).rgba[..., :3].astype(np.float64)
     left, right = img[6:10, 2:6].reshape(-1, 3), img[6:10, 10:14].reshape(-1, 3)
     for block, kelvin in ((left, 1200.0), (right, 4000.0)):
         colour = block / block.max(axis=1, keepdims=True)
@@ -166,14 +166,14 @@ def test_blender_fire_shows_more_than_one_hue(cl_device, shared_data):
     cam = frame_bounds(*b.world_bounds(), 40, 30)
     s = VolumeSettings(density_scale=200.0, emission_grid="flame", temperature_grid="temperature",
                        temperature_scale=1000.0, emission_scale=20.0)
-    img = render_volume(b, cam, [], s, cl_device)["rgba"][..., :3].astype(np.float64)
+    img = render_volume(b, cam, [], s, cl_device).rgba[..., :3].astype(np.float64)
     lit = img.max(axis=2) > 0.05 * img.max()
     g_over_r = (img[..., 1] / np.maximum(img[..., 0], 1e-12))[lit]
     assert lit.sum() > 30
     lo, hi = np.percentile(g_over_r, [5, 95])
     assert hi - lo > 0.1, (lo, hi)            # e.g. 1700 K (0.21) to 2500 K (0.39)
     one = render_volume(b, cam, [], VolumeSettings(density_scale=200.0, emission_grid="flame",
-                                                   emission_scale=20.0), cl_device)["rgba"]
+                                                   emission_scale=20.0), cl_device).rgba
     hue = (one[..., 1] / np.maximum(one[..., 0], 1e-12))[lit]
     assert np.ptp(hue) < 1e-3                       # one blackbody colour without it
 
@@ -190,7 +190,7 @@ def test_blackbody_law_brightness_rises_as_t4(cl_device, estimator):
                        temperature_scale=1e4, emission_scale=2.0, estimator=estimator,
                        spp=1 if estimator == "march" else 256)
     assert s.blackbody_law
-    img = render_volume(b, cam, [], s, cl_device)["rgba"][..., :3].astype(np.float64)
+    img = render_volume(b, cam, [], s, cl_device).rgba[..., :3].astype(np.float64)
     lum = {}
     for (rows, cols), kelvin in (((slice(6, 10), slice(2, 6)), 1200.0),
                                  ((slice(6, 10), slice(10, 14)), 4000.0)):

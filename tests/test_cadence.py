@@ -32,7 +32,7 @@ def test_cheap_band_does_not_make_one_launch_cover_the_image(cl_device, monkeypa
     longest = max(t for *_, t in launches)
     assert longest <= 2 * dispatch.TARGET_S, launches
     assert max(r for _, r, _, _ in launches) <= H // 4, launches
-    assert img.info["launches"] == len(launches)
+    assert img.info.launches == len(launches)
 
 
 def test_progress_moves_at_least_every_target(cl_device, monkeypatch, log):

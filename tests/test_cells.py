@@ -39,7 +39,7 @@ def render(dev, cloud, size=(20, 20), cam=None, lights=LIGHTS, **kw):
     jobs would take the tree walk under auto on CPUs)."""
     cam = cam or glass.default_camera(cloud, *size, radius=kw.get("radius"))
     s = glass.GlassSettings(**{"accel": "grid", **kw})
-    return render_points(cloud, cam, list(lights), s, dev)["rgba"]
+    return render_points(cloud, cam, list(lights), s, dev).rgba
 
 
 def differ(a, b, atol=2e-3):
@@ -311,7 +311,7 @@ def test_too_many_list_entries_fall_back_to_the_tree(cl_device):
     packed = content.prepare(cl_device, max_runs=10)
     assert packed.accel == "tree" and "tree walk" in packed.note
     r = render_scene(Scene.of(cam, [], content), cl_device)
-    assert r.info["accel"] == "tree" and "tree walk" in r.info["note"]
+    assert r.info.accel == "tree" and "tree walk" in r.info.note
     assert np.isfinite(r.rgba).all()
 
 

@@ -47,16 +47,16 @@ def test_white_furnace_every_octave_count(cl_device, density):
     if density <= 1.0:                                   # (dense: the march's step bias)
         assert abs(tr.mean() / ss.mean() - 1) < 0.03
     auto, img = furnace(cl_device, density, spp=4, ms_octaves=volume.AUTO_OCTAVES, ms_orders=0)
-    assert img.info["estimator"] == "march" and img.info["ms_octaves"] == volume.AUTO_OCTAVES
-    assert "4 octave bands" in img.info["estimator_note"]
+    assert img.info.estimator == "march" and img.info.ms_octaves == volume.AUTO_OCTAVES
+    assert "4 octave bands" in img.info.estimator_note
     assert np.all(np.abs(auto - 1) < 0.02)
     # auto's own choice on this tiny image (auto_model): the bands where the ball is thin,
     # the path estimator where it is dense, whose image mean is L within its noise (at
     # density 100 the path estimator's own furnace is x0.93: left to its tests)
     auto, img = furnace(cl_device, density, max_depth=100000)
     if density > 1.0:
-        assert img.info["estimator"] == "path" and img.info["spp"] >= 64
-        assert "estimator auto: path" in img.info["estimator_note"]
+        assert img.info.estimator == "path" and img.info.spp >= 64
+        assert "estimator auto: path" in img.info.estimator_note
     if density <= 12.0:
         assert abs(auto.mean() - 1) < 0.03, auto.mean()
 
@@ -172,17 +172,17 @@ def test_adaptive_passes_meet_the_noise_target(cl_device):
     target = 0.03
     _, img = furnace(cl_device, 12.0, estimator="path", spp=2, max_depth=100000,
                      noise_target=target)
-    assert img.info["noise"] <= target and img.info["passes"] > volume.ADAPTIVE_MIN_PASSES
+    assert img.info.noise <= target and img.info.passes > volume.ADAPTIVE_MIN_PASSES
     rgba = img.rgba.astype(np.float64)
     hit = rgba[..., 3] > 0
     true = np.sqrt(((rgba[..., :3][hit] - ENV) ** 2).mean()) / np.sqrt(
         (np.asarray(ENV) ** 2).mean())
-    assert true <= 1.5 * target, (true, img.info["noise"])
-    assert img.info["noise_map"].shape == (16, 16)
-    assert img.info["spp"] == img.info["passes"] * 0 + img.info["spp"] and img.info["spp"] > 8
+    assert true <= 1.5 * target, (true, img.info.noise)
+    assert img.info.noise_map.shape == (16, 16)
+    assert img.info.spp == img.info.passes * 0 + img.info.spp and img.info.spp > 8
     _, quick = furnace(cl_device, 12.0, estimator="path", spp=2, max_depth=100000,
                        noise_target=1e-4, time_limit=0.3)
-    assert quick.info["stopped"].startswith("time limit") and quick.wall_ms < 3000
+    assert quick.info.stopped.startswith("time limit") and quick.wall_ms < 3000
 
 
 def test_noise_estimate_is_the_standard_error():

@@ -112,7 +112,7 @@ def test_denoising_a_low_spp_cloud_lowers_its_error(cl_device):
     covered = ref.rgba[..., 3] > 0.05
     assert covered.mean() > 0.2
     noisy, clean = rel_rmse(img.noisy, ref.rgba, covered), rel_rmse(img.rgba, ref.rgba, covered)
-    assert img.info["denoised"] and noisy > 0.2
+    assert img.info.denoised and noisy > 0.2
     assert clean < 0.5 * noisy, (noisy, clean)
     np.testing.assert_array_equal(img.rgba[..., 3], img.noisy[..., 3])   # alpha is the render's
 
@@ -160,7 +160,7 @@ def test_without_pyoidn_a_render_is_written_as_rendered_with_one_line(cl_device,
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         img = render(small_cloud(), cl_device, size=(8, 6), denoise="on")
-    assert img.noisy is None and img.info["denoised"] is False
+    assert img.noisy is None and img.info.denoised is False
     assert len(caught) == 1 and "not denoised" in str(caught[0].message)
     from volrender.cli import main
     capsys.readouterr()

@@ -71,16 +71,16 @@ def tiled(s, tile=(8, 8)):
 
 def compare(dev, b, cam, s, lights=LIGHTS, tiles=((8, 8),), launch=None):
     """Render fragment and tiled (each tile size); assert they agree; return the images."""
-    ref = render_volume(b, cam, lights, s, dev, launch=launch)["rgba"]
+    ref = render_volume(b, cam, lights, s, dev, launch=launch).rgba
     assert np.all(np.isfinite(ref))
     tol = tolerance(b, cam, s, lights, float(ref.max()))
     out = {}
     for tile in tiles:
         t = render_volume(b, cam, lights, tiled(s, tile), dev, launch=launch)
-        assert t["flags"]["VR_TILED"] == 1 and t["flags"]["VR_TILE_W"] == tile[0]
-        diff = float(np.abs(t["rgba"] - ref).max())
+        assert t.flags["VR_TILED"] == 1 and t.flags["VR_TILE_W"] == tile[0]
+        diff = float(np.abs(t.rgba - ref).max())
         assert diff <= tol, f"tile {tile}: max |diff| {diff:.3g} > {tol:.3g}"
-        out[tile] = t["rgba"]
+        out[tile] = t.rgba
     return ref, out
 
 
@@ -167,8 +167,8 @@ def test_several_samples_per_pixel_and_depth(cl_device, sparse):
     cam = Camera((0.0, 1.5, 11.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 75.0, 24, 16)
     s = VolumeSettings(density_scale=6.0, spp=3, seed=5, aovs=("depth",))
     compare(cl_device, sparse, cam, s, tiles=((8, 8), (16, 4)))
-    f = render_volume(sparse, cam, LIGHTS, s, cl_device)["depth"]
-    t = render_volume(sparse, cam, LIGHTS, tiled(s), cl_device)["depth"]
+    f = render_volume(sparse, cam, LIGHTS, s, cl_device).aovs["depth"]
+    t = render_volume(sparse, cam, LIGHTS, tiled(s), cl_device).aovs["depth"]
     np.testing.assert_allclose(t, f, rtol=1e-6)
 
 
@@ -182,7 +182,7 @@ def test_list_overflow_falls_back_to_the_full_march(cl_device, sparse):
                      launch=Launch(tile_cap=5))
     r = render_volume(sparse, cam, [], tiled(VolumeSettings()), cl_device,
                       launch=Launch(tile_cap=5))
-    assert r["flags"]["VR_TILE_CAP"] == 5
+    assert r.flags["VR_TILE_CAP"] == 5
 
 
 def test_plain_marching_with_tiled_launch(cl_device, sparse):
@@ -225,7 +225,7 @@ def test_fragment_compiles_no_local_memory(cl_device, dense):
     info = cl.kernel_work_group_info.LOCAL_MEM_SIZE
     mem = {}
     for kind in ("fragment", "tiled"):
-        flags = render_volume(dense, cam, [], VolumeSettings(dispatch=kind), cl_device)["flags"]
+        flags = render_volume(dense, cam, [], VolumeSettings(dispatch=kind), cl_device).flags
         mem[kind] = cl_device.kernel("render_volume", flags).get_work_group_info(info, cl_device.device)
     assert mem["fragment"] < 64           # NVIDIA's driver reports a byte or so for none
     assert mem["tiled"] >= 16 * features.VOLUME_TILE_CAP
@@ -282,7 +282,7 @@ def test_tolerance_is_tight_enough_to_see_one_lost_sample(cl_device, sparse):
     its march two samples late)."""
     cam = Camera((-11.0, 0.1, 0.15), (8.0, 0.0, 0.0), (0.0, 1.0, 0.0), 12.0, 32, 24)
     s = VolumeSettings(density_scale=6.0)
-    ref = render_volume(sparse, cam, LIGHTS, s, cl_device)["rgba"]
+    ref = render_volume(sparse, cam, LIGHTS, s, cl_device).rgba
     tol = tolerance(sparse, cam, s, LIGHTS, float(ref.max()))
     # opacity of one sample on the block's plateau (density 0.8)
     one_sample = 1.0 - np.exp(-s.density_scale * 0.8 * s.step * sparse.voxel_size)
@@ -299,6 +299,6 @@ def test_skipping_runs_or_single_bricks_gives_the_plain_image(cl_device, sparse)
     plain = render_volume(sparse, cam, lights, replace(base, skip_empty=False), cl_device)
     for runs in (True, False):
         r = render_volume(sparse, cam, lights, replace(base, skip_runs=runs), cl_device)
-        assert r["flags"]["VR_SKIP_RUNS"] == int(runs)
-        np.testing.assert_array_equal(r["rgba"], plain["rgba"])
-    assert plain["rgba"][..., 3].max() > 0.5
+        assert r.flags["VR_SKIP_RUNS"] == int(runs)
+        np.testing.assert_array_equal(r.rgba, plain.rgba)
+    assert plain.rgba[..., 3].max() > 0.5

@@ -154,7 +154,7 @@ def test_march_env_single_scattering_in_a_thin_slab(cl_device, tmp_path, g):
     cam = top_camera(12, fov=4.0)
     s = VolumeSettings(density_scale=0.01, albedo=0.8, phase=(g, 0.0, 1.0), env=str(tmp_path / "sky.exr"),
                        spp=256, seed=5, step=0.5, shadow_step=0.5, hide_env=True)
-    rgba = render_volume(b, cam, [], s, cl_device)["rgba"].astype(np.float64)
+    rgba = render_volume(b, cam, [], s, cl_device).rgba.astype(np.float64)
     h, w = t.shape[:2]
     th = (np.arange(256) + 0.5) / 256 * np.pi
     ph = (np.arange(512) + 0.5) / 512 * 2 * np.pi
@@ -200,8 +200,8 @@ def test_env_is_seen_behind_unless_hidden(cl_device):
     for est in ("march", "path"):
         base = dict(density_scale=3.0, env=(0.2, 0.3, 0.5), background=(0.1, 0.0, 0.0),
                     estimator=est, spp=4, seed=3)
-        shown = render_volume(b, cam, [], VolumeSettings(**base), cl_device)["rgba"]
-        hidden = render_volume(b, cam, [], VolumeSettings(**base, hide_env=True), cl_device)["rgba"]
+        shown = render_volume(b, cam, [], VolumeSettings(**base), cl_device).rgba
+        hidden = render_volume(b, cam, [], VolumeSettings(**base, hide_env=True), cl_device).rgba
         miss = shown[..., 3] == 0
         assert miss.sum() > 20
         np.testing.assert_allclose(shown[miss][:, :3], np.broadcast_to([0.3, 0.3, 0.5], (miss.sum(), 3)),
@@ -241,7 +241,7 @@ def test_glass_takes_a_uniform_env_as_a_one_texel_map(cl_device):
     s = glass.GlassSettings(env=(0.2, 0.4, 0.6), refraction=False)
     sc = Scene.of(cam, [], glass_content(cloud, s))
     assert sc.environment.texels.shape == (1, 1, 3)
-    rgba = render_points(cloud, cam, [], s, cl_device)["rgba"]
+    rgba = render_points(cloud, cam, [], s, cl_device).rgba
     miss = rgba[..., 3] == 0
     assert miss.sum() > 20
     np.testing.assert_allclose(rgba[miss][:, :3], np.broadcast_to([0.2, 0.4, 0.6], (miss.sum(), 3)),

@@ -69,7 +69,7 @@ def test_optically_thick_ball_is_an_opaque_silhouette(cl_device, ball_bricks, sc
     see exactly the background. The trilinear edge blurs the rim by ~1.5 voxels."""
     cam = front_camera()
     r = render_volume(ball_bricks, cam, [], VolumeSettings(density_scale=scale, background=BG),
-                      cl_device)["rgba"]
+                      cl_device).rgba
     finite(r)
     b = impact(cam)
     core, miss = b < REFF - 1.5 * VOX, b > REFF + 1.5 * VOX
@@ -89,12 +89,12 @@ def test_opaque_medium_reaches_the_unshadowed_limit(cl_device, ball_bricks):
     phase = (0.6, -0.3, 0.8)
     base = dict(density_scale=1e6, albedo=0.7, phase=phase)
     free = render_volume(ball_bricks, cam, [sun], VolumeSettings(**base, shadows=False),
-                         cl_device)["rgba"]
+                         cl_device).rgba
     core = impact(cam) < REFF - 1.5 * VOX
     mu = -cam.pixel_dirs() @ np.array(sun.direction)
     want = 0.7 * reference.phase(mu, *phase) * 2.0
     np.testing.assert_allclose(free[core][:, 0], want[core], rtol=1e-5)
-    lit = render_volume(ball_bricks, cam, [sun], VolumeSettings(**base), cl_device)["rgba"]
+    lit = render_volume(ball_bricks, cam, [sun], VolumeSettings(**base), cl_device).rgba
     finite(lit)
     assert (lit[..., :3] <= free[..., :3] * (1 + 1e-5) + 1e-7).all()
 
@@ -112,7 +112,7 @@ def test_density_scale_beyond_float32_is_finite_or_refused(cl_device, ball_brick
     except UserError as exc:
         assert "density" in str(exc)
         return
-    r = render_volume(ball_bricks, cam, [Sun((0, -1, -1), 1.0)], s, cl_device)["rgba"]
+    r = render_volume(ball_bricks, cam, [Sun((0, -1, -1), 1.0)], s, cl_device).rgba
     finite(r)
     assert (r[impact(cam) < REFF - 1.5 * VOX][:, 3] >= 1.0 - 1e-5).all()
 
@@ -123,7 +123,7 @@ def test_huge_voxel_values_times_huge_scale_stay_finite(cl_device):
     b = centred(v)
     cam = front_camera(12, 9)
     r = render_volume(b, cam, [Sun((0, -1, -1), 1.0), PointLight((0, 0, 0), 5.0)],
-                      VolumeSettings(density_scale=1e30, background=BG), cl_device)["rgba"]
+                      VolumeSettings(density_scale=1e30, background=BG), cl_device).rgba
     finite(r)
     assert (r[impact(cam) < REFF - 1.5 * VOX][:, 3] >= 1.0 - 1e-5).all()
 
@@ -137,7 +137,7 @@ def lit_ball(cl_device, bricks, phase, shadows=False, cam=None):
     cam = cam or front_camera(16, 12)
     sun = Sun((0.3, -0.4, -1.0), 2.0)
     s = VolumeSettings(**{**THIN, "shadows": shadows}, phase=phase)
-    return render_volume(bricks, cam, [sun], s, cl_device)["rgba"], cam, sun
+    return render_volume(bricks, cam, [sun], s, cl_device).rgba, cam, sun
 
 
 @pytest.mark.parametrize("g", [G_MAX, -G_MAX])
@@ -194,7 +194,7 @@ def test_zero_density_scale_is_exactly_the_background(cl_device, ball_bricks):
     for shadows in (True, False):
         r = render_volume(ball_bricks, cam, lights,
                           VolumeSettings(density_scale=0.0, background=BG, shadows=shadows),
-                          cl_device)["rgba"]
+                          cl_device).rgba
         want = np.broadcast_to(np.float32([*BG, 0.0]), r.shape)
         np.testing.assert_array_equal(r, want)
 
@@ -206,7 +206,7 @@ def test_empty_grid_is_exactly_the_background(cl_device, skip):
     cam = front_camera(16, 12)
     r = render_volume(b, cam, [Sun((0, -1, -1), 3.0), PointLight((0.0, 0.5, 0.0), 4.0)],
                       VolumeSettings(density_scale=5.0, background=BG, skip_empty=skip),
-                      cl_device)["rgba"]
+                      cl_device).rgba
     np.testing.assert_array_equal(r, np.broadcast_to(np.float32([*BG, 0.0]), r.shape))
 
 
@@ -227,8 +227,8 @@ def test_nan_inf_and_negative_voxels_read_as_zero(cl_device):
     cam = front_camera(16, 12)
     lights = [Sun((0.2, -1, -1), 3.0), PointLight((0.0, 0.0, 0.0), 2.0)]
     s = VolumeSettings(density_scale=3.0, background=BG, spp=2)
-    a = render_volume(b_dirty, cam, lights, s, cl_device)["rgba"]
-    b = render_volume(centred(clean), cam, lights, s, cl_device)["rgba"]
+    a = render_volume(b_dirty, cam, lights, s, cl_device).rgba
+    b = render_volume(centred(clean), cam, lights, s, cl_device).rgba
     finite(a)
     np.testing.assert_array_equal(a, b)
 
@@ -260,8 +260,8 @@ def test_voxel_size_is_scale_invariant(cl_device, vox_scale):
     are scaled with them. The kernel works in voxel units, so only float32 rounding of
     the packed camera and transforms differs: 1e-5 relative per quantity, amplified by
     the optical depth (< 10 here) into ~1e-4 of the pixel value."""
-    ref = render_volume(*scene_at(1.0), cl_device)["rgba"]
-    got = render_volume(*scene_at(vox_scale), cl_device)["rgba"]
+    ref = render_volume(*scene_at(1.0), cl_device).rgba
+    got = render_volume(*scene_at(vox_scale), cl_device).rgba
     finite(got)
     assert ref[..., 3].max() > 0.5 and ref[..., 0].max() > 0.05
     np.testing.assert_allclose(got, ref, rtol=1e-3, atol=1e-4 * float(ref.max()))
@@ -273,8 +273,8 @@ def test_translation_far_from_the_origin_changes_nothing(cl_device):
     rounding of |local origin| ~ 30 voxels (2e-6 voxels): the image moves by far less
     than the 1e-4 tolerance. Done naively in float32 world space, 1e5 has a spacing of
     0.0078 = 8% of a voxel, which would show."""
-    ref = render_volume(*scene_at(1.0), cl_device)["rgba"]
-    far = render_volume(*scene_at(1.0, (1e5, -1e5, 1e5)), cl_device)["rgba"]
+    ref = render_volume(*scene_at(1.0), cl_device).rgba
+    far = render_volume(*scene_at(1.0, (1e5, -1e5, 1e5)), cl_device).rgba
     finite(far)
     np.testing.assert_allclose(far, ref, rtol=1e-4, atol=1e-5)
 
@@ -318,7 +318,7 @@ def test_rays_exactly_parallel_to_an_axis(cl_device, cube_bricks, axis, lateral)
     np.testing.assert_array_equal(cam.pixel_dirs()[0, 0], d)
     sigma, step = 0.3, 0.5
     r = render_volume(cube_bricks, cam, [Sun(tuple(-up), 1.0)],
-                      VolumeSettings(density_scale=sigma, step=step), cl_device)["rgba"]
+                      VolumeSettings(density_scale=sigma, step=step), cl_device).rgba
     finite(r)
     tau = -math.log(1.0 - float(r[0, 0, 3]))
     want = sigma * lateral_weight(lateral) ** 2 * CUBE * VOX
@@ -349,7 +349,7 @@ def test_camera_inside_the_volume(cl_device, ball_bricks):
     for shadows in (False, True):
         r = render_volume(ball_bricks, cam, [Sun((0, -1, 0), 2.0), PointLight((0.1, 0.2, 0.0), 1.0)],
                           VolumeSettings(density_scale=sigma, background=BG, shadows=shadows,
-                                         step=0.25), cl_device)["rgba"]
+                                         step=0.25), cl_device).rgba
         finite(r)
         tau = -np.log(1.0 - r[..., 3].astype(np.float64))
         err = tau - ref
@@ -373,7 +373,7 @@ def test_point_light_inside_the_volume(cl_device, ball_bricks, where):
     for shadows in (True, False):
         out[shadows] = render_volume(ball_bricks, cam, light,
                                      VolumeSettings(density_scale=3.0, shadows=shadows, spp=2),
-                                     cl_device)["rgba"]
+                                     cl_device).rgba
         finite(out[shadows])
     lit = out[True][..., 0][out[True][..., 3] > 0.5]
     assert lit.size and lit.min() > 0
@@ -387,7 +387,7 @@ GSIZE = 16
 
 def grender(dev, cloud, settings, cam=None, lights=(), size=GSIZE):
     cam = cam or glass.default_camera(cloud, size, size, radius=settings.radius)
-    return render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev).rgba
 
 
 def scaled_cam(cam, s, size=GSIZE):
@@ -539,8 +539,8 @@ def test_a_million_coincident_points(cl_device, monkeypatch):
     r = render_points(cloud, cam, [], glass.GlassSettings(blend=0.0, bounces=1, max_steps=32,
                                                          accel="grid"),
                             cl_device)
-    img = r["rgba"]
-    assert r["accel"] == "tree" and "centres in one brick" in r["note"]   # cells give way
+    img = r.rgba
+    assert r.info.accel == "tree" and "centres in one brick" in r.info.note   # cells give way
     finite(img)
     assert img[1, 1, 3] == 1.0
     if built:                           # the numpy build (CPUs)
@@ -666,7 +666,7 @@ def test_volume_knobs_at_their_bounds_give_finite_images(cl_device, knobs):
     elif mode == "point at a voxel":
         lights = [PointLight((0.0, 0.0, 0.0), BIG)]
     s = VolumeSettings(**knobs, emission_grid="emission" if "emission_scale" in knobs else None)
-    r = render_volume(b, front_camera(12, 9), lights, s, cl_device)["rgba"]
+    r = render_volume(b, front_camera(12, 9), lights, s, cl_device).rgba
     finite(r)
     assert r[..., :3].max() > 1e20               # bright, not blanked
 

@@ -235,7 +235,7 @@ def test_octave_bands_at_an_intermediate_contraction(cl_device, albedo):
     a_inf = volume_mod.octave_decay(s)
     assert np.all((a_inf > 0.3) & (a_inf < 0.95)), a_inf        # generic, not a limit
     cam = top_camera()
-    img = render_volume(slab(), cam, [Sun(tuple(prop), E)], s, cl_device)["rgba"]
+    img = render_volume(slab(), cam, [Sun(tuple(prop), E)], s, cl_device).rgba
     dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])[..., None]
     mu = -dirs @ prop
@@ -261,10 +261,10 @@ def test_alpha_is_one_minus_the_mean_channel_transmittance(cl_device):
     cz = np.abs(cam.pixel_dirs()[..., 2])
     want = 1 - np.mean([np.exp(-sigma * THICK * sc / cz) for sc in scale], axis=0)
     s = VolumeSettings(density_scale=sigma, sigma_t_scale=scale, step=0.1, estimator="march")
-    a = render_volume(slab(), cam, [], s, cl_device)["rgba"][..., 3]
+    a = render_volume(slab(), cam, [], s, cl_device).rgba[..., 3]
     np.testing.assert_allclose(a, want, atol=2e-3)
     t = VolumeSettings(density_scale=sigma, sigma_t_scale=scale, estimator="track", spp=64)
-    a = render_volume(slab(), cam, [], t, cl_device)["rgba"][..., 3]
+    a = render_volume(slab(), cam, [], t, cl_device).rgba[..., 3]
     assert_unbiased(a.ravel(), want.ravel(), "tracked alpha")
 
 
@@ -280,7 +280,7 @@ def test_march_samples_are_uniformly_jittered_within_a_step(cl_device):
     cam = top_camera(12, fov=4.0)
     s = VolumeSettings(density_scale=1e-4, step=3.7, spp=8, estimator="march",
                        emission_scale=2.0, seed=3)
-    img = render_volume(slab(emission=True), cam, [], s, cl_device)["rgba"][..., :3]
+    img = render_volume(slab(emission=True), cam, [], s, cl_device).rgba[..., :3]
     col = volume_mod.emission_color(s)
     cz = np.abs(cam.pixel_dirs()[..., 2])
     want = col[1] * THICK / cz * np.exp(-1e-4 * THICK / cz)

@@ -30,7 +30,7 @@ def field(dev, cloud, settings, x):
 
 def _render(dev, cloud, settings, cam=None, lights=(), size=SIZE):
     cam = cam or glass.default_camera(cloud, size, size, radius=settings.radius)
-    return render_points(cloud, cam, list(lights), settings, dev)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev).rgba
 
 
 def _samples(rng, cloud, n=400):

@@ -18,7 +18,7 @@ LIGHTS = [Sun((-0.5, -1.0, -0.3), 3.0), PointLight((2.0, 2.0, 2.0), 5.0)]
 
 def _render(dev, cloud, settings, size=(24, 20), cam=None, lights=LIGHTS, variant=None):
     cam = cam or glass.default_camera(cloud, *size)
-    return render_points(cloud, cam, list(lights), settings, dev, variant=variant)["rgba"]
+    return render_points(cloud, cam, list(lights), settings, dev, variant=variant).rgba
 
 
 def _agree(a, b, frac=1.0):
@@ -108,9 +108,9 @@ def test_uber_kernel_gives_the_specialised_image(cl_device, opts):
     a = _render(cl_device, cloud, s)
     r = render_points(cloud, glass.default_camera(cloud, 24, 20), LIGHTS, s, cl_device,
                             variant="uber")
-    np.testing.assert_allclose(a, r["rgba"], atol=1e-5)
+    np.testing.assert_allclose(a, r.rgba, atol=1e-5)
     # and it really is one program with every feature in
-    flags = r["flags"]
+    flags = r.flags
     assert flags["VR_UBER"] == 1 and flags["VR_REFRACTION"] == 1 and flags["VR_N_SUNS"] == 0
 
 

@@ -56,7 +56,7 @@ def settings(env, **kw):
 def ours(dev, spheres, s, cam=CAM):
     c, r = spheres
     return render_points(PointCloud(np.asarray(c, float), np.asarray(r, float)), cam, [], s,
-                         dev)["rgba"]
+                         dev).rgba
 
 
 def test_lossless_glass_vanishes_under_a_uniform_sky(cl_device):

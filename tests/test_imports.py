@@ -1,7 +1,16 @@
 """The package's modules import each other without a circle: every import counts, those
-inside functions too (a lazy import hides a circle from Python, not from a reader). And no
+inside functions too (a lazy import hides a circle from Python, not from a reader). No
 module takes another one's private name (`_x`): a name another module uses is part of its
-interface and is spelt so."""
+interface and is spelt so.
+
+Imports go at the top of a file, so that its head lists what it uses. An import inside a
+function is for a reason: an optional extra or a heavy module (pyopencl, PIL, OpenEXR,
+pyvista, pyoidn, openvdb, laspy, dask, scipy, matplotlib...), a module of the package that
+`volrender --help` does not load (image, vdb, inspect, denoise... : kept off the start-up
+path, `python -X importtime -m volrender --help`), or a standard-library module that costs
+start-up time (subprocess, multiprocessing, tomllib, html). The test of inner imports fails
+on the two that never have a reason: a module the file already imports at its top, and a
+module of CHEAP_STDLIB (loaded by `import volrender` anyway); INNER_ALLOWED says why else."""
 import ast
 from pathlib import Path
 
@@ -124,6 +133,75 @@ def test_the_private_import_finder_finds_both_forms(tmp_path):
     (tmp_path / "d.py").write_text("from . import a as m\nprint(m._x, m.y, m.__all__)\n")
     (tmp_path / "e.py").write_text("from . import a\nprint(a.y)\n")
     assert private_imports(tmp_path) == ["b: _x", "c: _x", "d: m._x"]
+
+
+# standard-library modules that `import volrender` loads anyway: importing them at the top costs
+# nothing (measured: python -X importtime -m volrender --help)
+CHEAP_STDLIB = frozenset("""argparse atexit base64 codecs collections contextlib copy dataclasses
+datetime enum errno fcntl fnmatch functools glob hashlib importlib io itertools json logging math
+numbers operator os pathlib pickle random re resource shutil signal stat string struct sys
+tempfile textwrap threading time traceback typing warnings weakref""".split())
+
+# 'module: imported module' -> why it stays inside a function
+INNER_ALLOWED = {
+    "__init__: os": "the start-up signal handler: nothing is imported before the handler is "
+                    "set, and os only when a signal comes",
+}
+
+
+def _top_modules(tree) -> set:
+    """The modules a file imports at its top ('.x' for the package's)."""
+    out = set()
+    for node in tree.body:
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = "." * node.level + (node.module or "")
+            out.add(base)
+            if node.level and not node.module:
+                out |= {"." + a.name for a in node.names}
+    return out
+
+
+def inner_imports(pkg=PKG) -> list:
+    """'module:line imported' for each import inside a function of a module that the file
+    already imports at its top, or that is in CHEAP_STDLIB."""
+    out = []
+    for p in sorted(pkg.glob("*.py")):
+        tree = ast.parse(p.read_text(), str(p))
+        top = _top_modules(tree)
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level and not node.module:
+                    names = ["." + a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    names = ["." * node.level + node.module]
+                else:
+                    continue
+                for m in names:
+                    if (m in top or (not m.startswith(".") and m in CHEAP_STDLIB)) and \
+                            f"{p.stem}: {m}" not in INNER_ALLOWED:
+                        out.append(f"{p.stem}:{node.lineno} {m}")
+    return sorted(set(out))
+
+
+def test_imports_inside_functions_have_a_reason():
+    assert inner_imports() == [], "import it at the top of the file (see this module's docstring)"
+
+
+def test_the_inner_import_finder(tmp_path):
+    """An inner import of a module the top imports (either form), or of a cheap standard
+    module, is found; optional, heavy, lazy-package and costly standard modules are not."""
+    (tmp_path / "a.py").write_text(
+        "import os\nfrom . import b\nfrom .c import x\n"
+        "def f():\n    import os.path\n    from .b import y\n    from .c import z\n"
+        "    import json\n    from . import d\n    import subprocess\n    import pyopencl\n"
+        "    if x:\n        from . import c\n")
+    assert inner_imports(tmp_path) == ["a:13 .c", "a:6 .b", "a:7 .c", "a:8 json"]
 
 
 LONG = 500          # lines; a module above it says why at its top ("Long file: ...")

@@ -110,8 +110,8 @@ def render_pair(dev, values, cell, size=32, spp=16):
         s = dataclasses.replace(base, light_cache=mode, light_cache_cell=cell)
         img = render(Scene.of(cam, [SUN], VolumeContent(bricks, s)), dev)
         out.append(img)
-    assert out[1].info.get("light_cache_cell") == cell
-    assert out[0].info["light_cache"].startswith("light cache off")
+    assert out[1].info.light_cache_cell == cell
+    assert out[0].info.light_cache.startswith("light cache off")
     return bricks, m, out
 
 
@@ -178,10 +178,10 @@ def small_scene(**kw):
 def test_camera_change_reuses_the_cache_and_a_light_change_rebakes_it(cl_device):
     scene = small_scene(sun=[(0.35, -1.0, 0.25, 3.0)], env=(0.2, 0.3, 0.4))
     first = render(scene, cl_device)
-    assert first.info["light_cache_baked"] and light_cache.builds(scene.content) == 1
+    assert first.info.light_cache_baked and light_cache.builds(scene.content) == 1
     moved = scene.replace(azimuth=40.0)
     img = render(moved, cl_device)
-    assert not img.info["light_cache_baked"]
+    assert not img.info.light_cache_baked
     assert light_cache.builds(moved.content) == 1
     assert not np.allclose(img.rgba, first.rgba)            # the camera did move
     resized = scene.replace(size=(32, 24), spp=2)
@@ -192,7 +192,7 @@ def test_camera_change_reuses_the_cache_and_a_light_change_rebakes_it(cl_device)
         other = scene.replace(**change)
         before = light_cache.builds(other.content)
         img = render(other, cl_device)
-        assert img.info["light_cache_baked"], change
+        assert img.info.light_cache_baked, change
         assert light_cache.builds(other.content) == before + 1, change
 
 
@@ -212,7 +212,7 @@ def test_cached_march_on_a_real_cloud(cl_device, shared_data, rng, look):
     base = load_scene(path, size=(48, 36), spp=4, **kw)
     ref = render(base.replace(light_cache="off", spp=16), cl_device)
     img = render(base.replace(light_cache="on", light_cache_cell=4), cl_device)
-    assert img.info["light_cache_cell"] == 4
+    assert img.info.light_cache_cell == 4
     eps = predicted_error(base.content.bricks, 4, base.settings.density_scale, rng,
                           sun=base.lights[0])
     mean, rel, se = compare(ref, img)
@@ -237,7 +237,7 @@ def test_cached_sky_in_a_thin_slab_is_the_maps_l1_projection(cl_device, g):
                        phase=(g, 0.0, 1.0), spp=16, seed=5, step=0.5, shadow_step=0.5,
                        hide_env=True, light_cache="on", light_cache_cell=2)
     img = render(Scene.of(cam, [], VolumeContent(thin, s), Environment(t)), cl_device)
-    assert img.info["light_cache_cell"] == 2
+    assert img.info.light_cache_cell == 2
     h, w = t.shape[:2]
     th = (np.arange(h) + 0.5) / h * np.pi
     ph = ((np.arange(w) + 0.5) / w - 0.5) * 2 * np.pi
@@ -269,7 +269,7 @@ def test_cached_white_furnace(cl_device, density):
                            light_cache_cell=cell, ms_orders=0)
         img = render(Scene.of(cam, [], VolumeContent(lumpy_ball(), s)), cl_device)
         r = img.rgba[..., :3][img.rgba[..., 3] > 0] / np.asarray(ENV)
-        assert img.info["light_cache_cell"] == cell
+        assert img.info.light_cache_cell == cell
         np.testing.assert_allclose(r, 1.0, atol=2e-3)
 
 

@@ -54,7 +54,7 @@ def against_path(cl_device, case):
     se = means.std(ddof=1) / 2.0 / means.mean()
     info, m = image(estimator="march", ms_octaves=4, spp=4, light_cache="on",
                     light_cache_cell=2)
-    assert "scattering orders 2-4 propagated" in info.info["light_cache"]
+    assert "scattering orders 2-4 propagated" in info.info.light_cache
     d = m[cov, :3] - ref[cov, :3]
     rel = np.sqrt(max((d ** 2).mean() - var[cov, :3].mean(), 0.0) / (ref[cov, :3] ** 2).mean())
     return m[cov, :3].mean() / means.mean(), rel, 3.0 * se

@@ -62,10 +62,10 @@ def test_more_octaves_never_darken(cl_device, demo):
     count is at least single scattering, pixel by pixel; alpha is unchanged."""
     b, cam, sun = demo
     one = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=1, spp=2,
-                                                    env=(0.1, 0.15, 0.3)), cl_device)["rgba"]
+                                                    env=(0.1, 0.15, 0.3)), cl_device).rgba
     for n in (2, 3, 5):
         img = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=n, spp=2,
-                                                        env=(0.1, 0.15, 0.3)), cl_device)["rgba"]
+                                                        env=(0.1, 0.15, 0.3)), cl_device).rgba
         assert np.all(img[..., :3] >= one[..., :3] * (1 - 1e-5) - 1e-7), n
         np.testing.assert_array_equal(img[..., 3], one[..., 3])
         assert img[..., :3].mean() > 1.05 * one[..., :3].mean()
@@ -78,19 +78,19 @@ def test_octave_scales_mean_what_they_say(cl_device, demo):
     telescopes and every count gives the same image."""
     b, cam, sun = demo
     one = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=1),
-                        cl_device)["rgba"]
+                        cl_device).rgba
     for scales in ((0.5, 0.0, 0.5), (100.0, 2.5, 0.2)):
         off = render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=4,
                                                         ms_octave_scales=scales),
-                            cl_device)["rgba"]
+                            cl_device).rgba
         np.testing.assert_allclose(off, one, rtol=1e-5, atol=1e-7, err_msg=str(scales))
     black = [render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=n, albedo=0.0,
-                                                       env=(0.1, 0.15, 0.3)), cl_device)["rgba"]
+                                                       env=(0.1, 0.15, 0.3)), cl_device).rgba
              for n in (1, 4)]
     np.testing.assert_allclose(black[1], black[0], rtol=1e-5, atol=1e-7)
     imgs = [render_volume(b, cam, sun, VolumeSettings(density_scale=6.0, ms_octaves=n,
                                                       ms_octave_scales=(0.5, 2.0, 0.0)),
-                          cl_device)["rgba"] for n in (2, 3, 7)]
+                          cl_device).rgba for n in (2, 3, 7)]
     for img in imgs[1:]:
         np.testing.assert_allclose(img, imgs[0], rtol=2e-4, atol=1e-6)
     assert imgs[0][..., :3].mean() > 1.2 * one[..., :3].mean()

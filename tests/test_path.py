@@ -19,7 +19,7 @@ Z = 5.0
 
 def batches(b, cam, lights, n, **kw):
     imgs = np.stack([render_volume(b, cam, lights, VolumeSettings(**kw, seed=1000 + k),
-                                   DEV[0])["rgba"] for k in range(n)])
+                                   DEV[0]).rgba for k in range(n)])
     imgs = imgs.astype(np.float64)
     return imgs.mean(0), imgs.std(0, ddof=1) / np.sqrt(n)
 
@@ -68,14 +68,14 @@ def test_more_depth_never_darkens():
     for depth in (1, 2, 3, 5, 8, 64):
         img = render_volume(b, cam, lights, VolumeSettings(density_scale=8.0, albedo=0.95, spp=4,
                                                            estimator="path", max_depth=depth),
-                            DEV[0])["rgba"].astype(np.float64)
+                            DEV[0]).rgba.astype(np.float64)
         if prev is not None:
             assert np.all(img[..., :3] >= prev[..., :3] * (1 - 1e-6)), depth
             np.testing.assert_array_equal(img[..., 3], prev[..., 3])
         prev = img
     assert prev[..., 0].mean() > 1.5 * render_volume(
         b, cam, lights, VolumeSettings(density_scale=8.0, albedo=0.95, spp=4, estimator="path",
-                                       max_depth=1), DEV[0])["rgba"][..., 0].mean()
+                                       max_depth=1), DEV[0]).rgba[..., 0].mean()
 
 
 def test_depth_one_is_the_marchs_single_scattering():
@@ -90,7 +90,7 @@ def test_depth_one_is_the_marchs_single_scattering():
                 background=(0.05, 0.0, 0.0))
     mean, se = batches(b, cam, sun, 16, **base, estimator="path", max_depth=1, spp=64)
     fine, coarse = (render_volume(b, cam, sun, VolumeSettings(**base, spp=32, seed=s, step=h,
-                                                              shadow_step=h), DEV[0])["rgba"]
+                                                              shadow_step=h), DEV[0]).rgba
                     .astype(np.float64) for s, h in ((3, 0.1), (4, 0.2)))
     assert fine[..., 3].max() > 0.5
     allow = 6 * se + np.abs(coarse - fine) + 1e-6
@@ -112,11 +112,11 @@ def test_coloured_media_are_grey_media_channel_by_channel():
     col = VolumeSettings(density_scale=4.0, sigma_t_scale=s_c, albedo=a_c, spp=2, seed=5,
                          env=(0.1, 0.1, 0.1))
     assert col.chromatic
-    img = render_volume(b, cam, sun, col, DEV[0])["rgba"]
+    img = render_volume(b, cam, sun, col, DEV[0]).rgba
     for ch in range(3):
         grey = render_volume(b, cam, sun, VolumeSettings(density_scale=4.0 * s_c[ch], albedo=a_c[ch],
                                                          spp=2, seed=5, env=(0.1, 0.1, 0.1)),
-                             DEV[0])["rgba"]
+                             DEV[0]).rgba
         np.testing.assert_allclose(img[..., ch], grey[..., ch], rtol=1e-4, atol=1e-6)
     path = dict(estimator="path", max_depth=6, spp=16, env=(0.1, 0.1, 0.1))
     mean, se = batches(b, cam, sun, 12, density_scale=4.0, sigma_t_scale=s_c, albedo=a_c, **path)
@@ -138,8 +138,8 @@ def test_path_image_does_not_depend_on_the_launch():
     frag = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="fragment"), DEV[0])
     tiled = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="tiled", tile=(4, 4)),
                           DEV[0])
-    np.testing.assert_array_equal(frag["rgba"], tiled["rgba"])
-    np.testing.assert_array_equal(frag["depth"], tiled["depth"])
+    np.testing.assert_array_equal(frag.rgba, tiled.rgba)
+    np.testing.assert_array_equal(frag.aovs["depth"], tiled.aovs["depth"])
 
 
 def test_cli_renders_a_sky_lit_cloud(tmp_path, capsys):

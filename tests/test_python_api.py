@@ -109,6 +109,26 @@ def test_image_has_a_png_repr(box):
     assert np.asarray(pic)[..., :3].max() > 0
 
 
+def test_image_info_is_a_record_and_the_old_dict_reads_warn(box):
+    """Image.info is a RenderInfo read by attribute; `info["spp"]` and `info.get` of the
+    dict it was still answer, warning, and a field the render left empty reads as a
+    missing key (KeyError, or get's default), as before."""
+    img = volrender.render(box, size=SIZE, density_scale=0.5, spp=3, estimator="march")
+    info = img.info
+    assert info.spp == 3 and info.estimator == "march" and info.launches >= 1
+    assert info.passes is None and info.denoised is None
+    with pytest.warns(DeprecationWarning, match=r"Image.info.spp"):
+        assert info["spp"] == 3
+    with pytest.warns(DeprecationWarning):
+        assert info.get("estimator") == "march" and info.get("setup_ms", -1) == info.setup_ms
+    with pytest.warns(DeprecationWarning):
+        assert info.get("passes", "none") == "none" and info.get("nonsense") is None
+    with pytest.warns(DeprecationWarning), pytest.raises(KeyError):
+        info["stopped"]
+    with pytest.warns(DeprecationWarning):
+        assert "spp" in info and "stopped" not in info
+
+
 def test_render_warns_about_an_empty_image(box):
     with pytest.warns(ImageWarning, match="the image is empty.*density_scale="):
         volrender.render(box, size=SIZE, density_scale=1e-9)

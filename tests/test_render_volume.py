@@ -36,9 +36,9 @@ def test_slab_transmittance_is_exp_of_optical_depth(cl_device, slab):
     # Midpoint-rule error at the four kinks of the piecewise-linear density: at most
     # sigma * (slope jump |dz|/VOX) * dt^2 / 8 each, dt = step * VOX along the ray.
     tol_tau = 4 * sigma * (step * VOX) ** 2 / VOX / 8 + 1e-5
-    tau_k = -np.log(1.0 - r["rgba"][..., 3].astype(np.float64))
+    tau_k = -np.log(1.0 - r.rgba[..., 3].astype(np.float64))
     assert np.max(np.abs(tau_k - tau)) <= tol_tau
-    assert np.all(r["rgba"][..., :3] == 0.0)   # no lights, black background
+    assert np.all(r.rgba[..., :3] == 0.0)   # no lights, black background
 
 
 def test_slab_single_scatter_without_shadows_is_albedo_phase_alpha(cl_device, slab):
@@ -49,8 +49,8 @@ def test_slab_single_scatter_without_shadows_is_albedo_phase_alpha(cl_device, sl
     cam = top_camera()
     r = render_volume(slab, cam, [sun], s, cl_device)
     mu = -cam.pixel_dirs() @ np.array(sun.direction)
-    want = 0.8 * reference.phase(mu, 0.7, -0.4, 0.6) * 2.5 * r["rgba"][..., 3]
-    np.testing.assert_allclose(r["rgba"][..., 0], want, rtol=2e-5)
+    want = 0.8 * reference.phase(mu, 0.7, -0.4, 0.6) * 2.5 * r.rgba[..., 3]
+    np.testing.assert_allclose(r.rgba[..., 0], want, rtol=2e-5)
 
 
 def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
@@ -70,7 +70,7 @@ def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
     want = albedo * reference.hg(mu, 0.5) * E * (1 - np.exp(-tau * (1 + 1 / c))) / (1 + c)
     # Quadrature error of both marches (see the transmittance test) moves the exponent by
     # at most ~2 * 0.0063: about 1.3 % of L.
-    np.testing.assert_allclose(r["rgba"][..., 1], want, rtol=0.02)
+    np.testing.assert_allclose(r.rgba[..., 1], want, rtol=0.02)
 
 
 def test_point_light_follows_inverse_square(cl_device, slab):
@@ -79,9 +79,9 @@ def test_point_light_follows_inverse_square(cl_device, slab):
     d = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
     s = VolumeSettings(density_scale=2.0, shadows=False)
     cam = top_camera(8)
-    sun = render_volume(slab, cam, [Sun(tuple(d), 1.0)], s, cl_device)["rgba"][..., 0]
-    near = render_volume(slab, cam, [PointLight(tuple(-40 * d), 1600.0)], s, cl_device)["rgba"][..., 0]
-    far = render_volume(slab, cam, [PointLight(tuple(-80 * d), 1600.0)], s, cl_device)["rgba"][..., 0]
+    sun = render_volume(slab, cam, [Sun(tuple(d), 1.0)], s, cl_device).rgba[..., 0]
+    near = render_volume(slab, cam, [PointLight(tuple(-40 * d), 1600.0)], s, cl_device).rgba[..., 0]
+    far = render_volume(slab, cam, [PointLight(tuple(-80 * d), 1600.0)], s, cl_device).rgba[..., 0]
     np.testing.assert_allclose(near, sun, rtol=0.03)
     np.testing.assert_allclose(near / far, 4.0, rtol=0.03)
 
@@ -108,12 +108,12 @@ def test_sphere_transmittance_matches_chord(cl_device):
     chord = reference.sphere_chord(o, dirs, np.zeros(3), reff)
     impact = np.linalg.norm(np.cross(dirs, -o), axis=1)
     core = impact < 0.8 * reff
-    tau_k = -np.log(1 - r["rgba"][..., 3].reshape(-1).astype(np.float64))
+    tau_k = -np.log(1 - r.rgba[..., 3].reshape(-1).astype(np.float64))
     tol = 2 * sigma * 0.9 * VOX / 0.6
     assert core.sum() > 100
     assert np.max(np.abs(tau_k[core] - sigma * chord[core])) <= tol
     outside = impact > reff + 1.5 * VOX
-    assert np.all(r["rgba"][..., 3].reshape(-1)[outside] == 0.0)
+    assert np.all(r.rgba[..., 3].reshape(-1)[outside] == 0.0)
 
 
 def sparse_blobs():
@@ -133,9 +133,9 @@ def test_empty_space_skipping_matches_plain_marching(cl_device):
     cam = Camera((0.0, 2.0, 14.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 55.0, 48, 24)
     lights = [Sun((-1.0, -0.5, -0.3), 2.0), PointLight((0.0, 1.5, 0.0), 3.0)]
     base = VolumeSettings(density_scale=4.0, spp=2, seed=7)
-    a = render_volume(b, cam, lights, base, cl_device)["rgba"]
+    a = render_volume(b, cam, lights, base, cl_device).rgba
     p = render_volume(b, cam, lights, VolumeSettings(**{**base.__dict__, "skip_empty": False}),
-                      cl_device)["rgba"]
+                      cl_device).rgba
     assert a[..., 3].max() > 0.5
     np.testing.assert_allclose(a, p, atol=1e-5 * max(1.0, float(p.max())))
 
@@ -154,7 +154,7 @@ def test_forward_scattering_brightens_the_silver_lining(cl_device, behind):
     out = {}
     for g in (0.7, -0.7):
         r = render_volume(b, cam, [sun], VolumeSettings(density_scale=6.0, phase=(g, 0.0, 1.0)),
-                          cl_device)["rgba"]
+                          cl_device).rgba
         rim = (r[..., 3] > 0.05) & (r[..., 3] < 0.6)
         out[g] = r[..., 0][rim].mean()
     assert rim.sum() > 20
@@ -193,7 +193,7 @@ def test_grid_transform_places_and_sizes_the_volume(cl_device):
     results = []
     for vox, offset in ((0.1, (-2.0, -1.0, 0.0)), (0.05, (0.5, 0.6, 0.375))):
         b = Bricks.from_dense(blob, scaled(vox, offset))
-        a = render_volume(b, cam, [], s, cl_device)["rgba"][..., 3]
+        a = render_volume(b, cam, [], s, cl_device).rgba[..., 3]
         centre = np.array(offset) + vox * np.array([15.5, 7.5, 7.5])
         cx, cy, area, vx, vy = alpha_moments(a)
         px, py = project(cam, centre)
@@ -203,7 +203,7 @@ def test_grid_transform_places_and_sizes_the_volume(cl_device):
     assert results[1][0] / results[0][0] == pytest.approx(0.25, rel=0.1)
     rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])   # x -> y
     b = Bricks.from_dense(blob, scaled(0.1, (0.0, 0.0, 0.0), rot))
-    a = render_volume(b, cam, [], s, cl_device)["rgba"][..., 3]
+    a = render_volume(b, cam, [], s, cl_device).rgba[..., 3]
     cx, cy, area, vx, vy = alpha_moments(a)
     assert vy > 2.5 * vx
     px, py = project(cam, rot @ (0.1 * np.array([15.5, 7.5, 7.5])))
@@ -220,7 +220,7 @@ def test_emission_is_integrated_along_the_chord(cl_device):
     colour = volume_mod.emission_color(VolumeSettings())
     for sigma in (0.0, 2.0):
         r = render_volume(b, cam, [], VolumeSettings(density_scale=sigma, emission_scale=2.0, step=0.25),
-                          cl_device)["rgba"]
+                          cl_device).rgba
         tau = -np.log(1 - r[..., 3]) if sigma else None
         chord = reference.sphere_chord(np.array(cam.origin), cam.pixel_dirs().reshape(-1, 3),
                                        np.zeros(3), (R + 0.5) * VOX).reshape(8, 8)
@@ -240,12 +240,12 @@ def test_same_seed_same_image_whatever_the_launch_split(cl_device):
     b = sparse_blobs()
     cam = Camera((0.0, 2.0, 14.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 55.0, 40, 30)
     s = VolumeSettings(density_scale=4.0, spp=3, seed=11)
-    one = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device)["rgba"]
+    one = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device).rgba
     split = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], s, cl_device,
-                          launch=Launch(first=40 * 7))["rgba"]
+                          launch=Launch(first=40 * 7)).rgba
     assert np.array_equal(one, split)
     other = render_volume(b, cam, [Sun((0, -1, -1), 2.0)], VolumeSettings(density_scale=4.0, spp=3, seed=12),
-                          cl_device)["rgba"]
+                          cl_device).rgba
     assert not np.array_equal(one, other)
 
 
@@ -260,13 +260,13 @@ def test_a_feature_without_effect_matches_it_switched_off(cl_device, feature):
     base = Bricks.from_dense(v, scaled(VOX, (-c, -c, -c)))
     lights = [Sun((0, -1, -1), 2.0)]
     s = VolumeSettings(density_scale=3.0, phase=(0.5, 0.0, 1.0))
-    off = render_volume(base, cam, lights, s, cl_device)["rgba"]
+    off = render_volume(base, cam, lights, s, cl_device).rgba
     if feature == "emission":
         on = render_volume(Bricks.from_dense(v, scaled(VOX, (-c, -c, -c)), emission=np.zeros_like(v)),
                            cam, lights, s, cl_device)
     elif feature == "depth":
         on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "aovs": ("depth",)}), cl_device)
-        assert np.all(np.isfinite(on["depth"][on["rgba"][..., 3] > 0]))
+        assert np.all(np.isfinite(on.aovs["depth"][on.rgba[..., 3] > 0]))
     elif feature == "sun":
         on = render_volume(base, cam, lights + [Sun((1, 0, 0), 0.0)], s, cl_device)
     elif feature == "point":
@@ -278,16 +278,16 @@ def test_a_feature_without_effect_matches_it_switched_off(cl_device, feature):
         lit = {**s.__dict__, "env": (0.3, 0.4, 0.5)}
         off = render_volume(base, cam, dark, VolumeSettings(**lit), cl_device)
         on = render_volume(base, cam, dark, VolumeSettings(**{**lit, "shadows": False}), cl_device)
-        assert off["flags"]["VR_SHADOWS"] == 1 and on["flags"]["VR_SHADOWS"] == 0
-        off = off["rgba"]
+        assert off.flags["VR_SHADOWS"] == 1 and on.flags["VR_SHADOWS"] == 0
+        off = off.rgba
         assert off[..., 3].max() > 0.5 and off[..., :3].max() > 0.05
     else:
         on = render_volume(base, cam, lights, VolumeSettings(**{**s.__dict__, "phase": (0.5, 0.9, 0.99999)}),
                            cl_device)
-        assert on["flags"]["VR_PHASE_MIXED"] == 1
-        np.testing.assert_allclose(on["rgba"], off, rtol=1e-4, atol=1e-6)
+        assert on.flags["VR_PHASE_MIXED"] == 1
+        np.testing.assert_allclose(on.rgba, off, rtol=1e-4, atol=1e-6)
         return
-    np.testing.assert_array_equal(on["rgba"], off)
+    np.testing.assert_array_equal(on.rgba, off)
 
 
 def test_stiff_inputs_stay_finite(cl_device):
@@ -300,5 +300,5 @@ def test_stiff_inputs_stay_finite(cl_device):
     with pytest.warns(UserWarning, match="clamped"):
         s = VolumeSettings(density_scale=1e6, phase=(1.0, -1.0, 0.5))
         r = render_volume(b, cam, [Sun((0, 0, 1), 1e3), PointLight((0, 0, 0), 1e9)], s, cl_device)
-    assert np.all(np.isfinite(r["rgba"]))
-    assert r["rgba"][8, 8, 3] == 1.0
+    assert np.all(np.isfinite(r.rgba))
+    assert r.rgba[8, 8, 3] == 1.0

@@ -10,6 +10,8 @@ import volrender
 from volrender import cli, image, sequence, vdb
 from volrender.bricks import Bricks
 from volrender.errors import UserError
+from volrender.frame_record import FrameRecord, FrameStatus
+from volrender.render_info import RenderInfo
 from conftest import ROOT
 
 DEMO = ROOT / "scenes" / "demo_cloud.vdb"
@@ -39,7 +41,7 @@ def _render(frames, out, **kw):
 def serial(frames, tmp_path_factory):
     out = tmp_path_factory.mktemp("serial")
     r = _render(frames, out, workers=0)
-    assert [rec["status"] for rec in r.records] == ["ok"] * 6
+    assert [rec.status for rec in r.records] == ["ok"] * 6
     return out
 
 
@@ -80,7 +82,7 @@ def test_serial_frames_share_one_camera_framing_the_union(frames, serial):
 def test_two_dask_workers_give_the_serial_bytes(frames, serial, client, tmp_path):
     r = _render(frames, tmp_path, client=client, chunk=2)
     assert r.workers == 2 and not r.failed
-    assert {rec["worker"] for rec in r.records} <= {"0", "1"}
+    assert {rec.worker for rec in r.records} <= {"0", "1"}
     _same_files(serial, tmp_path)
 
 
@@ -120,7 +122,7 @@ def test_skip_existing_renders_only_the_missing_frames(frames, serial, tmp_path)
         (out / f"f_{f:04d}.exr").write_bytes((serial / f"f_{f:04d}.exr").read_bytes())
     before = {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
     r = _render(frames, out, workers=0, skip_existing=True)
-    status = {rec["frame"]: rec["status"] for rec in r.records}
+    status = {rec.frame: rec.status for rec in r.records}
     assert status == {1: "skipped", 2: "skipped", 3: "ok", 4: "ok", 5: "skipped", 6: "ok"}
     assert before == {f: (out / f"f_{f:04d}.exr").stat().st_mtime_ns for f in (1, 2, 5)}
     _same_files(serial, out)
@@ -152,7 +154,7 @@ def test_a_pipelined_sequence_writes_the_bytes_of_one_frame_after_another(frames
             assert len(calls) == 6
         else:
             recs = [r for job in jobs for r in sequence.render_chunk([job], kw, save)]
-        runs[way] = (out, sorted(recs, key=lambda r: r["frame"]))
+        runs[way] = (out, sorted((r.to_json() for r in recs), key=lambda r: r["frame"]))
     (a, ra), (b, rb) = runs["piped"], runs["one by one"]
     assert sorted(p.name for p in a.iterdir()) == sorted(p.name for p in b.iterdir())
     assert len(list(a.iterdir())) == 5
@@ -182,7 +184,7 @@ def test_the_pipeline_overlaps_its_stages_and_keeps_the_device_in_one_thread(mon
     threads = {"load": set(), "render": set(), "write": set()}
 
     class Img:
-        info, device, kernel_ms = {}, "fake", 0.0
+        info, device, kernel_ms = RenderInfo(), "fake", 0.0
 
         def __init__(self, frame):
             self.frame = frame
@@ -212,7 +214,7 @@ def test_the_pipeline_overlaps_its_stages_and_keeps_the_device_in_one_thread(mon
     monkeypatch.setattr(render_mod, "render", render)
     jobs = [(f, f"in_{f}", tmp_path / f"o_{f}") for f in range(1, 6)]
     recs = pipeline.run_frames(jobs, {}, {}, [])
-    assert [r["status"] for r in recs] == ["ok"] * 5
+    assert [r.status for r in recs] == ["ok"] * 5
     assert [(tmp_path / f"o_{f}").read_text() for f in range(1, 6)] == [str(f) for f in range(1, 6)]
     assert threads["render"] == {threading.current_thread().name}
     assert len(threads["load"]) == len(threads["write"]) == 1
@@ -271,3 +273,25 @@ def test_sequence_options_on_one_file_are_an_error(tmp_path, capsys):
     code = cli.main(["render", str(DEMO), "-o", str(tmp_path / "o.png"), "--workers", "2"])
     err = capsys.readouterr().err
     assert code == 2 and "--workers applies to sequences only" in err
+
+
+def test_frame_records_are_typed_and_their_rows_on_disk_plain_json():
+    """A frame's record has a FrameStatus (equal to its string); its row on disk is the
+    JSON object of before (the fields that are set, the status a plain string) and reads
+    back as the same record; `rec["status"]` of the dict it was still answers, warning."""
+    rec = FrameRecord(3, "in_0003.npz", "out_0003.exr", worker="0", pid=7, status="ok",
+                      seconds=0.5)
+    assert rec.status is FrameStatus.OK and rec.status == "ok" and rec.error is None
+    row = rec.to_json()
+    assert row == {"frame": 3, "input": "in_0003.npz", "output": "out_0003.exr",
+                   "worker": "0", "pid": 7, "status": "ok", "seconds": 0.5}
+    assert type(row["status"]) is str and json.loads(json.dumps(row)) == row
+    assert FrameRecord.from_json({**row, "from_a_newer_version": 1}) == rec
+    with pytest.raises(ValueError):
+        FrameRecord(1, "a", "b", status="done")
+    with pytest.warns(DeprecationWarning, match=r"record.status"):
+        assert rec["status"] == "ok"
+    with pytest.warns(DeprecationWarning), pytest.raises(KeyError):
+        rec["error"]
+    with pytest.warns(DeprecationWarning):
+        assert rec.get("error", "none") == "none"

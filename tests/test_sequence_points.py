@@ -31,7 +31,7 @@ def _render(src, out, **kw):
 def test_point_sequence_is_one_camera_and_one_blend(cloud_frames, tmp_path):
     notes = []
     r = _render(cloud_frames, tmp_path / "a", workers=0, say=notes.append)
-    assert [rec["status"] for rec in r.records] == ["ok"] * 4
+    assert [rec.status for rec in r.records] == ["ok"] * 4
     assert any("blend" in n for n in notes) and any("radius" in n for n in notes)
     assert set(r.options) == {"radius", "blend"} and r.options["blend"] > 0
     rec = json.loads(r.record_path.read_text())

@@ -58,10 +58,10 @@ def test_slab_alpha_is_one_minus_exp_optical_depth(cl_device, slab):
                                                     estimator="track"), cl_device)
     cz = np.abs(cam.pixel_dirs()[..., 2])
     want = 1.0 - np.exp(-sigma * THICK / cz)
-    sd = assert_unbiased(r["rgba"][..., 3], want, "alpha")
+    sd = assert_unbiased(r.rgba[..., 3], want, "alpha")
     # a per-sample alpha lies in [0, 1], so its variance is at most 1/4
     assert 0 < sd <= 0.5 / np.sqrt(spp)
-    assert np.all(r["rgba"][..., :3] == 0.0)
+    assert np.all(r.rgba[..., :3] == 0.0)
 
 
 def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
@@ -77,7 +77,7 @@ def test_slab_single_scatter_with_shadows_matches_closed_form(cl_device, slab):
     c = np.abs(dirs[..., 2])
     mu = -dirs @ np.array(sun.direction)
     want = albedo * reference.hg(mu, 0.5) * E * (1 - np.exp(-sigma * THICK * (1 + 1 / c))) / (1 + c)
-    assert_unbiased(r["rgba"][..., 1], want, "radiance")
+    assert_unbiased(r.rgba[..., 1], want, "radiance")
 
 
 def test_slab_emission_and_background(cl_device):
@@ -93,7 +93,7 @@ def test_slab_emission_and_background(cl_device):
                            emission_scale=0.5, estimator="track")
         assert np.all(track_majorants(slab, s) > 0)
         col = emission_color(s)
-        r = render_volume(slab, cam, [], s, cl_device)["rgba"]
+        r = render_volume(slab, cam, [], s, cl_device).rgba
         T = np.exp(-sigma * THICK / cz)
         emitted = THICK / cz if sigma == 0 else (1 - T) / sigma
         for ch in range(3):
@@ -110,7 +110,7 @@ def test_stiff_slab_reaches_the_half_space_limit(cl_device, slab, sigma):
     cam = top_camera(8)
     s = VolumeSettings(density_scale=sigma, albedo=0.9, phase=(0.5, 0.0, 1.0), spp=256, seed=5,
                        estimator="track")
-    r = render_volume(slab, cam, [sun], s, cl_device)["rgba"]
+    r = render_volume(slab, cam, [sun], s, cl_device).rgba
     dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])
     want = 0.9 * reference.hg(-dirs @ np.array(sun.direction), 0.5) * 3.0 / (1 + c)
@@ -121,7 +121,7 @@ def test_stiff_slab_reaches_the_half_space_limit(cl_device, slab, sigma):
 def test_overflowing_density_stays_finite(cl_device, slab):
     """sigma beyond float range: opaque, finite, no hang."""
     s = VolumeSettings(density_scale=1e30, spp=4, estimator="track", background=(0.2, 0.2, 0.2))
-    r = render_volume(slab, top_camera(6), [Sun((0.2, -0.3, -1.0), 2.0)], s, cl_device)["rgba"]
+    r = render_volume(slab, top_camera(6), [Sun((0.2, -0.3, -1.0), 2.0)], s, cl_device).rgba
     assert np.isfinite(r).all() and np.all(r[..., 3] == 1.0)
 
 
@@ -154,10 +154,10 @@ def test_tracking_agrees_with_fine_marching_on_a_heterogeneous_grid(cl_device):
     base = dict(density_scale=1.2, albedo=0.8, phase=(0.6, -0.3, 0.8), background=(0.1, 0.1, 0.1))
     batches = np.stack([render_volume(b, cam, sun, VolumeSettings(**base, spp=128, seed=100 + k,
                                                                   estimator="track"),
-                                      cl_device)["rgba"] for k in range(16)]).astype(np.float64)
+                                      cl_device).rgba for k in range(16)]).astype(np.float64)
     mean, se = batches.mean(0), batches.std(0, ddof=1) / np.sqrt(len(batches))
     fine, coarse = (render_volume(b, cam, sun, VolumeSettings(**base, spp=4, step=h, shadow_step=h),
-                                  cl_device)["rgba"].astype(np.float64) for h in (0.1, 0.2))
+                                  cl_device).rgba.astype(np.float64) for h in (0.1, 0.2))
     assert 0.5 < fine[..., 3].min() and fine[..., 3].max() < 0.95 and fine[..., 0].min() > 0.05
     march_err = np.abs(coarse - fine)
     allow = 6 * se + march_err + 1e-6
@@ -178,9 +178,9 @@ def test_tracking_image_does_not_depend_on_the_launch(cl_device):
     frag = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="fragment"), cl_device)
     tiled = render_volume(b, cam, lights, VolumeSettings(**base, dispatch="tiled", tile=(4, 4)),
                           cl_device)
-    assert frag["rgba"][..., 3].max() > 0.3 and np.isfinite(frag["depth"]).any()
-    np.testing.assert_array_equal(frag["rgba"], tiled["rgba"])
-    np.testing.assert_array_equal(frag["depth"], tiled["depth"])
+    assert frag.rgba[..., 3].max() > 0.3 and np.isfinite(frag.aovs["depth"]).any()
+    np.testing.assert_array_equal(frag.rgba, tiled.rgba)
+    np.testing.assert_array_equal(frag.aovs["depth"], tiled.aovs["depth"])
 
 
 def test_estimator_is_validated(tmp_path, capsys):

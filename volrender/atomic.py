@@ -29,10 +29,10 @@ import contextlib
 import errno
 import fcntl
 import os
-import time
 import re
 import secrets
 import stat
+import time
 from pathlib import Path
 
 from .errors import UserError
@@ -169,7 +169,6 @@ def _fsync_dir(directory):
 
 
 def _failed(e: OSError, dest, doing: str) -> UserError:
-    import errno
     fix = {errno.ENOSPC: "free some disk space", errno.EDQUOT: "free some disk space (quota)",
            errno.EACCES: "check the directory's permissions",
            errno.EROFS: "the file system is read-only; choose another directory"}.get(

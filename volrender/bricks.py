@@ -22,6 +22,7 @@ import numpy as np
 from . import atomic
 from .errors import UserError
 from .files import check_input, check_memory, npy_header
+from .framing import box_corners, column_extremes
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 
 NPZ_FORMAT = "volrender-bricks"
@@ -243,7 +244,6 @@ class Bricks:
         brick on the outside of the occupied ones (framing.column_extremes), the box of the
         non-zero voxels (density or emission; a voxel spans its centre +- 0.5) of each
         `sub`^3 block. The layout's corners when no voxel is non-zero."""
-        from .framing import box_corners, column_extremes
         core = self.data[:, :BRICK, :BRICK, :BRICK] != 0
         if self.emission is not None:
             core = core | (self.emission[:, :BRICK, :BRICK, :BRICK] != 0)

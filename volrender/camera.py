@@ -2,14 +2,17 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import layout
+from .atomic import write_bytes
 from .errors import UserError
-from .settings import NUM, SIZE, VEC3, floats, in_range, knob, one_of, pair, rgb
+from .files import read_toml
+from .settings import NUM, SIZE, VEC3, check_fields, floats, in_range, knob, one_of, pair, rgb
 
 # Default framing: the camera looks at the bounding box's centre from this direction
 # (from the centre towards the camera: in front (+z), a little right and above).
@@ -139,7 +142,6 @@ def describe(camera) -> str:
 
 
 def _size(v):
-    import numbers
     ok = isinstance(v, tuple) and len(v) == 2 and all(
         isinstance(c, numbers.Integral) and not isinstance(c, bool) and 1 <= c <= 32768 for c in v)
     return None if ok else "must be WxH with integers 1..32768"
@@ -217,7 +219,6 @@ class View:
                                    show_default=False)
 
     def __post_init__(self):
-        from .settings import check_fields
         check_fields(self)
         check_conflicts({f: f"{f}=" for f in ("origin", "azimuth", "elevation", "fill", "distance")
                          if getattr(self, f) is not None})
@@ -267,7 +268,6 @@ def _num(v):
 def read_camera_file(path) -> dict:
     """{View field: (value, where)} from a camera file written by write_camera_file (or
     any TOML with [camera] origin/target/up/fov and [render] size)."""
-    from .files import read_toml
     p = Path(path)
     if not p.is_file():
         raise UserError("no such camera file", path=p, fix="give a file written by --camera-out")
@@ -304,5 +304,4 @@ def write_camera_file(camera: "Camera", path) -> Path:
             + "".join(f"{k} = [{', '.join(repr(float(v)) for v in getattr(camera, k))}]\n"
                       for k in ("origin", "target", "up"))
             + f"fov = {float(camera.fov)!r}\n\n[render]\nsize = [{camera.width}, {camera.height}]\n")
-    from .atomic import write_bytes
     return write_bytes(p, text.encode(), "camera file")

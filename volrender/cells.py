@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import layout
+from .tree_device import padded
 
 B = layout.CELL_BRICK
 B3 = B ** 3
@@ -331,7 +332,6 @@ class _Builder:
     def __init__(self, device, spheres, nodes, first_leaf, max_runs):
         import pyopencl as cl
         import pyopencl.array as cla
-        from .tree_device import padded
         self.cl, self.cla, self.padded = cl, cla, padded
         self.device, self.q = device, device.queue
         self.max_runs = max_runs

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import logging
 import os
 import re
@@ -17,8 +18,20 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__, atomic, process
+import numpy
+
+from . import __version__, atomic, device as device_mod, process
+from .camera import View, describe as describe_camera, write_camera_file
+from .device import BuildError, resolve
 from .errors import SPELLING, UserError, opencl_message, printable, suggest
+from .files import check_input, refuse_overwrite
+from .glass import GlassSettings
+from .render import check_image_memory, image_problems, render
+from .scene import request
+from .scene_file import options
+from .sequence import is_pattern, render_sequence
+from .settings import floats, in_range, number, pair
+from .volume import VolumeSettings
 
 
 # ---------------------------------------------------------------- argument parsing
@@ -79,7 +92,6 @@ def _show(value) -> str:
 
 def add_option(group, opt, default):
     """One render option from its settings knob (help and default written once)."""
-    from .settings import number
     meta = opt.meta
     text = meta["help"]
     bounds = getattr(meta["check"], "range", None)
@@ -108,11 +120,6 @@ _GROUP_OF = {"shadows": "lights", "env": "lights"}
 
 
 def add_render_options(r):
-    from .scene_file import options
-    from .glass import GlassSettings
-    from .volume import VolumeSettings
-    from .camera import View
-    from .settings import floats
     defaults = {**{f.name: f.default for f in dataclasses.fields(View)},
                 **{f.name: f.default for f in dataclasses.fields(VolumeSettings)},
                 **{f.name: f.default for f in dataclasses.fields(GlassSettings)}}
@@ -136,8 +143,6 @@ def add_render_options(r):
 def add_camera_options(t):
     """tree: the render's camera options (the image size is --window-size), so the view
     is the render's."""
-    from .camera import View
-    from .scene_file import options
     g = t.add_argument_group("camera (as render's: the view is the render's camera)")
     defaults = {f.name: f.default for f in dataclasses.fields(View)}
     for opt in options().values():
@@ -149,7 +154,6 @@ def add_camera_options(t):
 
 def camera_overrides(args) -> dict:
     """The camera options given to `volrender tree`."""
-    from .scene_file import options
     keys = [o.key for o in options().values() if o.owner == "view" and o.field != "size"]
     return {k: getattr(args, k) for k in keys + ["camera"] if getattr(args, k, None) is not None}
 
@@ -323,7 +327,6 @@ def build_parser():
 
 
 def _exposure(text):
-    from .settings import number
     v = number("--exposure")(text)
     if not -64 <= v <= 64:
         raise argparse.ArgumentTypeError(f"--exposure: must be in [-64, 64] stops, got {text!r}")
@@ -331,17 +334,14 @@ def _exposure(text):
 
 
 def _int(name):
-    from .settings import number
     return number(name, int)
 
 
 def _float(name):
-    from .settings import number
     return number(name)
 
 
 def _pair(name):
-    from .settings import pair
     return pair(name)
 
 
@@ -355,19 +355,18 @@ def render_overrides(args) -> dict:
 def describe(scene, img=None) -> str:
     """The status line's summary; with the image, the acceleration the render used."""
     s = scene.settings
-    spp = img.info.get("spp", s.spp) if img is not None else s.spp     # the samples taken
-    done = ", denoised" if img is not None and img.info.get("denoised") else ""
+    spp = img.info.spp if img is not None else s.spp     # the samples taken
+    done = ", denoised" if img is not None and img.info.denoised else ""
     if scene.kind == "volume":
         return f"{spp} spp{done}"
-    accel = img.info.get("accel", s.accel) if img is not None else s.accel
-    model = f", {img.info['model']}" if img is not None and img.info.get("model") else ""
+    accel = img.info.accel if img is not None else s.accel
+    model = f", {img.info.model}" if img is not None and img.info.model else ""
     return f"{len(scene.content.cloud.centers)} spheres, {spp} spp, accel {accel}{model}{done}"
 
 
 def look_problems(img, scene) -> list[str]:
     """Warnings for an image that came out empty or saturated, with the fix (render()
     warns with them: render.image_problems)."""
-    from .render import image_problems
     return image_problems(img, scene.kind)
 
 
@@ -380,10 +379,10 @@ def time_breakdown(scene, img, write_s) -> str:
     rest of the launches and the write."""
     parts = [("load", scene.timings.load), ("radii", scene.timings.radii)]
     if scene.kind == "glass":
-        parts += [("tree", img.info.get("tree_ms", 0.0) / 1e3),
-                  ("cells", img.info.get("cells_ms", 0.0) / 1e3)]
+        parts += [("tree", img.info.tree_ms / 1e3),
+                  ("cells", img.info.cells_ms / 1e3)]
     build = sum(v for k, v in parts[2:]) if scene.kind == "glass" else 0.0
-    setup = max(img.info.get("setup_ms", 0.0) / 1e3 - build, 0.0)
+    setup = max(img.info.setup_ms / 1e3 - build, 0.0)
     parts += [("setup", setup), ("kernel", img.kernel_ms / 1e3),
               ("launch overhead", max(img.wall_ms - img.kernel_ms, 0.0) / 1e3), ("write", write_s)]
     return ", ".join(f"{k} {v:.3f} s" for k, v in parts if v is not None)
@@ -391,7 +390,6 @@ def time_breakdown(scene, img, write_s) -> str:
 
 def cmd_sequence(args):
     from .denoise import decide
-    from .sequence import render_sequence
     overrides = render_overrides(args)
     on, note = decide(overrides.get("denoise", "auto"), Path(args.output).suffix)
     if note:
@@ -404,16 +402,16 @@ def cmd_sequence(args):
                         say=lambda note: print(f"volrender: {note}", file=sys.stderr),
                         camera_out=args.camera_out, verbose=args.verbose, **overrides)
     for rec in r.failed:
-        print(f"volrender: error: frame {rec['frame']} ({rec['input']}): {rec['error']}",
+        print(f"volrender: error: frame {rec.frame} ({rec.input}): {rec.error}",
               file=sys.stderr)
-    done = sum(rec["status"] == "ok" for rec in r.records)
-    skipped = sum(rec["status"] == "skipped" for rec in r.records)
+    done = sum(rec.status == "ok" for rec in r.records)
+    skipped = sum(rec.status == "skipped" for rec in r.records)
     print(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
           f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}",
           file=sys.stderr)
     if r.failed:
         print(f"volrender: error: {len(r.failed)} frames failed: "
-              f"{', '.join(str(rec['frame']) for rec in r.failed)}", file=sys.stderr)
+              f"{', '.join(str(rec.frame) for rec in r.failed)}", file=sys.stderr)
         return 2
     return 0
 
@@ -421,7 +419,6 @@ def cmd_sequence(args):
 def cmd_render(args):
     from . import image
     image.check_view(args.tonemap)           # an OpenColorIO view that is missing: now
-    from .sequence import is_pattern
     if len(args.input) > 1:                  # the shell expanded a glob: a sequence of files
         return cmd_sequence(args)
     args.input = args.input[0]
@@ -431,10 +428,6 @@ def cmd_render(args):
     if given:
         raise UserError(f"--{given[0].replace('_', '-')} applies to sequences only, but "
                         f"{args.input} is one file", fix="give an input pattern (smoke_####.vdb)")
-    from .files import refuse_overwrite
-    from .device import resolve
-    from .render import check_image_memory, render
-    from .scene import request
     from .denoise import decide
     overrides = render_overrides(args)
     req = request(args.input, **overrides)         # every option checked, nothing loaded
@@ -455,24 +448,22 @@ def cmd_render(args):
     for note in [*scene.notes, *([denoise_note] if denoise_note else [])]:
         print(f"volrender: {note}", file=sys.stderr)
     if args.verbose:
-        from .camera import describe as describe_camera
         print(f"volrender: {describe_camera(scene.camera)}", file=sys.stderr)
     with warnings.catch_warnings():          # the denoiser's absence was said above
         warnings.filterwarnings("ignore", message="not denoised")
         img = render(scene, dev, progress=args.progress)
-    if img.info.get("light_cache"):          # the light cache's cost model (issue 33)
-        print(f"volrender: {img.info['light_cache']}", file=sys.stderr)
-    if img.info.get("adaptive"):
-        print(f"volrender: {img.info['adaptive']}", file=sys.stderr)
+    if img.info.light_cache:          # the light cache's cost model (issue 33)
+        print(f"volrender: {img.info.light_cache}", file=sys.stderr)
+    if img.info.adaptive:
+        print(f"volrender: {img.info.adaptive}", file=sys.stderr)
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
-        if img.info.get("note"):
-            print(f"volrender: {img.info['note']}", file=sys.stderr)
+        if img.info.note:
+            print(f"volrender: {img.info.note}", file=sys.stderr)
         print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
               file=sys.stderr)
     if args.camera_out:
-        from .camera import write_camera_file
         write_camera_file(scene.camera, args.camera_out)
     print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.seconds:.2f} s "
           f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
@@ -481,7 +472,6 @@ def cmd_render(args):
 
 def cmd_convert(args):
     from . import vdb
-    from .files import check_input, refuse_overwrite
     src, dst = Path(args.input), Path(args.output)
     if src.suffix.lower() != ".vdb":
         raise UserError("convert reads OpenVDB files", path=src, fix="give a .vdb input")
@@ -510,7 +500,6 @@ TREE_RANGES = {"blend": (0, 1e18, False), "depth": (0, 2**31, True), "max_depth"
 
 def cmd_tree(args):
     from . import inspect
-    from .settings import in_range
     for key, (lo, hi, integer) in TREE_RANGES.items():
         problem = in_range(lo, hi, integer=integer, allow_none=True)(getattr(args, key))
         if problem:
@@ -528,14 +517,12 @@ def cmd_tree(args):
 
 
 def cmd_info(args):
-    from . import device as device_mod
     if args.input:
         from .info import describe
         for path in args.input:
             for line in describe(path, args.device):
                 print(line)
         return 0
-    import numpy
     import pyopencl
     print(f"volrender {__version__}, python {sys.version.split()[0]}, numpy {numpy.__version__}, "
           f"pyopencl {pyopencl.VERSION_TEXT}")
@@ -589,7 +576,6 @@ def cmd_bench(args):
         raise UserError(f"matplotlib is not installed ({exc})",
                         fix="pip install 'volrender[bench]' (bash run.sh setup installs it)") from None
     sys.path.insert(0, str(root))
-    import importlib
     module = importlib.import_module(f"bench.{args.name}")
     extra = list(args.args)
     if args.device and "--device" not in extra:
@@ -679,7 +665,6 @@ def _main(argv, written_from) -> tuple:
 
 def _user_message(exc) -> str:
     """One line: a build error's compiler log is only shown with --debug."""
-    from .device import BuildError
     text = str(exc)
     if "\n" not in text:
         return text

@@ -171,6 +171,13 @@ class Plan:
     info: dict = field(default_factory=dict)
     build_options: tuple = ()        # compiler options for this device (e.g. register caps)
 
+    @property
+    def spp(self) -> int:
+        """Samples per pixel: the camera record's (the `cam` input the kernel reads), the one
+        carrier of the count; run_rows launches sample ranges up to it and Image.info.spp
+        reports it."""
+        return int(dict(self.inputs)["cam"]["spp"][0])
+
     def arg_names(self) -> list:
         """The kernel's parameter names as this plan passes them (outputs by position)."""
         return [n for n, _ in self.inputs] + [None] * len(self.outputs) + \

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .errors import UserError
+from .files import check_memory
 from .settings import MAX_VALUE
 
 
@@ -64,8 +66,6 @@ def load_environment(path):
     """float32 (H, W, 3) texels of an equirectangular .exr/.npy/.hdr: NaN/Inf and negative
     texels become 0, texels above settings.MAX_VALUE are clamped to it (a warning counts
     them), so every radiance the kernel reads is finite."""
-    from pathlib import Path
-    from .files import check_memory
     from .image import read_image
     hdr = Path(path).suffix.lower() in HDR_SUFFIXES
     size = _header_size(path, hdr)

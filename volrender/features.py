@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass
 
 from . import layout
 from .environment import env_mode
+from .lights import counts
 
 
 # Occupied bricks one tile's local list holds (tiled dispatch). A tile whose frustum
@@ -56,7 +57,6 @@ class VolumeFeatures:
         """What a volume Scene compiles in (dispatch: the resolved Dispatch; gpu: whether
         the device is a GPU, which picks how skipping crosses empty bricks; tile_cap: the
         tiled list's capacity, dispatch.Launch)."""
-        from .lights import counts
         n_suns, n_points = counts(scene.lights)
         s, bricks = scene.content.settings, scene.content.bricks
         emission = bricks.emission is not None
@@ -99,7 +99,6 @@ class GlassFeatures:
         """What a glass Scene compiles in. packed: its spheres.PackedSpheres; dispatch: the
         resolved Dispatch; variant "uber": everything, light counts and feature bits read
         at run time instead; "stats": count the field's work."""
-        from .lights import counts
         n_suns, n_points = counts(scene.lights)
         s = scene.content.settings
         refr = s.refraction

@@ -8,8 +8,11 @@ symlink, a hard link or another spelling of the path).
 from __future__ import annotations
 
 import os
+import resource
 import stat
 from pathlib import Path
+
+import numpy as np
 
 from .errors import MissingFileError, UserError
 
@@ -107,7 +110,6 @@ def read_toml(path, what: str) -> dict:
 
 def npy_header(f):
     """(shape, dtype, offset of the data) of the .npy stream f, read without the data."""
-    import numpy as np
     fmt = np.lib.format
     version = fmt.read_magic(f)
     if version == (1, 0):
@@ -170,7 +172,6 @@ def available_memory() -> tuple[int, str] | None:
     """(bytes, what limits them): the most this process can still allocate, the least of
     the host's available memory (MemAvailable + free swap), its cgroup's limit and its
     address-space limit (ulimit -v); None where none of them can be read."""
-    import resource
     room = []
     info = _meminfo()
     if "MemAvailable" in info:

@@ -23,6 +23,7 @@ import numpy as np
 
 from . import blackbody
 from .layout import BRICK
+from .volume import emission_color
 
 EXPOSURE_PERCENTILE = 99.0
 EXPOSURE_TARGET = 4.0        # the percentile column's luminance after the exposure
@@ -42,7 +43,6 @@ def voxel_luminance(bricks, settings) -> np.ndarray:
     before emission_scale (the colour, or the blackbody law with a temperature grid)."""
     e = np.asarray(bricks.emission, np.float64)[:, :-1, :-1, :-1]
     if bricks.temperature is None or settings.temperature_grid is None:
-        from .volume import emission_color
         unit = emission_color(settings) / max(settings.emission_scale, 1e-300)
         return e * float(unit @ blackbody.REC709_Y)
     t = settings.temperature_offset + settings.temperature_scale * \

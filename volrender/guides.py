@@ -19,7 +19,7 @@ import dataclasses
 import numpy as np
 
 from .denoise import GUIDE_SPP
-from .dispatch import Dispatch, Plan, run_rows
+from .dispatch import Dispatch, Plan, run_rows, upload
 
 ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
         "glass": ("cam", "gp", "spheres", "nodes", "env", "colors", "bricks", "cells", "lists",
@@ -50,7 +50,6 @@ def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
     docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
     centre)."""
     import pyopencl as cl
-    from .dispatch import upload
     p = plan(scene, main, spp)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
     ctx = device.context
@@ -58,7 +57,7 @@ def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
     outs = {name: cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * int(np.prod(shape)))
             for name, shape in p.outputs}
     run_rows(device, kernel, args + list(outs.values()), scene.camera.width,
-             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=spp)
+             scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=p.spp)
     host = {}
     for name, shape in p.outputs:
         host[name] = np.empty(shape, np.float32)

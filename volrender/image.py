@@ -35,7 +35,7 @@ import numpy as np
 import OpenEXR
 
 from . import atomic
-from .errors import UserError
+from .errors import ImageWarning, UserError
 from .files import check_input
 
 SUFFIXES = ('.exr', '.npy', '.png')
@@ -513,7 +513,6 @@ def write_image(path, rgba, aovs=None, *, exposure: float = 0.0, tonemap: str = 
 def _warn_if_invisible(rgba, bits):
     """A straight-alpha PNG whose alpha rounds to at most 2 codes where light was rendered
     (fire, whose emission has almost no opacity): viewers show it (nearly) invisible."""
-    from .errors import ImageWarning
     a = np.asarray(rgba[..., 3], np.float64)
     lit = np.nan_to_num(np.asarray(rgba[..., :3], np.float64)).max(axis=-1) > 1e-3
     top = (1 << bits) - 1

@@ -5,7 +5,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import glass, vdb, vdb_header
+from .camera import View
 from .errors import UserError, printable
+from .points import load_points
+from .render import render
+from .scene import POINT_SUFFIXES, Scene, VolumeContent
+from .spheres import scan_defaults
+from .volume import VolumeSettings
 
 TARGET_DEPTH = 2.0      # suggested scale: median optical depth over the covered pixels
 
@@ -25,10 +32,6 @@ def suggested_density_scale(bricks, device=None, size=(64, 48)) -> float | None:
     """The --density-scale at which the median optical depth over the pixels the volume
     covers, seen from the default camera, is TARGET_DEPTH: one unlit render at a scale
     small enough that alpha = 1 - exp(-tau) is far from saturating."""
-    from .camera import View
-    from .render import render
-    from .scene import Scene, VolumeContent
-    from .volume import VolumeSettings
     vmax = float(np.max(bricks.majorant)) if len(bricks.majorant) else 0.0
     if vmax <= 0:
         return None
@@ -51,9 +54,6 @@ def _box(lo, hi) -> str:
 def describe_points(path) -> list[str]:
     """Lines describing a point file: count, bounds, radii, colours, the nearest-neighbour
     spacing, and the radius and blend a render would choose (spheres.scan_defaults)."""
-    from . import glass
-    from .points import load_points
-    from .spheres import scan_defaults
     cloud = load_points(path)
     n = len(cloud.centers)
     lo, hi = cloud.centers.min(axis=0), cloud.centers.max(axis=0)
@@ -73,8 +73,6 @@ def describe_points(path) -> list[str]:
 def describe(path, device=None) -> list[str]:
     """Lines describing every grid of a .vdb (or the grid of a .npz cache), or a point
     file (describe_points)."""
-    from . import vdb, vdb_header
-    from .scene import POINT_SUFFIXES
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix in POINT_SUFFIXES:

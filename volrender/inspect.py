@@ -22,6 +22,7 @@ dispatch by input kind that `volrender tree` calls.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import tempfile
@@ -30,8 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from . import atomic
+from .cells import B, B3
 from .errors import UserError
-from .spheres import default_radius
+from .layout import BRICK
+from .scene import load_scene
+from .spheres import default_radius, pack_scene, sphere_radii
+from .tree import build
 
 __all__ = ["tree_boxes", "points_mesh", "brick_boxes", "tree_stats", "n_boxes",
            "leaf_of_points", "show_tree", "show_bricks", "inspect_input", "cell_boxes",
@@ -231,7 +236,6 @@ def brick_boxes(bricks):
         One box per slot in slot order (8 points, 12 line cells each), with cell
         arrays ``majorant`` (float32, the slot's maximum density) and ``slot``.
     """
-    from .layout import BRICK
     dims = np.asarray(bricks.dims, np.int64)
     table = np.asarray(bricks.table)
     flat = np.flatnonzero(table >= 0)
@@ -479,7 +483,6 @@ def show_bricks(bricks, *, screenshot=None, export=None, show=False,
 
 def _listed_cells(grid):
     """(integer cell coordinates (M, 3), list lengths (M,)) of the cells with a list."""
-    from .cells import B, B3
     blocks = np.nonzero(grid.bricks[:, 0] >= 0)[0]
     brick_of = np.empty(len(blocks), np.int64)
     brick_of[grid.bricks[blocks, 0]] = blocks
@@ -565,7 +568,6 @@ def show_cells(grid, centers, centre=(0.0, 0.0, 0.0), *, screenshot=None, export
 # --------------------------------------------------------------------------- files
 
 def _show_cloud(cloud, radii, opts):
-    from .tree import build
     t = build(cloud.centers, radii, leaf_size=opts["leaf_size"], margin=opts["blend"])
     show_tree(t, cloud.centers, **opts["view"], **opts["output"])
     return t
@@ -626,8 +628,6 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
     volrender.tree.Tree, volrender.cells.Cells or volrender.bricks.Bricks
         What was shown.
     """
-    from .spheres import sphere_radii
-    from .scene import load_scene
     _check_outputs(screenshot, export, show)      # fail before loading a large file
     scene = load_scene(path, leaf_size=leaf_size, radius=radius, grid=grid,
                        size=tuple(window_size), **(camera or {}))
@@ -638,8 +638,6 @@ def inspect_input(path, *, leaf_size=None, radius=None, blend=0.0, grid=None, de
         return scene.content.bricks
     cloud, settings = scene.content.cloud, scene.content.settings
     if cells:
-        import dataclasses
-        from .spheres import pack_scene
         packed = pack_scene(cloud, dataclasses.replace(settings, accel="grid"))
         if packed.cells is None:
             raise UserError(packed.note or "no support cells for this cloud",

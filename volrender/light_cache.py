@@ -18,6 +18,7 @@ that costs least; `auto` bakes where that is below the exact march.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -25,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import layout
+from .dispatch import upload
+from .environment import env_mode, uniform
 
 MODES = ("auto", "on", "off")
 # node spacings the cost model picks from; 8 (brick corners) is valid when asked for, but
@@ -97,7 +100,6 @@ def env_quadrature(environment, res=(128, 256)) -> np.ndarray:
     summed over the map's texels (or a res grid for a uniform environment). With every
     transmittance 1 the bake then gives the map's own L1 projection exactly; a sun disk in
     the map is integrated, never missed between directions."""
-    from .environment import env_mode
     mode = env_mode(environment)
     out = np.zeros((ENV_DIRS, 5, 4), np.float64)
     dirs = env_dirs()
@@ -232,7 +234,6 @@ def get(content, device, features, params, lights_packed, environment,
         memo = (environment, env_quadrature(environment))
         content.store["env_quadrature"] = memo
     env = memo[1]
-    import dataclasses
     flags = dataclasses.replace(features, light_cache=choice.cell, tiled=False, tile_w=1,
                                 tile_h=1, tile_cap=0, depth=False).flags()
     key = (tuple(sorted(flags.items())), params.tobytes(), np.asarray(lights_packed).tobytes(),
@@ -252,7 +253,6 @@ def get(content, device, features, params, lights_packed, environment,
 def ms_dirs() -> np.ndarray:
     """(ENV_DIRS, 4) float32: the fixed directions and their cells' solid angles / 4 pi
     (env_quadrature of a unit sky), for cl/bake_light.cl's ms_gather."""
-    from .environment import uniform
     q = env_quadrature(uniform((1.0, 1.0, 1.0))).reshape(ENV_DIRS, 5, 4)
     out = np.zeros((ENV_DIRS, 4), np.float32)
     out[:, :3] = env_dirs()
@@ -272,7 +272,6 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
     """Run cl/bake_light.cl over every node of every occupied brick (then, with
     choice.ms_orders, its ms_source and that many ms_gather passes)."""
     import pyopencl as cl
-    from .dispatch import upload
     ctx, q = device.context, device.queue
     occ = occupied_slots(bricks)
     n = len(occ) * nodes_per_brick(choice.cell)
@@ -332,7 +331,6 @@ def probe(content, device, flags, local):
     (n, 3) inside occupied bricks: (n, channels); flags: the marcher's (its plan's
     features); tests."""
     import pyopencl as cl
-    from .dispatch import upload
     cache = cached(content, device)
     kernel = device.kernel("bake_light", dict(flags), "probe_light_cache")
     pts = np.zeros((len(local), 4), np.float32)

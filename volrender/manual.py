@@ -6,11 +6,13 @@ schema (one source of truth):
 tests/test_manual.py fails when the committed files are not what this writes."""
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from . import scene_file
-from .settings import knobs
+from .camera import View
+from .glass import GlassSettings
+from .settings import CommonSettings, knobs
+from .volume import VolumeSettings
 
 GROUPS = (("view", "Camera and image"), ("common", "Every render"),
           ("volume", "Volumes (.vdb, .npz)"), ("glass", "Point clouds as molten glass"))
@@ -35,10 +37,6 @@ def _cell(text) -> str:
 
 
 def _owners():
-    from .camera import View
-    from .glass import GlassSettings
-    from .settings import CommonSettings
-    from .volume import VolumeSettings
     return {"view": View, "common": CommonSettings, "volume": VolumeSettings,
             "glass": GlassSettings}
 

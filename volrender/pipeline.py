@@ -15,6 +15,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 from .errors import UserError
+from .frame_record import FrameRecord, FrameStatus
 from .process import hold_in_this_thread
 
 
@@ -23,10 +24,11 @@ def _failure(exc) -> str:
 
 
 def frame_times(img, load_s, render_s, write_s) -> dict:
-    """A written frame's record fields: status, device and its stages' seconds."""
-    build_s = (img.info.get("tree_ms", 0.0) + img.info.get("cells_ms", 0.0)) / 1e3
-    return dict(status="ok", device=img.device, load_s=load_s, build_s=build_s,
-                setup_s=img.info.get("setup_ms", 0.0) / 1e3, kernel_s=img.kernel_ms / 1e3,
+    """A written frame's record fields (FrameRecord.set): status, device and its stages'
+    seconds."""
+    build_s = (img.info.tree_ms + img.info.cells_ms) / 1e3
+    return dict(status=FrameStatus.OK, device=img.device, load_s=load_s, build_s=build_s,
+                setup_s=img.info.setup_ms / 1e3, kernel_s=img.kernel_ms / 1e3,
                 render_s=render_s, write_s=write_s)
 
 
@@ -34,7 +36,7 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
     """Render [(frame, input, output)] here, appending each frame's record to `records`
     when its file is written (or it failed) and calling `done()` then; `worker` names
     this process in them (sequence.render_chunk's name)."""
-    from .render import render
+    from .render import render        # looked up per call: tests put fakes in their place
     from .scene import load_scene
     device = os.environ.get("VOLRENDER_DEVICE") or None
 
@@ -49,11 +51,11 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
     def write(rec, img, t0, load_s, render_s):
         t = time.perf_counter()
         try:
-            img.save(rec["output"], **save_kw)
-            rec.update(frame_times(img, load_s, render_s, time.perf_counter() - t))
+            img.save(rec.output, **save_kw)
+            rec.set(**frame_times(img, load_s, render_s, time.perf_counter() - t))
         except (UserError, MemoryError) as exc:
-            rec.update(status="failed", error=_failure(exc))
-        rec["seconds"] = time.perf_counter() - t0
+            rec.set(status=FrameStatus.FAILED, error=_failure(exc))
+        rec.seconds = time.perf_counter() - t0
         return rec
 
     # the loader keeps the signals: the OpenVDB reader process it may start takes them
@@ -72,8 +74,7 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
     try:
         loading = loader.submit(load, jobs[0])
         for i, (frame, src, out) in enumerate(jobs):
-            rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
-                   "pid": os.getpid()}
+            rec = FrameRecord(frame, str(src), str(out), worker=worker, pid=os.getpid())
             t0, t1, scene, error = loading.result()
             loading = loader.submit(load, jobs[i + 1]) if i + 1 < len(jobs) else None
             t2 = time.perf_counter()
@@ -86,7 +87,7 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
             t3 = time.perf_counter()
             written()                           # frame n-1: written while frame n rendered
             if error is not None:
-                rec.update(status="failed", error=error, seconds=t3 - t0)
+                rec.set(status=FrameStatus.FAILED, error=error, seconds=t3 - t0)
                 records.append(rec)
                 done()
                 continue

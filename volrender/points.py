@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cloud import CHUNK_LINES, MEMORY_FIX, PointCloud, Projection, finish_cloud
+from .cloud import CHUNK_LINES, PointCloud, Projection, finish_cloud
 from .errors import UserError
 from .files import check_input, check_memory, npy_header
 from .ply import read_ply

@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import threading
+import time
 
 from .errors import printable
 
@@ -186,7 +187,6 @@ RECEIVED = None         # the last signal handle_signals' handlers took, until i
 def _again(signum):
     """The signal raised in the main thread again, a moment later (see _not_here)."""
     import _thread
-    import time
     time.sleep(0.02)
     if ROUTER is not None:
         _raise_in_main(signum)

@@ -27,11 +27,13 @@ import math
 import shlex
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import UserError
+from .render_info import RenderInfo
 
 STILL_AFTER_S = 0.25     # a camera or option unchanged this long is still: accumulate
 PREVIEW_S = 0.1          # seconds a moving frame aims at
@@ -73,7 +75,7 @@ class Accumulation:
         args += list(self.outs.values())
         args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
         self.args = args
-        self.spp = int(plan.info.get("spp", scene.settings.spp))
+        self.spp = plan.spp
         self.taken = 0                    # samples per pixel in the buffers
         self.rate = None                  # seconds per pixel-sample, measured
         self.kernel_ms = 0.0
@@ -127,8 +129,8 @@ class Accumulation:
         return Image(rgba=rgba, aovs={}, kernel_ms=self.kernel_ms, wall_ms=1e3 * took,
                      cpu_ms=1e3 * (time.process_time() - c0), device=self.dev.name,
                      flags=self.plan.features.flags(), camera=cam,
-                     info={"transparent": bool(getattr(settings, "transparent", False)),
-                           **self.plan.info, "spp": s1, "spp_target": self.spp})
+                     info=RenderInfo(transparent=bool(getattr(settings, "transparent", False)),
+                                     **self.plan.info, spp=s1, spp_target=self.spp))
 
 
 def preview_size(still, rate, seconds=PREVIEW_S):
@@ -290,12 +292,11 @@ class Session:
             self.rate = acc.rate
         denoised = False
         if self.denoise_on(scene) and (acc.done or acc.taken >= 2 * max(self._denoised_at, 1)):
-            import warnings
             from .render import denoised as denoise_image
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 img = denoise_image(scene, self.dev, img)
-            denoised, self._denoised_at = bool(img.info.get("denoised")), acc.taken
+            denoised, self._denoised_at = bool(img.info.denoised), acc.taken
         frame = Frame(img, "converged" if acc.done else "progressive", acc.taken, acc.spp,
                       version, denoised, time.perf_counter() - t0)
         self.frame = frame

@@ -12,18 +12,24 @@ only on the scene and its seed.
 """
 from __future__ import annotations
 
+import base64
+import dataclasses
+import io
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import device as device_mod, glass, volume
-from .dispatch import Launch, run_rows, upload
+from .dispatch import Launch, PastDeadline, run_rows, upload
 from .errors import ImageWarning, UserError, spell
 from .progress import say
+from .render_info import RenderInfo
+from .scene import Scene, load_scene
 
 VARIANTS = (None, "uber", "stats")     # comparison builds (bench): glass only
 BUILD_NOTE = 100_000                   # clouds from which the build says so (seconds on PoCL)
@@ -42,7 +48,7 @@ class Image:
     device: str
     flags: dict
     camera: object = None
-    info: dict = field(default_factory=dict)
+    info: RenderInfo = field(default_factory=RenderInfo)
     noisy: np.ndarray | None = None  # the beauty before denoising (denoise="on"), else None
 
     @property
@@ -63,7 +69,7 @@ class Image:
         from .image import GUIDE_LAYERS
         tonemap = view or tonemap
         if transparent is None:
-            transparent = bool(self.info.get("transparent", False))
+            transparent = self.info.transparent
         layers = dict(self.aovs)
         if Path(path).suffix.lower() != ".exr":     # guides and the noisy image: EXR only
             layers = {k: v for k, v in layers.items() if k not in GUIDE_LAYERS}
@@ -71,26 +77,25 @@ class Image:
             layers["noisy"] = self.noisy
         return write_image(path, self.rgba, layers or None, exposure=exposure, tonemap=tonemap,
                            camera=self.camera, png_bits=png_bits,
-                           background=self.info.get("background"),
+                           background=self.info.background,
                            png_alpha="straight" if transparent else "opaque")
 
     @property
     def seconds(self) -> float:
         """The render's time as the CLI reports it: set-up (packing, program, uploads)
         plus the launches up to the read-back, plus the guides and OIDN when denoised."""
-        return (self.info.get("setup_ms", 0.0) + self.wall_ms + self.info.get("guides_ms", 0.0)
-                + self.info.get("denoise_ms", 0.0)) / 1e3
+        return (self.info.setup_ms + self.wall_ms + self.info.guides_ms
+                + self.info.denoise_ms) / 1e3
 
     def __repr__(self) -> str:
         """One line: `<volrender.Image 320x240, 4 spp, pthread-..., 1.23 s>`."""
-        spp = self.info.get("spp")
+        spp = self.info.spp
         return (f"<volrender.Image {self.width}x{self.height}"
                 + (f", {spp} spp" if spp is not None else "")
                 + f", {self.device}, {self.seconds:.2f} s>")
 
     def __array__(self, dtype=None, copy=None):
         """np.asarray(image): the H x W x 4 linear premultiplied RGBA (float32)."""
-        import numpy as np
         out = self.rgba if dtype is None else self.rgba.astype(dtype, copy=False)
         return out.copy() if copy else out
 
@@ -100,31 +105,23 @@ class Image:
         from PIL import Image as PILImage
         from .image import png_pixels
         tonemap = view or tonemap
-        alpha = "straight" if self.info.get("transparent") else "opaque"
-        codes = png_pixels(self.rgba, exposure, tonemap, background=self.info.get("background"),
+        alpha = "straight" if self.info.transparent else "opaque"
+        codes = png_pixels(self.rgba, exposure, tonemap, background=self.info.background,
                            alpha=alpha)
         return PILImage.fromarray(codes, "RGBA")
 
     def _repr_png_(self) -> bytes:
         """The image as PNG bytes (Jupyter shows an Image with it): `to_pil`'s pixels."""
-        import io
         buf = io.BytesIO()
         self.to_pil().save(buf, format="PNG")
         return buf.getvalue()
 
     def _repr_html_(self) -> str:
         """The picture with the repr's line under it (Jupyter prefers it to the PNG)."""
-        import base64
         import html
         data = base64.b64encode(self._repr_png_()).decode("ascii")
         return (f'<div><img src="data:image/png;base64,{data}" width="{self.width}" '
                 f'height="{self.height}"/><br/><code>{html.escape(repr(self))}</code></div>')
-
-    def as_dict(self) -> dict:
-        """The older result dict: 'rgba', each AOV by name, timings, 'flags', and info."""
-        return {"rgba": self.rgba, **self.aovs, "kernel_ms": self.kernel_ms,
-                "wall_ms": self.wall_ms, "cpu_ms": self.cpu_ms, "flags": self.flags,
-                "device": self.device, **self.info}
 
 
 PLANNERS = {"volume": volume.plan, "glass": glass.plan}
@@ -139,8 +136,6 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     `variant`: "uber" or "stats" builds of the glass kernel (benchmarks). `launch`: how the
     image is cut into launches (dispatch.Launch; the default adapts). An image that came out
     empty, a solid silhouette or overexposed warns (errors.ImageWarning), saying the fix."""
-    import warnings
-    from .scene import Scene, load_scene
     if not isinstance(scene, Scene):
         if not isinstance(scene, (str, os.PathLike, np.ndarray)):
             raise UserError(f"render() takes a Scene (volrender.load_scene), a file path or a "
@@ -194,14 +189,12 @@ def _render(scene, device=None, *, progress=None, variant=None, launch=None) -> 
 def denoised(scene, dev, img) -> Image:
     """`img` denoised by OIDN (volrender.denoise) with the scene's guides (volrender.guides:
     albedo, and normal for glass), which join its AOVs; the noisy beauty stays as Image.noisy. Without
-    pyoidn: `img` unchanged, a one-line warning, and info['denoise_note'] saying why."""
-    import dataclasses
-    import warnings
+    pyoidn: `img` unchanged, a one-line warning, and info.denoise_note saying why."""
     from . import denoise as denoise_mod, guides
     why = denoise_mod.unavailable()
     if why:
         warnings.warn(f"not denoised: {why}", ImageWarning, stacklevel=3)
-        return dataclasses.replace(img, info={**img.info, "denoised": False, "denoise_note": why})
+        return dataclasses.replace(img, info=img.info.replace(denoised=False, denoise_note=why))
     base = scene
     if scene.kind == "volume":          # one plan of one pass (the guides ignore the samples)
         base = scene.replace(content=dataclasses.replace(
@@ -218,10 +211,10 @@ def denoised(scene, dev, img) -> Image:
     t2, c2 = time.perf_counter(), time.process_time()
     return dataclasses.replace(
         img, rgba=rgba, noisy=img.rgba, aovs={**img.aovs, **g},
-        info={**img.info, "denoised": True, "guides_ms": 1e3 * (t1 - t0),
-              "denoise_ms": 1e3 * (t2 - t1), "guides_cpu_ms": 1e3 * (c1 - c0),
-              "denoise_guides": "albedo, normal" if normal is not None else "albedo",
-              "denoise_cpu_ms": 1e3 * (c2 - c1)})
+        info=img.info.replace(denoised=True, guides_ms=1e3 * (t1 - t0),
+                              denoise_ms=1e3 * (t2 - t1), guides_cpu_ms=1e3 * (c1 - c0),
+                              denoise_guides="albedo, normal" if normal is not None else "albedo",
+                              denoise_cpu_ms=1e3 * (c2 - c1)))
 
 
 def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
@@ -245,7 +238,7 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
     t0, c0 = time.perf_counter(), time.process_time()
     setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
     run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=plan.info.get("spp", scene.settings.spp),
+                   dispatch=plan.dispatch, spp=plan.spp,
                    launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
@@ -263,11 +256,13 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
             aovs[name] = _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=run.kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
-                 info={"transparent": bool(getattr(scene.settings, "transparent", False)),
-                       **plan.info, "setup_ms": setup_ms, "launches": run.launches,
-                       "spp": plan.info.get("spp", scene.settings.spp), "row_cost": run.profile,
-                       "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
-                       "launch_s": [t for t, _, _ in run.took], "launch_ends_s": run.ends})
+                 info=RenderInfo(**{
+                     "transparent": bool(getattr(scene.settings, "transparent", False)),
+                     **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                     "spp": plan.spp, "row_cost": run.profile,
+                     "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
+                     "launch_s": tuple(t for t, _, _ in run.took),
+                     "launch_ends_s": tuple(run.ends)}))
 
 
 def _derived_aov(name, rgba):
@@ -314,13 +309,10 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     stop, dispatch.PastDeadline). Without one, passes of settings.spp samples. After the
     minimum passes each is sized to reach the target from the noise so far (noise ~
     1/sqrt(N)), at most doubling the samples. The image is the sample-weighted mean of the
-    passes; info: 'spp' (the samples taken, also counted launch by launch in
-    'samples_taken'), 'noise' (the covered pixels' estimate), 'noise_whole' (the whole
-    image's, for comparison), 'history' ((spp, noise, noise_whole) after each pass),
-    'noise_map' (the per-pixel standard error, H x W), 'stopped' (why)."""
-    import dataclasses
-    import time
-    from .dispatch import PastDeadline
+    passes; info (RenderInfo): spp (the samples taken, also counted launch by launch in
+    samples_taken), noise (the covered pixels' estimate), noise_whole (the whole
+    image's, for comparison), history ((spp, noise, noise_whole) after each pass),
+    noise_map (the per-pixel standard error, H x W), stopped (why)."""
     # auto resolved once, with the passes' settings: per pass it would plan its own samples
     # (volume.auto_estimator) and the passes would take more than they count
     scene, note = volume.resolved(scene, device)
@@ -342,7 +334,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         try:
             img = _beauty(scene.replace(content=content), device, progress=progress,
                           launch=launch, deadline=deadline if passes else None,
-                          profile=last.info["row_cost"] if last is not None else None)
+                          profile=last.info.row_cost if last is not None else None)
         except PastDeadline:
             why = f"time limit {limit:g} s (the pass under way then, {batch} spp, dropped)"
             break
@@ -357,7 +349,7 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
         for k, v in img.aovs.items():
             aovs[k] = v if k not in aovs else aovs[k] + (v - aovs[k]) * (batch / (n + batch))
         n += batch
-        taken += img.info["samples_taken"]
+        taken += img.info.samples_taken
         passes += 1
         kernel_ms += img.kernel_ms
         cpu_ms += img.cpu_ms
@@ -395,14 +387,14 @@ def render_passes(scene, device=None, *, progress=None, launch=None):
     se = volume.noise_estimate(mean, m2, passes, n)[0] if passes >= 2 else None
     if target is not None and noise > target and math.isfinite(noise):
         why += f" before the target {target:g}"
-    info = dict(last.info, **({"estimator_note": note} if note else {}))
-    info.update(spp=n, samples_taken=taken, passes=passes, noise=noise, noise_whole=whole,
-                history=history, stopped=why,
-                adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
-                         f"stopped at {why}; estimated error of the covered pixels "
-                         + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"))
-    if se is not None:
-        info["noise_map"] = np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)
+    info = last.info.replace(
+        estimator_note=note or last.info.estimator_note, spp=n, samples_taken=taken,
+        passes=passes, noise=noise, noise_whole=whole, history=tuple(history), stopped=why,
+        adaptive=f"{passes} passes, {n} spp in {time.perf_counter() - t0:.2f} s: "
+                 f"stopped at {why}; estimated error of the covered pixels "
+                 + (f"{noise:.3g}" if math.isfinite(noise) else "unknown (one pass)"),
+        noise_map=(np.sqrt((se ** 2).mean(axis=-1)).astype(np.float32)
+                   if se is not None else None))
     return Image(rgba=mean.astype(np.float32), aovs=aovs, kernel_ms=kernel_ms,
                  wall_ms=1e3 * (time.perf_counter() - t0), cpu_ms=cpu_ms, device=last.device,
                  flags=last.flags, camera=last.camera, info=info)

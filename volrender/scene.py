@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -49,13 +50,19 @@ from typing import ClassVar
 import numpy as np
 
 from . import device as device_mod
-from .camera import View
+from .camera import View, check_conflicts, read_camera_file, up_frame
+from .cloud import finish_cloud
+from .dispatch import upload
 from .environment import Environment, load_environment, uniform
 from .errors import KEYWORDS, UserError
+from .files import check_input
+from .glass import GlassSettings
+from .lights import FIRE_LIGHT, default_sky, default_suns, glass_sky_texels
 from .overrides import (check_kinds, explicit_keys, field_values, given_from_file,
                         given_from_overrides, lights_given)
 from .scene_file import EXTRA_KEYS, LIGHT_KEYS, MAX_COUNT, options, read
-from .spheres import BuildCache, pack_scene, scan_defaults, sphere_bounds, sphere_radii
+from .spheres import BuildCache, blend_width, pack_scene, scan_defaults, sphere_bounds, sphere_radii
+from .volume import VolumeSettings, auto_estimator
 
 VOLUME_SUFFIXES = (".vdb", ".npz")
 POINT_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npy", ".las", ".laz")
@@ -83,7 +90,6 @@ class VolumeContent:
     def buffer(self, device, name):
         """The device copy of bricks.<name> ("table", "data", "emission" or
         "temperature"), uploaded once per device."""
-        from .dispatch import upload
         key = (device.device.int_ptr, name)
         if key not in self.store:
             dtype = np.int32 if name == "table" else np.float32
@@ -97,7 +103,6 @@ class VolumeContent:
         (its exposure, or smoke for an all-zero flame grid) and the automatic estimator
         (for the request's pixels on `device`)."""
         from . import vdb
-        from .volume import auto_estimator
         settings, notes, fire = req.settings, [], False
         if req.origin != "array":
             path = req.doc["volume"]["file"] if req.doc else Path(req.source)
@@ -140,7 +145,6 @@ class GlassContent:
         """(points, radii) the default camera fits (framing.fit): the spheres, each grown by
         how far the smooth union's surface reaches beyond them (framing.blend_growth)."""
         from .framing import blend_growth
-        from .spheres import blend_width
         centres = np.asarray(self.cloud.centers, np.float64)
         radii = sphere_radii(self.cloud, self.settings)
         k = blend_width(radii, self.settings) if len(radii) else 0.0
@@ -165,7 +169,6 @@ class GlassContent:
         """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
         when it is what req would read) and, for a cloud without radii, the radius and
         blend of its spacing (spheres.scan_defaults; its time in timings.radii)."""
-        import time
         from . import generators, points
         settings = req.settings
         old = req._reusable(reuse, settings)
@@ -304,7 +307,6 @@ def check_array(a) -> str:
 def _array_content(a, kind):
     """Bricks of a dense volume (voxel (i, j, k) at world (i, j, k)) or the PointCloud of
     an (N, 3) / (N, 4) array."""
-    from .cloud import finish_cloud
     label = f"array {'x'.join(map(str, a.shape))}"
     if kind == "volume":
         from .bricks import Bricks
@@ -391,7 +393,6 @@ def _environment(path, where):
     """Environment from settings.env: a uniform R,G,B (a 1x1 map) or a map file."""
     if isinstance(path, tuple):
         return uniform(path)
-    from .files import check_input
     try:
         p = check_input(path, "environment map")
     except UserError as exc:
@@ -456,7 +457,6 @@ class Request:
         """The Scene; `reuse`: a Scene whose bricks or cloud (and device builds) serve this
         one when they are what it would read (Scene.replace); `device`: the one it will
         render on, which --estimator auto weighs (None: a CPU)."""
-        import time
         t0 = time.perf_counter()
         timings = Timings()
         notes = []
@@ -475,8 +475,6 @@ class Request:
         framed = self.view.origin is None            # a given camera needs no content extent
         camera = self.view.camera(lo, hi, hint, extent=content.extent() if framed else None)
         if environment is None and self.kind == "volume":      # the default sky (issue #22)
-            from .camera import up_frame
-            from .lights import FIRE_LIGHT, default_sky
             dim = FIRE_LIGHT if fire and self.lights is None else 1.0
             environment = Environment(default_sky(up_frame(self.view.axis(hint)), dim),
                                       "default sky")
@@ -485,14 +483,11 @@ class Request:
                              "own light dominates)" if dim != 1.0 else "") + " (--env 0 for no "
                              "sky, --sun or --no-lights for other lights)")
         if environment is None and self.kind == "glass" and self.view.axis(hint) != "y":
-            from .camera import up_frame     # glass's procedural sky, turned to the up axis
-            from .lights import glass_sky_texels
+            # glass's procedural sky, turned to the up axis
             environment = Environment(glass_sky_texels(up_frame(self.view.axis(hint))),
                                       "default sky (z up)")
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
-            from .camera import up_frame
-            from .lights import FIRE_LIGHT, default_suns
             lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
         timings.load = time.perf_counter() - t0 - (timings.radii or 0.0)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
@@ -516,7 +511,6 @@ def request(source, **overrides) -> Request:
         generated_cloud_count(str(source))
     camera_file = None
     if "camera" in given:               # a camera file: above the scene file, below the options
-        from .camera import read_camera_file
         camera_file = Path(given.pop("camera")[0])
         by_field = {o.field: o.key for o in options().values() if o.owner == "view"}
         explicit = explicit_keys(overrides)
@@ -527,20 +521,16 @@ def request(source, **overrides) -> Request:
     if origin == "array":
         kind = array_kind
     check_kinds(given, kind, str(source))
-    from .camera import check_conflicts
     check_conflicts({options()[k].field: where for k, (_, where) in given.items()
                      if k not in EXTRA_KEYS and options()[k].owner == "view"})
     view = View(**field_values(given, ("view",)))
     lights = lights_given(given, doc, Path(source) if origin == "scene" else None)
     values = field_values(given, ("common", kind))
     if kind == "volume":
-        from .volume import VolumeSettings
         settings = VolumeSettings(**values)
     else:
-        from .glass import GlassSettings
         settings = GlassSettings(**values)
     if isinstance(settings.env, str):
-        from .files import check_input
         try:
             check_input(settings.env, "environment map")
         except UserError as exc:

@@ -33,20 +33,35 @@ on interruption and frame records has landed.
 from __future__ import annotations
 
 import contextlib
+import datetime
+import fcntl
 import fnmatch
 import glob as globmod
-import logging
+import hashlib
 import json
+import logging
 import os
 import re
 import signal
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import process
-from .errors import UserError, one_line_if_uncaught
+import numpy as np
+
+from . import points, process
+from .atomic import write_bytes
+from .camera import FRAMING, describe as describe_camera, write_camera_file
+from .device import all_devices, resolve
+from .errors import UserError, one_line_if_uncaught, option_name
+from .frame_record import FrameRecord, FrameStatus
+from .progress import Progress
+from .render import check_image_memory, render
+from .scene import load_scene, request
+from .settings import in_range
+from .spheres import blend_width, sphere_bounds, sphere_radii
 
 _HASHES = re.compile(r"#+")
 _PRINTF = re.compile(r"%(0?)(\d*)d")
@@ -291,9 +306,7 @@ def sequence_camera(paths, overrides, device=None):
     is read once for its bounds, and the radius and blend are one for the whole sequence,
     given or chosen from the first frame (said in the notes). Frames whose bounds cannot
     be read are left out of the union and returned as failed."""
-    import numpy as np
     from . import vdb
-    from .scene import request
     first = next(iter(paths.values()))
     req = request(first, **overrides)
     if req.origin not in ("volume", "points"):
@@ -301,8 +314,6 @@ def sequence_camera(paths, overrides, device=None):
                         ".xyz, .csv, .txt)", path=first, fix="give a pattern of such files")
     extra, notes = {}, []
     if req.kind == "glass":
-        from . import points
-        from .spheres import blend_width, sphere_bounds, sphere_radii
         scene0 = req.load()
         settings = scene0.content.settings
         notes = [f"frame {next(iter(paths))}: {n}" for n in scene0.notes]
@@ -341,7 +352,6 @@ def _frame_defaults(paths, overrides, device=None):
     estimator (with its octave bands or samples) unless --estimator is given, so that
     neither the brightness nor the estimator changes from frame to frame; ({}, [])
     when neither applies or the frame cannot be read."""
-    from .scene import request
     fire = "emission_scale" not in overrides
     auto = overrides.get("estimator", "auto") == "auto"
     if not (fire or auto):
@@ -402,7 +412,7 @@ def render_chunk(jobs, overrides, save_kw, skip_existing=False):
             records.append(rec)
     for job in deferred:
         records.append(_render_frame(job, overrides, save_kw, skip_existing, worker, wait=True))
-    return sorted(records, key=lambda r: r["frame"])
+    return sorted(records, key=lambda r: r.frame)
 
 
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"      # a PNG's last chunk: empty, fixed CRC
@@ -451,8 +461,6 @@ def _claim(out, wait: bool):
     runs over one output folder (on one host or over NFS) render each frame once. Returns a
     release function, or None where another process holds it and `wait` is false. Where the
     directory takes no lock file or no locks, every claim is granted."""
-    import fcntl
-    import hashlib
     d = Path(out).resolve().parent
     fd = _LOCK_FDS.get(d)
     if fd is None:
@@ -475,12 +483,9 @@ def _claim(out, wait: bool):
 def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
     """One frame's record; None when --skip-existing finds another run rendering it and
     `wait` is false."""
-    from .pipeline import frame_times
-    from .render import render
-    from .scene import load_scene
+    from .pipeline import frame_times      # (concurrent.futures: off the start-up path)
     frame, src, out = job
-    rec = {"frame": frame, "input": str(src), "output": str(out), "worker": worker,
-           "pid": os.getpid()}
+    rec = FrameRecord(frame, str(src), str(out), worker=worker, pid=os.getpid())
     t0 = time.perf_counter()
     release = lambda: None  # noqa: E731
     if skip_existing:
@@ -488,17 +493,17 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
         if found is not None:
             why = unusable(out, overrides.get("size"))
             if why is None:
-                rec.update(status="skipped", seconds=0.0)
+                rec.status, rec.seconds = FrameStatus.SKIPPED, 0.0
                 return rec
-            rec["redone"] = why             # rendered again, and said so
+            rec.redone = why                # rendered again, and said so
         release = _claim(out, wait)
         if release is None:
             return None
         now = _found(out)
         if now is not None and now != found and unusable(out, overrides.get("size")) is None:
             release()                   # the run that held it has written it
-            rec.pop("redone", None)
-            rec.update(status="skipped", seconds=time.perf_counter() - t0)
+            rec.redone = None
+            rec.status, rec.seconds = FrameStatus.SKIPPED, time.perf_counter() - t0
             return rec
     try:
         try:
@@ -508,14 +513,14 @@ def _render_frame(job, overrides, save_kw, skip_existing, worker, wait):
             t2 = time.perf_counter()
             img.save(out, **save_kw)
             t3 = time.perf_counter()
-            rec.update(frame_times(img, t1 - t0, t2 - t1, t3 - t2))
+            rec.set(**frame_times(img, t1 - t0, t2 - t1, t3 - t2))
         except UserError as exc:
-            rec.update(status="failed", error=str(exc))
+            rec.status, rec.error = FrameStatus.FAILED, str(exc)
         except MemoryError:
-            rec.update(status="failed", error="out of host memory")
+            rec.status, rec.error = FrameStatus.FAILED, "out of host memory"
     finally:
         release()
-    rec["seconds"] = time.perf_counter() - t0
+    rec.seconds = time.perf_counter() - t0
     return rec
 
 
@@ -559,7 +564,6 @@ def device_per_worker(specs):
 def gpu_specs() -> list[str]:
     """'P:D' of every GPU OpenCL lists (empty without one)."""
     import pyopencl as cl
-    from .device import all_devices
     return [f"{i}:{j}" for i, j, _, d in all_devices() if d.type & cl.device_type.GPU]
 
 
@@ -575,7 +579,7 @@ def default_workers(device=None) -> int:
 
 @dataclass
 class SequenceResult:
-    records: list = field(default_factory=list)   # one per frame, in frame order
+    records: list = field(default_factory=list)   # FrameRecord per frame, in frame order
     wall_s: float = 0.0
     workers: int = 0
     record_path: Path | None = None
@@ -585,11 +589,11 @@ class SequenceResult:
 
     @property
     def failed(self) -> list:
-        return [r for r in self.records if r["status"] == "failed"]
+        return [r for r in self.records if r.status == FrameStatus.FAILED]
 
     @property
     def fps(self) -> float:
-        done = sum(r["status"] == "ok" for r in self.records)
+        done = sum(r.status == FrameStatus.OK for r in self.records)
         return done / self.wall_s if self.wall_s > 0 else 0.0
 
 
@@ -612,7 +616,6 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
     _exit_if_reimported()
     _check_counts(workers=workers, chunk=chunk)
     from . import image
-    from .camera import FRAMING, describe as describe_camera, write_camera_file
     dst = parse_pattern(output, output=True)
     frame_list = parse_frames(frames) if isinstance(frames, str) else (
         sorted(set(int(f) for f in frames)) if frames is not None else None)
@@ -648,8 +651,8 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
         frame_kw.pop(key, None)
     save_kw = {"exposure": exposure, "tonemap": tonemap}
     jobs = [(f, paths[f], outs[f]) for f in sorted(paths) if f not in bad]
-    failed = [{"frame": f, "input": str(paths[f]), "output": str(outs[f]), "status": "failed",
-               "error": err, "seconds": 0.0} for f, err in bad.items()]
+    failed = [FrameRecord(f, str(paths[f]), str(outs[f]), status=FrameStatus.FAILED, error=err,
+                          seconds=0.0) for f, err in bad.items()]
     t0, started = time.perf_counter(), time.time_ns()
     own, records, n_workers, stopped, handlers, levels = None, [], 0, None, {}, {}
     try:
@@ -669,12 +672,12 @@ def render_sequence(pattern, output, frames=None, client=None, *, workers=None, 
             _stop_client(*own)
     if stopped is not None:
         records = _rows_when_stopped(records, jobs, started)
-    result = SequenceResult(sorted(records + failed, key=lambda r: r["frame"]),
+    result = SequenceResult(sorted(records + failed, key=lambda r: r.frame),
                             time.perf_counter() - t0, n_workers, notes=notes, camera=camera,
                             options=extra)
     for rec in result.records if say else ():
-        if rec.get("redone"):
-            say(f"frame {rec['frame']}: {rec['output']} was there but {rec['redone']}; "
+        if rec.redone:
+            say(f"frame {rec.frame}: {rec.output} was there but {rec.redone}; "
                 "rendered it again")
     settings = {k: (list(v) if isinstance(v, tuple) else v) for k, v in overrides.items()
                 if isinstance(v, (int, float, str, bool, tuple, list)) or v is None}
@@ -712,18 +715,17 @@ def _rows_when_stopped(records, jobs, started_ns):
     """The records of a stopped run, one per job: a frame without a record was written
     if its output is there, complete and newer than the run's start (a worker finished it
     as the run stopped), and is 'interrupted' otherwise."""
-    have = {r["frame"] for r in records}
+    have = {r.frame for r in records}
     out = list(records)
     for frame, src, dst in jobs:
         if frame in have:
             continue
-        row = {"frame": frame, "input": str(src), "output": str(dst), "seconds": 0.0}
         try:
             fresh = os.stat(dst).st_mtime_ns >= started_ns
         except OSError:
             fresh = False
-        row["status"] = "ok" if fresh else "interrupted"
-        out.append(row)
+        out.append(FrameRecord(frame, str(src), str(dst), seconds=0.0,
+                               status=FrameStatus.OK if fresh else FrameStatus.INTERRUPTED))
     return out
 
 
@@ -744,7 +746,7 @@ def _stopped_summary(result) -> str:
     """'frames 1-3 written, 4-8 not (record out/f.sequence.json)' and the like."""
     by = {}
     for r in result.records:
-        by.setdefault(r["status"], []).append(r["frame"])
+        by.setdefault(r.status.value, []).append(r.frame)
     ok, left = by.get("ok", []), by.get("interrupted", [])
     parts = [f"{'frame' if len(ok) == 1 else 'frames'} {_ranges(ok)} written" if ok
              else "no frame written"]
@@ -764,8 +766,6 @@ MAX_CHUNK = MAX_FRAMES
 def _check_counts(**counts):
     """workers in 0..MAX_WORKERS and chunk in 1..MAX_CHUNK (None: the default), before
     any work: a LocalCluster asked for -1 workers waits for them forever."""
-    from .errors import option_name
-    from .settings import in_range
     checks = {"workers": in_range(0, MAX_WORKERS, integer=True, allow_none=True),
               "chunk": in_range(1, MAX_CHUNK, integer=True, allow_none=True)}
     for key, value in counts.items():
@@ -777,12 +777,9 @@ def _check_counts(**counts):
 def _check_every_frame(first, overrides, device, serial):
     """The limits every frame shares, once, before any frame is read: the options, and
     the image's buffers against memory (the device's too when frames render here)."""
-    from .render import check_image_memory
-    from .scene import request
     req = request(first, **overrides)             # every option checked, nothing loaded
     dev = None
     if serial:
-        from .device import resolve
         dev = resolve(device)
     check_image_memory(*req.view.size, dev, len(req.settings.aovs) if req.kind == "volume" else 0)
 
@@ -791,7 +788,6 @@ def _serial(jobs, frame_kw, save_kw, skip_existing, progress, device, records):
     """Render the jobs here, appending each frame's record to `records` as it is done: as
     a pipeline (volrender/pipeline.py), or one frame after another with --skip-existing
     (whose claims and deferrals render_chunk makes)."""
-    from .progress import Progress
     if device is not None:
         os.environ["VOLRENDER_DEVICE"] = device
     bar = Progress(len(jobs), "frames", progress, unit="frame")
@@ -827,7 +823,6 @@ def _exit_if_reimported():
 def _local_cluster(**kw):
     """A LocalCluster; a UserError naming the `__main__` guard when its workers died
     re-running the script (see _exit_if_reimported), with the cluster's logs held back."""
-    import tempfile
     from distributed import LocalCluster
     names = ("distributed.nanny", "distributed.deploy.spec", "distributed.core",
              "distributed.process", "distributed.worker")
@@ -922,7 +917,6 @@ def _stop_client(client, cluster):
 def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, records):
     """Render the jobs as Dask tasks of k frames, appending the records as they come."""
     from distributed import as_completed
-    from .progress import Progress
     chunks = [jobs[i:i + k] for i in range(0, len(jobs), k)]
     futures = [client.submit(render_chunk, c, frame_kw, save_kw, skip_existing, pure=False,
                              retries=2, key=f"volrender-frames-{c[0][0]}-{c[-1][0]}-{os.getpid()}")
@@ -934,9 +928,9 @@ def _distributed(client, jobs, frame_kw, save_kw, skip_existing, progress, k, re
                 recs = fut.result()
             except Exception as exc:                 # the task itself failed, not a frame
                 c = chunks[futures.index(fut)]
-                recs = [{"frame": f, "input": str(s), "output": str(o), "status": "failed",
-                         "error": f"the worker failed ({type(exc).__name__}: {exc})".replace("\n", " "),
-                         "seconds": 0.0} for f, s, o in c]
+                why = f"the worker failed ({type(exc).__name__}: {exc})".replace("\n", " ")
+                recs = [FrameRecord(f, str(s), str(o), status=FrameStatus.FAILED, error=why,
+                                    seconds=0.0) for f, s, o in c]
             records += recs
             bar.update(len(recs))
     finally:
@@ -948,18 +942,17 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
     """The JSON record beside the outputs: the command, settings, camera, version and date,
     and one row per frame; a resumed run (--skip-existing) keeps the earlier run's rows of
     the frames it skipped."""
-    import datetime
-    from . import __version__
-    from .atomic import write_bytes
+    from . import __version__     # the package (its __init__ imports this module)
     path = record_path(dst)
-    frames = result.records
+    frames = [r.to_json() for r in result.records]
     runs = 1
     if resume and path.is_file():
         try:
             old = json.loads(path.read_text())
             earlier = {r["frame"]: r for r in old.get("frames", []) if r.get("status") == "ok"}
             frames = [{**earlier[r["frame"]], "from_earlier_run": True}
-                      if r["status"] == "skipped" and r["frame"] in earlier else r for r in frames]
+                      if r["status"] == FrameStatus.SKIPPED.value and r["frame"] in earlier else r
+                      for r in frames]
             runs = int(old.get("runs", 1)) + 1
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass                      # an unreadable old record is replaced
@@ -970,7 +963,7 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
                "runs": runs, "settings": settings or {}, "options": result.options,
                "camera": camera_overrides(cam) if cam is not None else None,
                "wall_s": result.wall_s, "workers": result.workers, "fps": result.fps,
-               "failed": [r["frame"] for r in result.failed], "frames": frames}
+               "failed": [r.frame for r in result.failed], "frames": frames}
     try:
         return write_bytes(path, json.dumps(payload, indent=1, default=str).encode(),
                            "sequence record")

@@ -20,6 +20,9 @@ import math
 import os
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from .dispatch import Dispatch
 from .errors import UserError
 
 
@@ -177,13 +180,11 @@ def _num(v) -> bool:
 
 
 def _int(v) -> bool:
-    import numpy as np
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
 def _integral(v) -> bool:
     """A float (Python or numpy) that holds an integer exactly: 2.0, not 2.5 nor inf."""
-    import numpy as np
     return isinstance(v, (float, np.floating)) and math.isfinite(v) and float(v).is_integer()
 
 
@@ -262,7 +263,7 @@ def env_ok(v):
     if v is None or (isinstance(v, str) and v) or isinstance(v, os.PathLike):
         return None
     return rgb(0, MAX_VALUE, n=(1, 3))(v) and \
-        f"takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
+        "takes R,G,B (or one value) >= 0 as a uniform radiance, or the path of a map"
 
 
 @dataclass(frozen=True)
@@ -311,5 +312,4 @@ class CommonSettings:
         elif self.env is not None and not isinstance(self.env, (str, tuple)):
             object.__setattr__(self, "env", str(self.env))      # a pathlib.Path
         check_fields(self)
-        from .dispatch import Dispatch
         Dispatch(self.dispatch, tuple(self.tile))     # raises UserError when invalid

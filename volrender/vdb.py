@@ -22,18 +22,23 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import os
+import pickle
+import signal
 import struct
+import sys
+import tempfile
+import threading
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
-from .files import check_memory
-from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 from .bricks import (MAX_BRICKS, MAX_ORIGIN, ZIP_ERRORS, Bricks, brick_box, build_bricks,
                      check_npz_members, check_transform, check_volume_file, load_npz,
                      max_per_slot, one_line, warn_sanitised, zero_source)
+from .errors import UserError
+from .files import check_memory
+from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
 from .vdb_header import GridInfo, parse_vdb, up_axis_hint
 
 _NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
@@ -319,16 +324,13 @@ class _ReaderProcess:
     or the exception. If it dies, the file is what killed OpenVDB."""
 
     def __init__(self):
-        import threading
         self.proc, self.lock, self.owner = None, threading.Lock(), os.getpid()
 
     def _start(self):
         import subprocess
-        import sys
         root = str(Path(__file__).resolve().parents[1])
         env = {**os.environ, READER_ENV: "1",
                "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
-        import tempfile
         self.err = tempfile.TemporaryFile()      # what it says as it dies (glibc, OpenVDB)
         self.proc = subprocess.Popen([sys.executable, "-c", "from volrender import vdb; vdb._serve()"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
@@ -355,7 +357,6 @@ class _ReaderProcess:
                 proc.wait()
 
     def call(self, path, args, kwargs, progress):
-        import pickle
         with self.lock:
             if self.proc is None or self.owner != os.getpid() or self.proc.poll() is not None:
                 self._start()           # (a forked child starts its own)
@@ -395,7 +396,6 @@ class _ReaderProcess:
             except (EOFError, OSError, pickle.UnpicklingError):
                 code = proc.wait()
                 self.proc = None
-                import signal
                 how = (f"signal {signal.Signals(-code).name}" if code < 0 and
                        -code in signal.Signals._value2member_map_ else f"exit status {code}")
                 how += self.last_words()
@@ -429,9 +429,6 @@ def _receive(f) -> bytes:
 
 def _serve():
     """The reader process: one request at a time on stdin, until it closes."""
-    import pickle
-    import signal
-    import sys
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # the caller decides
     from .process import unblock_inherited
     unblock_inherited()                                # SIGTERM/SIGHUP end it as usual

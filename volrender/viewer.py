@@ -12,10 +12,12 @@ docs/viewer.md is the user's page.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import math
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +44,6 @@ def import_viser():
 def check_port(host: str, port: int):
     """Refuse a port that is out of range or taken, before the server starts (viser would
     quietly move to the next free one)."""
-    import errno
     import socket
     if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
         raise UserError(f"--port must be an integer in 0..65535, got {port!r}",
@@ -270,10 +271,9 @@ class Viewer:
         from .image import png_pixels
         img = frame.image
         return png_pixels(img.rgba, self.exposure, self.view,
-                          background=img.info.get("background"), alpha="opaque")[..., :3]
+                          background=img.info.background, alpha="opaque")[..., :3]
 
     def show(self, frame):
-        import time
         rgb = self.pixels(frame)
         final = frame.state == "converged"
         self.server.scene.set_background_image(rgb, format="png" if final else "jpeg",

@@ -12,7 +12,7 @@ import dataclasses
 import math
 import warnings
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from .dispatch import Dispatch, Plan, is_gpu
 from .environment import env_distribution, env_mode, texels as env_texels
 from .errors import UserError
 from .features import VolumeFeatures
+from .lights import counts
 from .settings import (MAX_VALUE, NUM, STRS, VEC, CommonSettings, boolean, floats, in_range,
                        knob, number, one_of, rgb)
 
@@ -375,7 +376,6 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     (their gain G printed; also whenever --step or --shadow-step are not the defaults: the
     march was tuned). --ms-octaves N given: the march with N bands. Other estimators pass
     unchanged (no note)."""
-    from dataclasses import replace
     if settings.estimator != "auto":
         return settings, None
     gpu = False
@@ -536,7 +536,6 @@ ENTRIES = {"march": "render_volume", "track": "path_volume", "path": "path_volum
 def resolved(scene, device=None):
     """The scene with --estimator auto resolved (auto_estimator, for its pixels on
     `device`), and the note saying so (None when nothing was to resolve)."""
-    import dataclasses
     settings, note = auto_estimator(scene.content.bricks, scene.content.settings,
                                     scene.camera.width * scene.camera.height, device)
     if note is None:
@@ -607,7 +606,7 @@ def plan(scene, device, variant=None, launch=None):
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
                 info={"background": tuple(settings.background), "estimator": settings.estimator,
-                      "ms_octaves": settings.octaves, "spp": settings.spp, **cache_info,
+                      "ms_octaves": settings.octaves, **cache_info,
                       **({"estimator_note": note} if note else {})})
 
 
@@ -620,7 +619,6 @@ def ms_cache_fields(settings, choice) -> dict:
 def light_cache_choice(scene):
     """light_cache.Choice for a resolved volume scene (its cost model; cell 0: none)."""
     from . import light_cache
-    from .lights import counts
     n_suns, n_points = counts(scene.lights)
     bricks, settings = scene.content.bricks, scene.content.settings
     return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,

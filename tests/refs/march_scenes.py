@@ -74,9 +74,9 @@ def render(dev, name, b, cam, lights, kw, **extra):
     from volrender.volume import VolumeSettings
     from helpers import render_volume
     r = render_volume(b, cam, lights, VolumeSettings(**kw, **extra), dev)
-    out = {"rgba": r["rgba"]}
-    if "depth" in r:
-        out["depth"] = r["depth"]
+    out = {"rgba": r.rgba}
+    if "depth" in r.aovs:
+        out["depth"] = r.aovs["depth"]
     return out
 
 
