@@ -122,13 +122,18 @@ def main(argv=None):
     from volrender import device as device_mod
     from volrender.settings import pair
     p = argparse.ArgumentParser(prog="bench/viewer.py", description=__doc__.split("\n")[0])
-    p.add_argument("--device", default=None)
-    p.add_argument("--size", type=pair("--size"), default=(1920, 1080))
-    p.add_argument("--spp", type=int, default=64)
-    p.add_argument("--frames", type=int, default=20)
+    p.add_argument("--device", default=None,
+                   help="OpenCL device to render on (default: PoCL)")
+    p.add_argument("--size", type=pair("--size"), default=(1920, 1080),
+                   help="the still frame's size, WxH (default: 1920x1080)")
+    p.add_argument("--spp", type=int, default=64,
+                   help="samples the still frame converges to (default: 64)")
+    p.add_argument("--frames", type=int, default=20,
+                   help="camera steps of the scripted orbit (default: 20)")
     p.add_argument("--volume", default=None, help="default: the WDAS cloud")
     p.add_argument("--points", default=None, help="default: the Stanford bunny")
-    p.add_argument("--tag", default=None)
+    p.add_argument("--tag", default=None,
+                   help="suffix of the result's file name in bench/results/")
     args = p.parse_args(argv)
     dev = device_mod.get(args.device)
     volume = args.volume or find_volume("wdas_cloud_sixteenth", lambda: _openvdb())

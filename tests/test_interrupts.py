@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -334,7 +335,17 @@ def _classify(code, err, signum, wrote):
         said = "o.png was written before that" in err
         assert said == wrote, (err, wrote)
         return "line"
-    assert "volrender/" not in err and "volrender:" not in err and not wrote, (code, err)
+    if "Fatal Python error: init_" in err:  # the interpreter's own start (init_sys_streams)
+        assert "volrender:" not in err and not wrote and code == -signal.SIGABRT, (code, err)
+        return "python"
+    # Python's default handler tripped before volrender's start-up handler replaced it:
+    # the KeyboardInterrupt comes out of that stanza's first lines (__init__'s _start)
+    frames = re.findall(r'File "([^"]+)", line \d+, in (\S+)', err)
+    ours = [(f, fn) for f, fn in frames if "volrender/" in f]
+    starting = bool(ours) and all(f.endswith("volrender/__init__.py") and fn in ("<module>", "_start")
+                                  for f, fn in ours)
+    assert ("volrender/" not in err or starting) and "volrender:" not in err and not wrote, \
+        (code, err)
     assert code in (-signum, 1) and (err == "" or err.rstrip().endswith("KeyboardInterrupt")), \
         (code, err)
     return "python"

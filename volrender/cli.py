@@ -406,9 +406,8 @@ def cmd_sequence(args):
               file=sys.stderr)
     done = sum(rec.status == "ok" for rec in r.records)
     skipped = sum(rec.status == "skipped" for rec in r.records)
-    print(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
-          f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}",
-          file=sys.stderr)
+    process.say(f"wrote {done} frames ({skipped} skipped, {len(r.failed)} failed) in {r.wall_s:.1f} s "
+        f"({r.fps:.2f} frames/s, {r.workers or 'no'} Dask workers); record {r.record_path}")
     if r.failed:
         print(f"volrender: error: {len(r.failed)} frames failed: "
               f"{', '.join(str(rec.frame) for rec in r.failed)}", file=sys.stderr)
@@ -465,8 +464,8 @@ def cmd_render(args):
               file=sys.stderr)
     if args.camera_out:
         write_camera_file(scene.camera, args.camera_out)
-    print(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.seconds:.2f} s "
-          f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}", file=sys.stderr)
+    process.say(f"wrote {printable(out_path)} ({img.width}x{img.height}, {describe(scene, img)}) in {img.seconds:.2f} s "
+        f"(kernel {img.kernel_ms / 1e3:.2f} s) on {img.device}")
     return 0
 
 

@@ -257,6 +257,12 @@ def interrupt_within(exc):
     return None
 
 
+def say(line: str):
+    """`line` and its newline to stderr in one write: print() writes them in two, and a
+    signal raised between them left the interrupted line on the same line."""
+    sys.stderr.write(line + "\n")
+
+
 def warn_one_line(message, category, filename, lineno, file=None, line=None):
     """warnings.showwarning for the CLI: one line, no source excerpt."""
     print(f"volrender: warning: {printable(message)}", file=sys.stderr)
