@@ -336,7 +336,7 @@ def _classify(code, err, signum, wrote):
         assert said == wrote, (err, wrote)
         return "line"
     if "Fatal Python error: init_" in err:  # the interpreter's own start (init_sys_streams)
-        assert "volrender:" not in err and not wrote and code == -signal.SIGABRT, (code, err)
+        assert "volrender:" not in err and not wrote and code in (1, -signal.SIGABRT), (code, err)
         return "python"
     # Python's default handler tripped before volrender's start-up handler replaced it:
     # the KeyboardInterrupt comes out of that stanza's first lines (__init__'s _start)

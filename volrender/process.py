@@ -31,7 +31,7 @@ class _Router:
     signal taken during one, and whether cli.main has taken over (handle_signals)."""
 
     def __init__(self, starting):
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()     # the main thread's handler may run inside it
         self.main = threading.main_thread().ident
         self.depth = 0
         self.pending = None
@@ -66,14 +66,19 @@ def route_signals(starting) -> bool:
 
 def _watch():
     while True:
-        signum = signal.sigwait(SIGNALS)
-        with ROUTER.lock:
-            if not ROUTER.forward:
-                ROUTER.starting(signum, None)
-            elif ROUTER.depth:
-                ROUTER.pending = ROUTER.pending or signum
-            else:
-                _raise_in_main(signum)
+        _deliver(signal.sigwait(SIGNALS))
+
+
+def _deliver(signum):
+    """A routed signal: the start-up exit before handle_signals; kept while the main thread
+    is inside signals_held; else raised in the main thread."""
+    with ROUTER.lock:
+        if not ROUTER.forward:
+            ROUTER.starting(signum, None)
+        elif ROUTER.depth:
+            ROUTER.pending = ROUTER.pending or signum
+        else:
+            _raise_in_main(signum)
 
 
 def _raise_in_main(signum):
@@ -159,6 +164,10 @@ def handle_signals():
     def interrupted(signum, frame):
         global RECEIVED
         RECEIVED = signum                  # in case Python swallows the raise (lost_signal)
+        if ROUTER is not None and ROUTER.depth:   # tripped just before a signals_held block
+            with ROUTER.lock:
+                ROUTER.pending = ROUTER.pending or signum
+            return
         if _not_here(frame):               # inside an import or a finalizer: a moment later
             threading.Thread(target=_again, args=(signum,), daemon=True).start()
             return
@@ -189,7 +198,7 @@ def _again(signum):
     import _thread
     time.sleep(0.02)
     if ROUTER is not None:
-        _raise_in_main(signum)
+        _deliver(signum)
     else:
         _thread.interrupt_main(signum)
 
