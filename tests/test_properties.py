@@ -127,8 +127,10 @@ def wrong_value(kind):
                          st.dates(), st.dictionaries(st.sampled_from("ab"), st.integers(), max_size=2))
     if kind is bool:
         return anything.filter(lambda v: not isinstance(v, bool))
-    if kind is int:
-        return anything.filter(lambda v: isinstance(v, bool) or not isinstance(v, int))
+    if kind is int:          # an integral float is an integer there (spp = 2.0, issue 37)
+        return anything.filter(lambda v: isinstance(v, bool) or not isinstance(v, (int, float))
+                               or (isinstance(v, float) and not (math.isfinite(v)
+                                                                 and v.is_integer())))
     if kind is scene_file.NUM:
         return anything.filter(lambda v: isinstance(v, bool) or not isinstance(v, (int, float))
                                or (isinstance(v, float) and not math.isfinite(v)))
