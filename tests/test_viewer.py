@@ -412,8 +412,10 @@ def shown_in(browser, v, camera, timeout=120.0):
                 and np.allclose(s.camera.origin, camera[0], atol=1e-6) \
                 and np.allclose(s.camera.target, camera[1], atol=1e-6) \
                 and "converged:" in browser.page_source:
-            shot = PILImage.open(io.BytesIO(browser.get_screenshot_as_png())).convert("RGB")
-            return f, np.asarray(shot)
+            shot = np.asarray(PILImage.open(io.BytesIO(browser.get_screenshot_as_png()))
+                              .convert("RGB"))
+            if f.image.rgba.shape[:2] == shot.shape[:2]:   # (not a frame from before the
+                return f, shot                            # browser said its canvas size)
         time.sleep(0.2)
     raise AssertionError(f"not converged on {camera}: {s.frame and s.frame.state}, "
                          f"camera {s.camera.origin}")

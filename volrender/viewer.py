@@ -15,6 +15,7 @@ import contextlib
 import errno
 import io
 import math
+import os
 import sys
 import threading
 import time
@@ -437,5 +438,9 @@ def cmd_view(args) -> int:
     print(f"volrender: viewing {args.input} on {dev.name}: open {viewer.url} in a browser "
           f"(from another machine: ssh -N -L {viewer.port}:localhost:{viewer.port} THIS_HOST); "
           "Ctrl-C stops", file=sys.stderr, flush=True)
+    # stdout carries the URL only: viser's server thread prints "(viser) Server stopped" as
+    # it ends, at times after _stop_server's wait (cli.main gives a Python caller its
+    # stdout back)
+    sys.stdout = open(os.devnull, "w")
     viewer.run()
     return 0
