@@ -3,7 +3,6 @@ the pixels the volume covers, so a small object in a large sky is rendered until
 clean; the samples reported are the samples taken; --time-limit holds from the first pass;
 an unreachable target stops at --max-spp and says so."""
 import numpy as np
-import pytest
 
 from volrender import volume
 from volrender.render import render

@@ -16,7 +16,7 @@ from volrender.render import render
 from volrender.scene import Scene, VolumeContent
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
-from helpers import ENV, lumpy_ball, render_volume
+from helpers import ENV, lumpy_ball
 
 CAM = Camera((0.3, 0.2, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 16, 16)
 

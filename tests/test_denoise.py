@@ -1,7 +1,6 @@
 """Denoising (issue 34): the guides are what they claim (closed forms), OIDN lowers the error
 of a low-spp path-traced cloud against its converged reference and leaves a noiseless
 image nearly unchanged, auto picks by the output, and a missing pyoidn degrades to one line."""
-import dataclasses
 import math
 import warnings
 

@@ -23,7 +23,7 @@ coarse against the change of E across the pixel)."""
 import numpy as np
 import pytest
 
-from helpers import Z, assert_unbiased, centred_bricks, look_at, volume_image, trilinear
+from helpers import assert_unbiased, centred_bricks, look_at, volume_image, trilinear
 from volrender.lights import Sun
 from volrender.volume import VolumeSettings
 

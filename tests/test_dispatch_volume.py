@@ -20,7 +20,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from volrender import camera as camera_mod, features, layout, volume as volume_mod, vdb
+from volrender import camera as camera_mod, features, layout, vdb
 from volrender.camera import Camera
 from volrender.errors import UserError
 from volrender.lights import PointLight, Sun

@@ -9,10 +9,9 @@ from volrender.camera import Camera
 from volrender.dispatch import upload
 from volrender.errors import UserError
 from volrender.image import write_image
-from volrender.lights import Sun
 from volrender.environment import (Environment, env_distribution, env_mode, env_weights,
                                   load_environment)
-from volrender.scene import Scene, VolumeContent
+from volrender.scene import Scene
 from volrender.bricks import Bricks
 from volrender.volume import VolumeSettings
 
@@ -215,7 +214,6 @@ def test_env_is_seen_behind_unless_hidden(cl_device):
 
 def test_volume_scene_files_take_an_environment(tmp_path):
     from volrender import scene
-    from volrender.bricks import Bricks
     thin_slab().save_npz(tmp_path / "v.npz")
     (tmp_path / "s.toml").write_text('[volume]\nfile = "v.npz"\nalbedo = 0.95\n'
                                      '[environment]\nmap = [0.2, 0.3, 0.5]\n')

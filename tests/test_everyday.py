@@ -1,6 +1,5 @@
 """Everyday use, round two (issue 37): notebook objects, peers' spellings, framing that
 fills, the field's conventions. Tiny scenes made here."""
-import io
 
 import numpy as np
 import pytest

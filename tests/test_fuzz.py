@@ -2,14 +2,12 @@
 CSV/XYZ. Random truncations, byte flips and lying counts on valid files: the result is
 always a valid value or one UserError line, within a time bound (hypothesis' deadline)
 and a memory bound (tracemalloc's peak, which numpy's buffers count in)."""
-import os
 import struct
 import tempfile
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from volrender.vdb_header import GridInfo, parse_vdb

@@ -9,7 +9,6 @@ import re
 import subprocess
 import sys
 import tracemalloc
-from pathlib import Path
 
 import pytest
 
@@ -77,7 +76,6 @@ def test_frame_lists_are_bounded_in_total():
 def test_a_bare_npy_is_no_brick_cache_and_is_not_read():
     """np.load reads a bare .npy whole, whatever its header claims (1.2 GiB of RSS for a
     few bytes); a header cut inside raised tokenize.TokenError."""
-    import numpy as np
     head = b"\x93NUMPY\x01\x00v\x00{'descr': '<f8', 'fortran_order': False, 'shape': (100000000000,), }"
     assert _replay("npz", head.ljust(128, b" ") + b"\n") == "error"
     assert _replay("npy", head[:40]) == "error"

@@ -2,7 +2,6 @@
 convergence, glass seen in reflections, transmissive shadows against their closed form,
 and agreement with Mitsuba 3 (skipped where it is not installed: `bash run.sh peers`)."""
 import dataclasses
-import math
 
 import numpy as np
 import pytest

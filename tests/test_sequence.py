@@ -1,7 +1,6 @@
 """Frame sequences: patterns, one camera, Dask workers giving the serial bytes, failures
 that lose nothing, a worker killed mid-run, resuming."""
 import json
-import os
 
 import numpy as np
 import pytest

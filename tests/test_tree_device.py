@@ -8,7 +8,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from volrender import generators, glass, spheres, tree, tree_device
-from volrender.cloud import PointCloud
 from volrender.points import load_points
 from volrender.lights import Sun
 from volrender.render import render
