@@ -882,7 +882,10 @@ def _start_client(workers, scheduler, device):
     try:
         with process.children_unblocked(), _sigint_held():
             cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
-                                     dashboard_address=":0", env=env, silence_logs=logging.ERROR)
+                                     dashboard_address=":0", env=env,
+                                     silence_logs=logging.CRITICAL)
+        # (workers log only what is critical: a stopped sequence's shutdown logged ERROR
+        # tracebacks of a close on a closed comm; a frame's failure comes back in its record)
         client = Client(cluster)
     except KeyboardInterrupt:
         if cluster is not None:
