@@ -15,8 +15,8 @@ from .dict_reads import DictReads
 @dataclass(frozen=True, eq=False)
 class RenderInfo(DictReads):
     """Image.info. The planners (glass.plan, volume.plan) fill their integrator's fields
-    (dispatch.Plan.info names them), render the launch's, denoising and adaptive passes
-    theirs."""
+    in Plan.info, a RenderInfo that render then replaces the launch's fields in;
+    denoising and adaptive passes add theirs."""
     WHAT = "Image.info"                  # in the dict reads' warnings
     # every render (render._beauty)
     spp: int | None = None               # samples per pixel taken: Plan.spp (passes: summed)
@@ -33,7 +33,7 @@ class RenderInfo(DictReads):
     model: str | None = None             # the glass model, said in the status line
     tree_ms: float = 0.0                 # builds made for this render (0 when reused)
     cells_ms: float = 0.0
-    cells: dict | None = None            # cells.Cells.summary()
+    cells: object = None                 # cells.CellsSummary
     note: str | None = None              # why the acceleration fell back
     # volume (volume.plan)
     background: tuple | None = None      # what PNGs are composited on
