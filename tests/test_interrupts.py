@@ -4,6 +4,7 @@ what they find, compressed point clouds bounded like the other parsers, and erro
 name the file at fault. docs/robustness.md says what each rule is."""
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -528,3 +529,22 @@ def test_in_a_command_no_thread_runs_a_handler_for_the_terminating_signals(tmp_p
                                            "volrender: interrupted (SIGTERM) while starting; "
                                            "no output written")
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("before, gap", [("volrender: a note cut before its newline", "\n"),
+                                         ("volrender: a whole note\n", "")])
+def test_the_interrupted_line_is_a_line_of_its_own(monkeypatch, before, gap):
+    """A signal between a note's text and its newline (print writes them apart) left the
+    interrupted line on the note's line (seen under load: 'rendered' + 'volrender:
+    interrupted' on one line); the line starts a new one then, and only then."""
+    from volrender import process
+    saved = {s: signal.getsignal(s) for s in process.SIGNALS}
+    out = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", process.Stream(out))
+    try:
+        sys.stderr.write(before)
+        assert process.interrupted(KeyboardInterrupt()) == 130
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    assert out.getvalue() == f"{before}{gap}volrender: interrupted (SIGINT); no output written\n"

@@ -988,5 +988,5 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
         return write_bytes(path, json.dumps(payload, indent=1, default=str).encode(),
                            "sequence record")
     except UserError as exc:
-        print(f"volrender: warning: {exc}", file=sys.stderr)
+        process.say(f"volrender: warning: {exc}")
         return None
