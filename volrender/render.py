@@ -217,10 +217,21 @@ def denoised(scene, dev, img) -> Image:
                               denoise_cpu_ms=1e3 * (c2 - c1)))
 
 
-def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
-            profile=None) -> Image:
-    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
-    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
+@dataclass
+class Setup:
+    """A render's set-up (_setup): its plan, kernel, argument buffers and output buffers,
+    made on one queue; _launch runs it on another queue of the same context."""
+    plan: object
+    kernel: object
+    args: list
+    outs: dict
+    setup_ms: float
+
+
+def _setup(scene, dev, *, progress=None, variant=None, launch=None) -> Setup:
+    """Everything before a pass's launches: the plan (the acceleration's build runs on
+    dev.queue), the program, the uploads; dev.queue is finished, so another queue of the
+    context may launch with it."""
     import pyopencl as cl
     cam = scene.camera
     t_plan = time.perf_counter()
@@ -235,10 +246,28 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
             for name, shape in plan.outputs}
     args += list(outs.values())
     args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
+    dev.queue.finish()
+    # packing, program (cached after the first), uploads
+    return Setup(plan, kernel, args, outs, 1e3 * (time.perf_counter() - t_plan))
+
+
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
+            profile=None) -> Image:
+    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
+    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
+    setup = _setup(scene, dev, progress=progress, variant=variant, launch=launch)
+    return _launch(scene, dev, setup, progress=progress, launch=launch, deadline=deadline,
+                   profile=profile)
+
+
+def _launch(scene, dev, setup: Setup, *, progress=None, launch=None, deadline=None,
+            profile=None) -> Image:
+    """A set-up pass's launches on dev.queue, and the read-back."""
+    import pyopencl as cl
+    cam, plan, outs = scene.camera, setup.plan, setup.outs
     t0, c0 = time.perf_counter(), time.process_time()
-    setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
-    run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=plan.spp,
+    run = run_rows(dev, setup.kernel, setup.args, cam.width, cam.height, plan.band_pixels,
+                   progress, dispatch=plan.dispatch, spp=plan.spp,
                    launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
@@ -258,11 +287,46 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info=RenderInfo(**{
                      "transparent": bool(getattr(scene.settings, "transparent", False)),
-                     **plan.info, "setup_ms": setup_ms, "launches": run.launches,
+                     **plan.info, "setup_ms": setup.setup_ms, "launches": run.launches,
                      "spp": plan.spp, "row_cost": run.profile,
                      "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
                      "launch_s": tuple(t for t, _, _ in run.took),
                      "launch_ends_s": tuple(run.ends)}))
+
+
+@dataclass(eq=False)
+class Prepared:
+    """A render split in two (render.prepare): the set-up done, the launches left to
+    finish(). A sequence builds and uploads frame n+1 in one thread while frame n's
+    launches run in another (volrender/pipeline.py)."""
+    scene: Scene
+    device: object
+    setup: Setup | None = None       # None: a render that does not split (passes, denoise)
+
+    def finish(self, *, progress=None) -> Image:
+        """The launches and the read-back on the device's queue: render()'s Image, and its
+        warnings."""
+        if self.setup is None:
+            img = _render(self.scene, self.device, progress=progress)
+        else:
+            img = _launch(self.scene, self.device, self.setup, progress=progress)
+        self.setup = None                 # the device buffers go with it
+        for problem in image_problems(img, self.scene.kind):
+            warnings.warn(problem, ImageWarning, stacklevel=2)
+        return img
+
+
+def prepare(scene: Scene, device=None, *, builder=None) -> Prepared:
+    """The first half of render(scene, device): the plan, the acceleration's build, the
+    program and the uploads, made on `builder`'s queue (a Device sharing the device's
+    context, Device.side(); default: the device itself); Prepared.finish() renders on the
+    device's own queue, so the same bytes as render(). Adaptive passes and denoised renders
+    do all their work in finish()."""
+    dev = device_mod.resolve(device)
+    if (scene.kind == "volume" and volume.adaptive(scene.settings)) or \
+            getattr(scene.settings, "denoise", "off") == "on":
+        return Prepared(scene, dev)
+    return Prepared(scene, dev, _setup(scene, builder or dev))
 
 
 def _derived_aov(name, rgba):
