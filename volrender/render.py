@@ -240,13 +240,13 @@ def _setup(scene, dev, *, progress=None, variant=None, launch=None) -> Setup:
     plan = PLANNERS[scene.kind](scene, dev, variant, launch)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
-    ctx = dev.context
-    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.inputs]
+    ctx, q = dev.context, dev.queue
+    args = [upload(ctx, a, q) if isinstance(a, np.ndarray) else a for _, a in plan.inputs]
     outs = {name: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * int(np.prod(shape)))
             for name, shape in plan.outputs}
     args += list(outs.values())
-    args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
-    dev.queue.finish()
+    args += [upload(ctx, a, q) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
+    dev.queue.finish()                  # the uploads done (their arrays live until here)
     # packing, program (cached after the first), uploads
     return Setup(plan, kernel, args, outs, 1e3 * (time.perf_counter() - t_plan))
 
