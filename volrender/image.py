@@ -29,7 +29,6 @@ import functools
 import io
 import os
 import warnings
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -443,11 +442,7 @@ def _write_png(f, rgba, channels: dict, options: dict) -> None:
         from PIL import PngImagePlugin
         info = PngImagePlugin.PngInfo()
         info.add(b'sRGB', b'\x00')                  # sRGB, perceptual intent
-        # zlib level 1 with its run-length strategy: as fast or faster than level 1's
-        # default strategy and smaller (1080p: the demo cloud 0.25 -> 0.15 MB; a noisy
-        # frame 1.93 -> 1.86 MB; docs/benchmarks.md)
-        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=1,
-                                            compress_type=zlib.Z_RLE)
+        PILImage.fromarray(px, 'RGBA').save(f, format='PNG', pnginfo=info, compress_level=1)
     else:
         import png                                  # pypng: 16-bit colour PNGs
         png.Writer(w, h, greyscale=False, alpha=True, bitdepth=16, compression=6).write(
