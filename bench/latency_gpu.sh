@@ -10,7 +10,10 @@
 #      encoding of a 1080p frame at every zlib level;
 #   3. the viewer's frames/s moving and time to a converged still, a volume and the bunny
 #      (bench/viewer.py).
-# Each step's results are copied to $OUT as it ends.
+# Each step's results are copied to $OUT as it ends. The wheels must include fileseq
+# (sequence patterns; ../shared/GPU.md's `pip download` line plus fileseq): without it the
+# sequence step fails at its first frame. Ran on the H200 in 147 s (the sequence step then
+# failed so; it ran alone afterwards in 26 s with 10 frames).
 #   VOLRENDER_COMMIT=... bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR
 # (DATA_DIR: demo_cloud.npz and wdas_cloud_sixteenth.npz from `volrender convert`,
 # bun_zipper.ply). A dry run on PoCL (a few minutes here):
