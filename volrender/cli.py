@@ -435,14 +435,14 @@ def _run(args, written_from) -> int:
     except UserError as exc:
         if args.debug:
             raise
-        print(f"volrender: error: {_user_message(exc)}", file=sys.stderr)
+        process.say(f"volrender: error: {_user_message(exc)}")
         return 2
     except KeyboardInterrupt as exc:
         return process.interrupted(exc, atomic.WRITTEN[written_from:])
     except MemoryError:
         if args.debug:
             raise
-        print("volrender: error: out of host memory; render a smaller image or volume", file=sys.stderr)
+        process.say("volrender: error: out of host memory; render a smaller image or volume")
         return 2
     except Exception as exc:
         signal_in = process.interrupt_within(exc)
@@ -451,7 +451,7 @@ def _run(args, written_from) -> int:
         message = opencl_message(exc)
         if message is None or args.debug:
             raise
-        print(f"volrender: error: {message}", file=sys.stderr)
+        process.say(f"volrender: error: {message}")
         return 2
 
 

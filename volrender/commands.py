@@ -76,13 +76,13 @@ def cmd_sequence(args):
     overrides = render_overrides(args)
     on, note = decide(overrides.get("denoise", "auto"), Path(args.output).suffix)
     if note:
-        print(f"volrender: {note}", file=sys.stderr)
+        process.say(f"volrender: {note}")
     overrides["denoise"] = "on" if on else "off"          # auto resolved by the output
     r = render_sequence(args.input, args.output, args.frames, workers=args.workers,
                         scheduler=args.scheduler, chunk=args.chunk,
                         skip_existing=args.skip_existing, device=args.device,
                         progress=args.progress, exposure=args.exposure, tonemap=args.tonemap,
-                        say=lambda note: print(f"volrender: {note}", file=sys.stderr),
+                        say=lambda note: process.say(f"volrender: {note}"),
                         camera_out=args.camera_out, verbose=args.verbose, **overrides)
     for rec in r.failed:
         print(f"volrender: error: frame {rec.frame} ({rec.input}): {rec.error}",
@@ -128,21 +128,21 @@ def cmd_render(args):
         raise UserError("out of host memory while reading it", path=args.input,
                         fix="render a smaller volume or cloud, or free memory") from None
     for note in [*scene.notes, *([denoise_note] if denoise_note else [])]:
-        print(f"volrender: {note}", file=sys.stderr)
+        process.say(f"volrender: {note}")
     if args.verbose:
-        print(f"volrender: {describe_camera(scene.camera)}", file=sys.stderr)
+        process.say(f"volrender: {describe_camera(scene.camera)}")
     with warnings.catch_warnings():          # the denoiser's absence was said above
         warnings.filterwarnings("ignore", message="not denoised")
         img = render(scene, dev, progress=args.progress)
     if img.info.light_cache:          # the light cache's cost model (issue 33)
-        print(f"volrender: {img.info.light_cache}", file=sys.stderr)
+        process.say(f"volrender: {img.info.light_cache}")
     if img.info.adaptive:
-        print(f"volrender: {img.info.adaptive}", file=sys.stderr)
+        process.say(f"volrender: {img.info.adaptive}")
     t_write = time.perf_counter()
     img.save(out_path, exposure=args.exposure, tonemap=args.tonemap, png_bits=args.png_bits)
     if args.verbose:
         if img.info.note:
-            print(f"volrender: {img.info.note}", file=sys.stderr)
+            process.say(f"volrender: {img.info.note}")
         print(f"volrender: time: {time_breakdown(scene, img, time.perf_counter() - t_write)}",
               file=sys.stderr)
     if args.camera_out:
@@ -194,7 +194,7 @@ def cmd_tree(args):
                               camera=camera_overrides(args), **view)
     done = [p for p in (args.screenshot, args.export) if p]
     if done:
-        print(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})", file=sys.stderr)
+        process.say(f"wrote {', '.join(map(str, done))} ({type(t).__name__.lower()})")
     return 0
 
 
