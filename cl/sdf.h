@@ -417,19 +417,19 @@ inline int sdf_step_sample(const SdfScene* sc, float3 o, float3 d, float3 inv_d,
 #endif
 
 /* Sphere-trace o + t d over [t0, t1] against side * F (side -1: inside glass).
-   Hit when side * F < eps * min(base + t, hit_len); safe step r = (side * F) / lip. With relax > 1
-   the step is w r, 1 <= w <= relax (over-relaxed sphere tracing), w chosen from the
-   slope of r along the ray (VR_ADAPTIVE_RELAX; Bálint and Valasek, "Accelerating Sphere
-   Tracing", 2018): near relax where r hardly falls (grazing), near 1 head-on. A relaxed
-   step reaches beyond the last safe ball, so it is checked before it is kept: when the
-   safe balls of two consecutive points do not overlap (r + r_prev < step), when it ends
-   past t1 (the box exit) or when it ends in a cell the ray would skip, neither of which
-   is evaluated, the march goes back to the plain step (w = 1 for that step). No surface
-   is skipped either way. With
-   VR_GRID, cells of the ray's side are crossed without evaluations (they hold no hit:
-   |F| > tau there); a skip restarts the relaxation and counts against max_skips, not
-   max_steps. cone > 0 (shadow rays): *vis also keeps the minimum of side * F / (cone t)
-   over the evaluated points, and of a skipped cell's bound at its exit.
+   Hit when side * F < eps * min(base + t, hit_len); safe step r = (side * F) / lip.
+   With relax > 1 the step is w r, 1 <= w <= relax (over-relaxed sphere tracing), w
+   chosen from the slope of r along the ray (VR_ADAPTIVE_RELAX; Balint and Valasek,
+   "Accelerating Sphere Tracing", 2018): near relax where r hardly falls (grazing), near
+   1 head-on. A relaxed step reaches beyond the last safe ball, so it is checked before
+   it is kept: when the safe balls of two consecutive points do not overlap (r + r_prev <
+   step), when it ends past t1 (the box exit) or when it ends in a cell the ray would
+   skip, neither of which is evaluated, the march goes back to the plain step (w = 1 for
+   that step). No surface is skipped either way. With VR_GRID, cells of the ray's side
+   are crossed without evaluations (they hold no hit: |F| > tau there); a skip restarts
+   the relaxation and counts against max_skips, not max_steps. cone > 0 (shadow rays):
+   *vis also keeps the minimum of side * F / (cone t) over the evaluated points, and of
+   a skipped cell's bound at its exit.
    Returns 1 on a hit with *t and *s at the hit; else 0 with *t where marching stopped
    (<= t1). */
 inline int sdf_march(const SdfScene* sc, float3 o, float3 d, float t0, float t1, float side,
