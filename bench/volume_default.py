@@ -12,7 +12,8 @@ default image box-filtered down to it; the reference's noise removed).
 `prepare` writes DIR/<stem>.npz (the bricks) and DIR/<stem>.pkl (camera, lights,
 environment, settings with estimator auto unresolved: the fire's grids, exposure and sky
 come from the .vdb's metadata, which an .npz alone does not carry). `run` writes
-volume_default_<device>[-TAG].json (bench/results, or --out) and the images as .npy.
+volume_default_<device>[-TAG].json (bench/results, or --out), the images as PNG and
+the references as float16 .npy.
 """
 from __future__ import annotations
 
@@ -161,10 +162,9 @@ def run_one(spec, stem, dev, args, out_dir):
                         "size": list(args.ref_size), "kernel_ms": ms,
                         "s": time.perf_counter() - t0}
     emits = scene.content.bricks.emission is not None
-    np.save(out_dir / f"ref_{stem}.npy", ref.astype(np.float32))
+    np.save(out_dir / f"ref_{stem}.npy", ref.astype(np.float16))      # (the PNGs beside)
     for name, rgba in imgs.items():
         row["variants"][name]["error"] = compare(box_down(rgba, ref.shape[:2]), ref, var, emits)
-        np.save(out_dir / f"{name}_{stem}.npy", rgba.astype(np.float32))
     return row
 
 
