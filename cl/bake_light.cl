@@ -128,28 +128,26 @@ __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
     src[3 * at] = s.x; src[3 * at + 1] = s.y; src[3 * at + 2] = s.z;
 }
 
-/* The once-scattered light at local p (cell c, fraction f of brick `slot`) leaving
-   towards -w (w: world), from the baked channels as the marcher reads them (the lights'
-   optical depth, the sky's harmonics) through the phase. dl: unused. */
-inline float3 vr_once_scattered(__constant VolumeParams* vp, __constant Light* lights,
-                                __global const float* cache, int slot, int3 c, float3 f,
-                                float3 p, float3 dl, float3 w)
+/* The once-scattered light at node `at` (local p) leaving towards -w (w: world), from
+   its baked channels as the marcher reads them (the lights' optical depth, the sky's
+   harmonics) through the phase. */
+inline float3 vr_once_at_node(__constant VolumeParams* vp, __constant Light* lights,
+                              __global const float* cache, int at, float3 p, float3 w)
 {
-    VrCacheTap t;
-    vr_cache_tap(slot, c, f, &t);
+    VrCacheTap t;                        /* the node alone */
+    t.base = at * VR_CACHE_CH;
+    for (int n = 0; n < 8; ++n) {
+        t.off[n] = 0;
+        t.w[n] = n ? 0.0f : 1.0f;
+    }
     float3 s = (float3)(0.0f);
-    (void)dl;
 #if VR_CACHE_LIGHTS > 0
     for (int i = 0; i < VR_CACHE_LIGHTS; ++i) {
         float3 l, prop;
         float tmax, atten;
         if (vr_light_at(vp, lights, i, p, &l, &tmax, &prop, &atten))
-        {
-            float3 tr = (float3)(0.0f);     /* the nodes' transmittance, interpolated */
-            for (int n = 0; n < 8; ++n)
-                tr += t.w[n] * exp(-cache[t.base + i + t.off[n]] * (float3)(VR_EXTINCTION(vp)));
-            s += vr_phase(dot(prop, -w), vp->phase) * tr * lights[i].radiance.xyz / atten;
-        }
+            s += vr_phase(dot(prop, -w), vp->phase) * lights[i].radiance.xyz / atten
+               * exp(-cache[t.base + i] * (float3)(VR_EXTINCTION(vp)));
     }
 #else
     (void)lights;
@@ -160,12 +158,37 @@ inline float3 vr_once_scattered(__constant VolumeParams* vp, __constant Light* l
     return s;
 }
 
+/* The once-scattered light at every node towards each of the VR_CACHE_DIRS directions
+   (once: 3 floats per direction per node), which the first ms_gather reads trilinearly
+   as the later ones read an order: the marcher's reading (the nodes' transmittance and
+   sky harmonics interpolated) folded through the phase per direction at the nodes, the
+   same where the sky's L1 light is positive at the eight nodes (with point lights their
+   phase and falloff are taken at the nodes). */
+__kernel void ms_once(__constant VolumeParams* vp, __constant Light* lights,
+                      __global const int4* bricks, __global const float* cache,
+                      __global const float4* dirs, __global float* once, int n_bricks)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_bricks * VR_CACHE_NODES)
+        return;
+    int4 b = bricks[gid / VR_CACHE_NODES];
+    int node = gid % VR_CACHE_NODES;
+    int at = b.w * VR_CACHE_NODES + node;
+    int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
+                      node % VR_CACHE_N);
+    float3 p = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
+    __global float* out = once + at * 3 * VR_CACHE_DIRS;
+    for (int j = 0; j < VR_CACHE_DIRS; ++j) {
+        float3 v = vr_once_at_node(vp, lights, cache, at, p, dirs[j].xyz);
+        out[3 * j] = v.x; out[3 * j + 1] = v.y; out[3 * j + 2] = v.z;
+    }
+}
+
 /* One order: dst = the next order of src at every node (see above), total += it (total
-   = it with `first`, which gathers S_1 from the baked channels through the phase:
-   vr_once_scattered; src is S_1's isotropic part then, for the tail's ratio). dirs: per direction its world vector (xyz) and its cell's solid
-   angle / 4 pi (w). */
-__kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
-                        __global const float* cache, __global const int* table,
+   = it with `first`, which gathers S_1 through the phase from ms_once's buffer, src
+   then). dirs: per direction its world vector (xyz) and its cell's solid angle / 4 pi
+   (w). */
+__kernel void ms_gather(__constant VolumeParams* vp, __global const int* table,
                         __global const float* data, __global const float4* dirs,
                         __global const int4* bricks, __global const float* src,
                         __global float* dst, __global float* total, __global float* total1,
@@ -212,14 +235,12 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
             float3 a = 1.0f - exp(-sigma * ext.xyz * h);
             t += h;
             h = clamp(VR_MS_MFP / fmax(sigma, 1e-30f), vp->shadow_step, dt);
-            if (first)          /* S_1 through the phase towards o (the light's direction) */
-                sk = vr_once_scattered(vp, lights, cache, slot, c, f, p, dl, q.xyz);
-            else {
-                VrCacheTap tap;
-                vr_cache_tap_n(slot, c, f, 3, &tap);
-                sk = (float3)(vr_cache_read(src, &tap, 0), vr_cache_read(src, &tap, 1),
-                              vr_cache_read(src, &tap, 2));
-            }
+            /* first: S_1 through the phase towards o (ms_once's direction j) */
+            int nch = first ? 3 * VR_CACHE_DIRS : 3, ch = first ? 3 * j : 0;
+            VrCacheTap tap;
+            vr_cache_tap_n(slot, c, f, nch, &tap);
+            sk = (float3)(vr_cache_read(src, &tap, ch), vr_cache_read(src, &tap, ch + 1),
+                          vr_cache_read(src, &tap, ch + 2));
             acc += T * a * sk;
             T *= 1.0f - a;
         }

@@ -312,10 +312,17 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
         alb, ext = (cl.cltypes.make_float4(*map(float, v), 0.0) for v in similar)
         gather = device.kernel("bake_light", flags, "ms_gather")
         dirs = upload(ctx, ms_dirs())
+        # the once-scattered light towards each direction at the nodes: the first gather's
+        # source (3 floats per direction per node; freed after the bake)
+        once = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, ENV_DIRS * nbytes)
+        device.kernel("bake_light", flags, "ms_once")(
+            q, glob, (local,), params_buf, lights_buf, occ_buf, out, dirs, once,
+            np.int32(len(occ)))
+        done("ms_once")
         n = choice.ms_orders
         for k in range(n):
-            gather(q, glob, (local,), params_buf, lights_buf, out, table, data, dirs, occ_buf,
-                   orders[k % 3],
+            gather(q, glob, (local,), params_buf, table, data, dirs, occ_buf,
+                   once if k == 0 else orders[k % 3],
                    orders[(k + 1) % 3], total, total1, np.int32(len(occ)), alb, ext,
                    np.float32(ms_step(bricks, choice, params)), np.int32(k == 0))
             done(f"ms_gather{k + 1}")
