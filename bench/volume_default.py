@@ -12,8 +12,8 @@ default image box-filtered down to it; the reference's noise removed).
 `prepare` writes DIR/<stem>.npz (the bricks) and DIR/<stem>.pkl (camera, lights,
 environment, settings with estimator auto unresolved: the fire's grids, exposure and sky
 come from the .vdb's metadata, which an .npz alone does not carry). `run` writes
-volume_default_<device>[-TAG].json (bench/results, or --out), the images as PNG and
-the references as float16 .npy.
+volume_default_<device>[-TAG].json (bench/results, or --out); with --images the PNGs
+and the references (float16 .npy) beside it.
 """
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ import argparse
 import dataclasses
 import pickle
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -122,7 +123,10 @@ def timed(spec, stem, dev, overrides, repeat, png):
         t1 = time.perf_counter()
         img = render(scene, dev)
         t2 = time.perf_counter()
-        img.save(png)
+        if png is not None:
+            img.save(png)
+        else:                                  # the PNG's encoding, without the file
+            img.save(Path(tempfile.gettempdir()) / "volume_default.png")
         t3 = time.perf_counter()
         times.append({"whole_s": t3 - t0, "load_s": t1 - t0, "render_s": t2 - t1,
                       "write_s": t3 - t2, "kernel_ms": img.kernel_ms,
@@ -153,7 +157,8 @@ def run_one(spec, stem, dev, args, out_dir):
         if name != "default" and row["variants"]["default"]["estimator"] == "march":
             continue                           # the default is the march already
         img, row["variants"][name] = timed(spec, stem, dev, over, args.repeat,
-                                           out_dir / f"{name}_{stem}.png")
+                                           out_dir / f"{name}_{stem}.png" if args.images
+                                           else None)
         imgs[name] = (img.noisy if img.noisy is not None else img.rgba).astype(np.float64)
     scene, _ = scene_of(spec, stem)
     t0 = time.perf_counter()
@@ -162,7 +167,8 @@ def run_one(spec, stem, dev, args, out_dir):
                         "size": list(args.ref_size), "kernel_ms": ms,
                         "s": time.perf_counter() - t0}
     emits = scene.content.bricks.emission is not None
-    np.save(out_dir / f"ref_{stem}.npy", ref.astype(np.float16))      # (the PNGs beside)
+    if args.images:
+        np.save(out_dir / f"ref_{stem}.npy", ref.astype(np.float16))
     for name, rgba in imgs.items():
         row["variants"][name]["error"] = compare(box_down(rgba, ref.shape[:2]), ref, var, emits)
     return row
@@ -181,6 +187,9 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=2, help="whole-command runs (the fastest)")
     ap.add_argument("--out", default=None, help="result folder (default: bench/results)")
     ap.add_argument("--tag", default=None, help="added to the result's name")
+    ap.add_argument("--images", action="store_true",
+                    help="also write the PNGs and the references (.npy) beside the JSON (the "
+                         "device tool brings back 8 files: the JSON alone by default)")
     args = ap.parse_args(argv)
     spec = Path(args.spec)
     if args.mode == "prepare":
