@@ -95,7 +95,9 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
 /* a gather march stops where the transmittance (summed over rgb) is below this, the rest
    of the ray taken as its last sample (docs/error_time.md: smoke's bake -10 %, the error
    as with 3e-3 and no rest) */
+#ifndef VR_MS_T_STOP                 /* light_cache.MS_T_STOP passes it */
 #define VR_MS_T_STOP 0.03f
+#endif
 __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
                         __global const int4* bricks, __global const float* cache,
                         __global float* src, int n_bricks)

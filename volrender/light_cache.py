@@ -51,6 +51,10 @@ MS_TAIL = 0.9
 # 25.8 %, and smoke, dragon and 0190 nothing, for a 25-40 % shorter bake)
 MS_STEP_CELLS = (1.0, 0.5)
 MS_DENSE_TAU = 32.0
+# a gather march stops where its transmittance (summed over rgb) falls below this, the
+# rest of the ray taken as its last sample (cl/bake_light.cl VR_MS_T_STOP; 0.03: smoke's
+# bake -10 %, the error as marching on to 3e-3)
+MS_T_STOP = 0.03
 # with scattering orders, auto bakes where that costs up to this many times the exact
 # march (which takes the octave bands): on the real files the orders' covered-pixel error
 # is 0.2-0.9x the bands' (docs/error_time.md)
@@ -310,7 +314,8 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
             q, glob, (local,), params_buf, lights_buf, occ_buf, out, orders[0], np.int32(len(occ)))
         done("ms_source")
         alb, ext = (cl.cltypes.make_float4(*map(float, v), 0.0) for v in similar)
-        gather = device.kernel("bake_light", flags, "ms_gather")
+        gather = device.kernel("bake_light", flags, "ms_gather",
+                               options=(f"-DVR_MS_T_STOP={MS_T_STOP:.6g}f",))
         dirs = upload(ctx, ms_dirs())
         # the once-scattered light towards each direction at the nodes: the first gather's
         # source (3 floats per direction per node; freed after the bake)
