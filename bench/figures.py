@@ -133,14 +133,26 @@ def _build_over_target(data) -> str:
     return one(get(data, "rows[n=1000000].total_ms") / 300.0)
 
 
+EDGE_BUNNY = "rows[cloud=bunny][factor=1.0]"      # the bunny at the automatic edge
+
+
+def _bunny_sample_ratio(data) -> str:
+    """The tree walk's render CPU time over the cells' at the same samples."""
+    return one(get(data, EDGE_BUNNY + ".tree_render_cpu_s")
+               / get(data, EDGE_BUNNY + ".render_cpu_s"))
+
+
 BUNNY = "bunny-look-good-320x240"
+SPHERES = "spheres_gpu-nvidiah200.json"
+EDGE = "edge_pocl-calib.json"
 BUILD = "build_gpu-nvidiah200-lazy.json"
 SEQ_FULL = "sequence_gpu-nvidiah200-points-full.json"
 SEQ_FAST = "sequence_gpu-nvidiah200-points-fast.json"
 VOLUMES = "volume_default_gpu-nvidiah200-issue33-1080p.json"
-NAMES = {"smoke": "smoke", "wdas_cloud_sixteenth": "WDAS cloud (1/16)",
-         "dragon_with_xform": "dragon", "fluid_data_0056": "fire (0056)",
-         "fluid_data_0190": "0190 (smoke)"}
+NAMES = {"BUILD": BUILD, "VOLUMES": VOLUMES, "SPHERES": SPHERES, "EDGE": EDGE}   # files cited
+VOLUME_LABELS = {"smoke": "smoke", "wdas_cloud_sixteenth": "WDAS cloud (1/16)",
+                 "dragon_with_xform": "dragon", "fluid_data_0056": "fire (0056)",
+                 "fluid_data_0190": "0190 (smoke)"}
 
 
 def volume_table(data) -> str:
@@ -150,20 +162,20 @@ def volume_table(data) -> str:
     for r in data["rows"]:
         e = r["error"]["covered"]
         what = r["estimator"] + (f", {r['spp']} spp" if r["spp"] > 1 else "")
-        label = NAMES[r["file"]] + ("" if r["variant"] == "default"
-                                    else ", `--estimator march --ms-octaves 4`")
+        label = VOLUME_LABELS[r["file"]] + ("" if r["variant"] == "default"
+                                            else ", `--estimator march --ms-octaves 4`")
         bake = ms(r["bake_ms"]) if r["bake_ms"] else "–"
         out.append(f"| {label} | {what} | {ms(r['kernel_ms'])} | {bake} | "
                    f"{r['whole_s']:.2f} | {pct(e['rel_rmse'])}, ×{e['mean_ratio']:.3f} |")
     return "\n".join(out)
 
 
-
-
 # name: (result file(s), a path for get() or a function of the loaded file(s), format)
 FIGURES = {
-    "sphere_table": ("spheres_gpu-nvidiah200.json", sphere_table, str),
-    "full_over_fast": ("spheres_gpu-nvidiah200.json", full_over_fast, str),
+    "sphere_table": (SPHERES, sphere_table, str),
+    "sphere_size": (SPHERES, lambda d: "×".join(map(str, d["size"])), str),
+    "sphere_bounces": (SPHERES, "bounces", str),
+    "full_over_fast": (SPHERES, full_over_fast, str),
     "build_1e6_s": (BUILD, "rows[n=1000000].total_ms", s),
     "build_1e6_ms": (BUILD, "rows[n=1000000].total_ms", whole),
     "build_1e6_tree": (BUILD, "rows[n=1000000].tree_ms", whole),
@@ -182,9 +194,15 @@ FIGURES = {
     "whole_bunny_ratio": ("whole_pocl.json", _whole_ratio, str),
     "whole_bunny_fast": ("whole_pocl.json", _whole(BUNNY, "fast") + ".wall_s", one),
     "whole_bunny_fast_tree": ("whole_pocl.json", _whole(BUNNY, "fast-tree") + ".wall_s", one),
-    "edge_geomean": ("edge_pocl-calib.json", "fit.regret_geomean", two),
-    "edge_worst": ("edge_pocl-calib.json", "fit.regret_worst", two),
-    "volume_table": (VOLUMES, lambda d: volume_table(d), str),
+    "edge_clouds": (EDGE, lambda d: str(len({c["cloud"] for c in d["fit"]["cases"]})), str),
+    "edge_geomean": (EDGE, "fit.regret_geomean", two),
+    "edge_worst": (EDGE, "fit.regret_worst", two),
+    "bunny_list_mean": (EDGE, EDGE_BUNNY + ".list_mean", whole),
+    "bunny_sample_ratio": (EDGE, _bunny_sample_ratio, str),
+    "bunny_build_cpu_s": (EDGE, EDGE_BUNNY + ".build_cpu_s", one),
+    "volume_table": (VOLUMES, volume_table, str),
+    "volume_size": (VOLUMES, lambda d: "×".join(map(str, d["size"])), str),
+    "volume_ref_spp": (VOLUMES, "reference.spp", str),
     "volume_fps_1": ("sequence_gpu-nvidiah200.json", "rows[workers=1].fps", one),
     "volume_fps_4": ("sequence_gpu-nvidiah200.json", "rows[workers=4].fps", one),
 }
@@ -194,8 +212,8 @@ All from `bench/results/` (device, commit and command in each file); the full ta
 each is measured: [`docs/benchmarks.md`](docs/benchmarks.md), [`docs/error_time.md`](docs/error_time.md),
 [`docs/peers.md`](docs/peers.md).
 
-Glass on the NVIDIA H200, 1920×1080, one sun, 2 bounces, kernel ms per frame
-(`spheres_gpu-nvidiah200.json`):
+Glass on the NVIDIA H200, {sphere_size}, one sun, {sphere_bounces} bounces, kernel ms per frame
+(`{SPHERES}`):
 
 | spheres | cells, full | cells, fast | tree walk, full | tree walk, fast |
 |---|---|---|---|---|
@@ -215,12 +233,12 @@ On PoCL (2 shared cores), the whole command (`whole_pocl.json`): the bunny at 32
 `--radius 0.002 --blend 0.004` takes {whole_bunny} s by default against {whole_bunny_tree} s
 with the tree walk (×{whole_bunny_ratio}), {whole_bunny_fast} s against {whole_bunny_fast_tree} s
 with the fast model. The automatic choice between cells (and their edge) and the tree walk is a
-rule fitted on 8 clouds from 80×60 to 1920×1080: its whole time is ×{edge_geomean} of the best
-choice in the geometric mean, ×{edge_worst} at worst (`edge_pocl-calib.json`).
+rule fitted on {edge_clouds} clouds from 80×60 to 1920×1080: its whole time is ×{edge_geomean} of the best
+choice in the geometric mean, ×{edge_worst} at worst (`{EDGE}`).
 
-Volumes at the default command on the NVIDIA H200, 1920×1080 (`{VOLUMES}`): `auto`'s
+Volumes at the default command on the NVIDIA H200, {volume_size} (`{VOLUMES}`): `auto`'s
 estimator, kernel and light-cache bake, the whole command in one process, and the error
-on the pixels the cloud covers (reference alpha > 0.05) against path tracing at 1024 spp:
+on the pixels the cloud covers (reference alpha > 0.05) against path tracing at {volume_ref_spp} spp:
 
 | file | estimator | kernel ms | bake ms | whole s | covered rel. RMSE, mean |
 |---|---|---|---|---|---|
@@ -232,12 +250,38 @@ with one worker, {volume_fps_4} with four (`sequence_gpu-nvidiah200.json`).
 
 Targets not met, and why (measured): the H200 build at 10⁶ is ×{build_1e6_over_target} over its
 0.3 s target ({build_1e6_ms} ms, above); the bunny on PoCL is ×{whole_bunny_ratio} faster than
-the tree walk, not ×5 (its cells list about 236 spheres each, so a sample is only ×2.6 cheaper
-than the tree walk's, while the finest cells are the dearest to build); point-cloud sequences
+the tree walk, not ×5 (its cells list about {bunny_list_mean} spheres each, so a sample is only
+×{bunny_sample_ratio} cheaper than the tree walk's, while the finest cells are the dearest to build:
+{bunny_build_cpu_s} CPU-seconds, `{EDGE}`); point-cloud sequences
 reach {points_fps_full}–{points_fps_fast} frames/s, not 10 (per frame: kernel
 {points_kernel_full} ms full / {points_kernel_fast} ms fast, set-up and build {points_setup} ms,
 EXR write {points_write} ms).
 """
+
+
+# the numbers TEMPLATE writes itself, and why none is a measurement to read from a result
+# (tests/test_figures.py: any other digit in TEMPLATE must be a {figure})
+LITERALS = {
+    "H200": "the device's name", "Mitsuba 3": "a peer's name", "0190": "a file's name",
+    "nvidiah200": "in file names", "10⁵": "a cloud size (the row read)",
+    "10⁶": "a cloud size (the row read)", "10⁷": "a cloud size (the row read)",
+    "1080p": "the sequences' frame size (their files' names)",
+    "320×240": "the whole benchmark's bunny case (BUNNY)",
+    "--radius 0.002 --blend 0.004": "the whole benchmark's bunny case (BUNNY)",
+    "80×60 to 1920×1080": "bench/edge.py's SAMPLES",
+    "2 shared cores": "the PoCL host", "alpha > 0.05": "error.py's covered pixels",
+    "0.3 s target": "issue target", "not ×5": "issue target", "not 10 ": "issue target",
+    "5–8% dark": "the fast model's loss on the test scenes (docs/DESIGN.md), not a benchmark",
+    "F(1 − F)": "a formula",
+}
+
+
+def hand_written_numbers(template: str = None) -> list:
+    """Lines of TEMPLATE with a digit that is neither a {figure} nor in LITERALS."""
+    text = re.sub(r"{\w+}", "", TEMPLATE if template is None else template)
+    for phrase in sorted(LITERALS, key=len, reverse=True):
+        text = text.replace(phrase, "")
+    return [ln for ln in text.splitlines() if re.search(r"[0-9⁰¹²³⁴⁵⁶⁷⁸⁹]", ln)]
 
 
 def _load(name):
@@ -246,7 +290,7 @@ def _load(name):
 
 def values() -> dict[str, str]:
     """Every figure, printed."""
-    out = {"BUILD": BUILD, "VOLUMES": VOLUMES}
+    out = dict(NAMES)
     for name, (files, what, fmt) in FIGURES.items():
         loaded = [_load(f) for f in ((files,) if isinstance(files, str) else files)]
         value = get(loaded[0], what) if isinstance(what, str) else what(*loaded)

@@ -32,7 +32,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from volrender import device, media, scene as scene_mod, volume  # noqa: E402
 from volrender.camera import Camera  # noqa: E402
-from volrender.environment import uniform  # noqa: E402
 from volrender.lights import Sun  # noqa: E402
 from volrender.render import render  # noqa: E402
 from volrender.scene import Scene, VolumeContent  # noqa: E402

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import (render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
+from bench.common import (render_volume, result_path, device_info, missing_data,  # noqa: E402
                           shared_data, stats, write_json)
 from volrender import camera as camera_mod, device, layout, vdb  # noqa: E402
 from volrender.lights import Sun  # noqa: E402

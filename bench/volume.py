@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import (render_volume, result_path, device_info, device_tag, find_volume, missing_data,  # noqa: E402
-                          shared_data, stats, tile_lists, write_json)
+from bench.common import (render_volume, result_path, device_info, find_volume, missing_data,  # noqa: E402
+                          stats, tile_lists, write_json)
 from volrender import camera, device, features, vdb  # noqa: E402
 from volrender.bricks import Bricks  # noqa: E402
 from volrender.dispatch import is_gpu, parse_tile  # noqa: E402
@@ -50,9 +50,7 @@ FILES = ["smoke", "wdas_cloud_sixteenth", "dragon_with_xform", "fluid_data_0190"
 
 
 def default_files():
-    names = FILES
-    found = []
-    return [p for p in (find_volume(n) for n in names) if p is not None]
+    return [p for p in (find_volume(n) for n in FILES) if p is not None]
 
 
 def sparse_pair():

@@ -59,7 +59,7 @@ def test_an_unreachable_target_stops_at_the_cap_and_says_what_it_reached(cl_devi
 
 
 def test_the_status_line_reports_the_samples_taken(cl_device):
-    from volrender.cli import describe
+    from volrender.commands import describe
     from volrender.scene import load_scene
     scene = load_scene(small_blob(), spp=2, noise_target=1e-4, max_spp=12, **SKY)
     img = render(scene, cl_device)

@@ -315,6 +315,21 @@ def test_too_many_list_entries_fall_back_to_the_tree(cl_device):
     assert np.isfinite(r.rgba).all()
 
 
+def test_a_render_reports_its_cells(cl_device):
+    """Image.info.cells is a CellsSummary of the build the render used: its counts are
+    those stats() reads back from the device, its build time Image.info.cells_ms."""
+    cloud = generators.blob(200, seed=1)
+    content = GlassContent(cloud, glass.GlassSettings(accel="grid", bounces=1))
+    r = render_scene(Scene.of(glass.default_camera(cloud, 8, 8), [], content), cl_device)
+    st = content.prepare(cl_device).cells.stats()
+    s = r.info.cells
+    assert isinstance(s, cells.CellsSummary) and r.info.accel == "grid"
+    assert (s.cell, list(s.dims), s.cells_listed, s.runs, s.bytes) == \
+        (st["cell"], st["dims"], st["cells_listed"], st["runs"], st["bytes"])
+    assert s.build_ms == r.info.cells_ms == st["build_ms"] > 0
+    assert 0 <= s.build_kernel_ms <= s.build_ms
+
+
 def test_lists_over_the_budget_grow_the_automatic_cell_edge(cl_device):
     """Lists that would exceed the budget at the automatic edge: the edge doubles (the
     total falls about as 1/edge) and the cells still serve, with the tree walk's image."""

@@ -19,8 +19,15 @@ def test_readme_figures_are_current():
 
 def test_every_figure_is_printed_and_every_placeholder_has_a_source():
     used = set(re.findall(r"{(\w+)}", figures.TEMPLATE))
-    assert used == set(figures.FIGURES) | {"BUILD", "VOLUMES"}
+    assert used == set(figures.FIGURES) | set(figures.NAMES)
 
+
+def test_no_measured_number_is_typed_into_the_template():
+    """Every digit of the block is a {figure} read from a result or a LITERALS phrase (a
+    name, a size that picks the row, a target): a number typed in drifts from its file."""
+    assert figures.hand_written_numbers() == []
+    typed = figures.TEMPLATE.replace("×{edge_worst} at worst", "×1.56 at worst")
+    assert len(figures.hand_written_numbers(typed)) == 1
 
 def test_a_changed_result_changes_the_readme(tmp_path, monkeypatch):
     """The block reads the files: a new 10⁶ build total shows in both lines that cite it."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import reference
+from helpers import top_camera
 from volrender import blackbody, glass, spheres, volume as volume_mod
 from volrender.camera import Camera
 from volrender.image import to_srgb
@@ -173,10 +174,6 @@ def slab(emission=False):
     return Bricks.from_dense(v, m, emission=v.copy() if emission else None)
 
 
-def top_camera(n=8, fov=6.0):
-    return Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), fov, n, n)
-
-
 def octave_oracle(mu, c, tau, albedo, phase, scales, n, s, at=0.5):
     """The march's band sum for a sun shining up through the slab's bottom face (|cos| s
     to its normal), written from cl/march.h's banner and DESIGN.md: band 0 p(mu; g)
@@ -234,7 +231,7 @@ def test_octave_bands_at_an_intermediate_contraction(cl_device, albedo):
                        estimator="march")
     a_inf = volume_mod.octave_decay(s)
     assert np.all((a_inf > 0.3) & (a_inf < 0.95)), a_inf        # generic, not a limit
-    cam = top_camera()
+    cam = top_camera(8)
     img = render_volume(slab(), cam, [Sun(tuple(prop), E)], s, cl_device).rgba
     dirs = cam.pixel_dirs()
     c = np.abs(dirs[..., 2])[..., None]

@@ -98,7 +98,7 @@ def test_parser_never_fails_other_than_with_a_user_error(tmp_path_factory, raw):
 
 
 def test_timings_measure_the_spacing_only_of_clouds_without_radii():
-    """Scene.timings (a Timings record): the load always; the radii only where the spacing
+    """Scene.timings (a frozen Timings record): the load always; the radii only where the spacing
     of a cloud without radii was measured."""
     import numpy as np
     import volrender
@@ -109,3 +109,5 @@ def test_timings_measure_the_spacing_only_of_clouds_without_radii():
     assert sized.timings.radii is None
     assert bare.timings.load >= 0 and sized.timings.load > 0
     assert volrender.Scene.of(sized.camera, (), sized.content).timings.load == 0.0
+    with pytest.raises(AttributeError):             # a frozen record
+        bare.timings.load = 0.0

@@ -294,3 +294,5 @@ def test_frame_records_are_typed_and_their_rows_on_disk_plain_json():
         rec["error"]
     with pytest.warns(DeprecationWarning):
         assert rec.get("error", "none") == "none"
+    with pytest.warns(DeprecationWarning, match=r" in record` is deprecated: read record\."):
+        assert "status" in rec and "error" not in rec and "nonsense" not in rec

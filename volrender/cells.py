@@ -59,6 +59,18 @@ class TooLarge(Exception):
     """The lists would not fit (MAX_ITEMS): use the tree walk."""
 
 
+@dataclass(frozen=True)
+class CellsSummary:
+    """What Image.info.cells reports of a render's support cells."""
+    cell: float               # cell edge, world units
+    dims: tuple               # cells per axis
+    cells_listed: int         # cells that hold a list
+    runs: int
+    bytes: int                # device memory of the bricks, cells, lists, runs and entries
+    build_ms: float
+    build_kernel_ms: float    # of build_ms, in the build's kernels
+
+
 @dataclass(frozen=True, eq=False)
 class Cells:
     lo: np.ndarray            # float32 (3,): min corner of cell (0, 0, 0), render frame
@@ -133,12 +145,11 @@ class Cells:
         c = np.concatenate([[0], np.cumsum(self.runs[:, 1], dtype=np.int64)])
         return c[start + count] - c[start]
 
-    def summary(self) -> dict:
+    def summary(self) -> "CellsSummary":
         """What a render reports (cheap: the runs stay on the device)."""
-        return {"cell": float(self.cell), "dims": [int(v) for v in self.dims],
-                "cells_listed": int(self.n_lists), "runs": int(self.n_runs),
-                "bytes": int(self.nbytes), "build_ms": self.build_ms,
-                "build_kernel_ms": self.build_kernel_ms}
+        return CellsSummary(float(self.cell), tuple(int(v) for v in self.dims),
+                            int(self.n_lists), int(self.n_runs), int(self.nbytes),
+                            self.build_ms, self.build_kernel_ms)
 
     def stats(self) -> dict:
         """Counts for reports and benchmarks (reads the runs back from the device)."""

@@ -37,6 +37,7 @@ import numpy as np
 from .errors import UserError
 from .process import signals_held
 from .progress import Eta, Progress
+from .render_info import RenderInfo
 
 DISPATCHES = ("fragment", "tiled")
 CHOICES = ("auto",) + DISPATCHES
@@ -168,7 +169,7 @@ class Plan:
     band_pixels: int                 # pixel-samples of the first launch on CPUs (dispatch)
     extra: list = field(default_factory=list)
     aovs: tuple = ()                 # layers to return besides rgba
-    info: dict = field(default_factory=dict)
+    info: RenderInfo = field(default_factory=RenderInfo)   # the integrator's fields
     build_options: tuple = ()        # compiler options for this device (e.g. register caps)
 
     @property

@@ -1,16 +1,16 @@
 """One frame of a sequence as it went (SequenceResult.records, the rows of the JSON record):
 a typed record with a status enum. On disk it is the JSON object it always was
 (`to_json`: the fields that are set, the status as its string); `rec["status"]` and
-`rec.get(...)`, from when records were dicts, still work and warn (DeprecationWarning).
+`rec.get(...)`, from when records were dicts, still work and warn (DeprecationWarning,
+dict_reads.py).
 """
 from __future__ import annotations
 
 import dataclasses
 import enum
-import warnings
 from dataclasses import dataclass
 
-_MISSING = object()
+from .dict_reads import DictReads
 
 
 class FrameStatus(str, enum.Enum):
@@ -25,7 +25,7 @@ class FrameStatus(str, enum.Enum):
 
 
 @dataclass
-class FrameRecord:
+class FrameRecord(DictReads):
     frame: int
     input: str
     output: str
@@ -69,23 +69,6 @@ class FrameRecord:
     def from_json(cls, row: dict) -> "FrameRecord":
         """A row of a record on disk (unknown keys are left out)."""
         return cls(**{k: v for k, v in row.items() if k in FIELDS})
-
-    # ------------------------------------------------- the dict of before (deprecated)
-    def _old(self, key, default=_MISSING):
-        warnings.warn(f"a frame record's [{key!r}] is deprecated: read record.{key}",
-                      DeprecationWarning, stacklevel=3)
-        value = getattr(self, key, None) if key in FIELDS else None
-        if value is None:
-            if default is _MISSING:
-                raise KeyError(key)
-            return default
-        return value
-
-    def __getitem__(self, key):
-        return self._old(key)
-
-    def get(self, key, default=None):
-        return self._old(key, default)
 
 
 FIELDS = frozenset(f.name for f in dataclasses.fields(FrameRecord))

@@ -18,6 +18,7 @@ from .dispatch import Dispatch, Plan, is_gpu
 from .environment import texels as env_texels
 from .errors import UserError
 from .features import GlassFeatures
+from .render_info import RenderInfo
 from .settings import (MAX_VALUE, NUM, CommonSettings, boolean, floats, in_range, knob, one_of,
                        rgb)
 from .spheres import (MAX_EXTENT, PackedSpheres, eye_color, material_unit, sphere_bounds,
@@ -217,12 +218,10 @@ def plan(scene, device, variant=None, launch=None):
         params["eye_color"] = eye_color(packed, eye)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
     spheres, grid_arrays = kernel_arrays(packed, params, device.context)
-    info = {"tree_ms": packed.tree_ms, "accel": packed.accel, "cells_ms": 0.0,
-            "model": describe_model(settings, device)}
+    info = RenderInfo(tree_ms=packed.tree_ms, accel=packed.accel, cells_ms=0.0,
+                      model=describe_model(settings, device), note=packed.note or None)
     if packed.cells is not None:
-        info.update(cells_ms=packed.cells.build_ms, cells=packed.cells.summary())
-    if packed.note:
-        info["note"] = packed.note
+        info = info.replace(cells_ms=packed.cells.build_ms, cells=packed.cells.summary())
     inputs = [("cam", scene.camera.pack(w2f, settings.spp, settings.seed)), ("gp", params),
               ("lights", lights_mod.pack(scene.lights, w2f)), ("spheres", spheres),
               ("nodes", packed.nodes), ("env", env), ("colors", colors),

@@ -8,10 +8,10 @@ multiple of 16 bytes, field names identical in Python and C.
 """
 from __future__ import annotations
 
-import sys
 
 import numpy as np
 
+from . import process
 from .paths import cl_dir
 
 # (C type) -> (numpy base, count, size in bytes, alignment)
@@ -235,4 +235,4 @@ def header_path():
 
 if __name__ == "__main__":
     header_path().write_text(c_header())
-    print(f"wrote {header_path()}", file=sys.stderr)
+    process.say(f"wrote {header_path()}")

@@ -249,7 +249,9 @@ def interrupted(exc, written=()) -> int:
     done = ", ".join(printable(p) for p in dict.fromkeys(map(str, written)))
     what = f"{done} was written before that" if done else "no output written"
     what = getattr(exc, "summary", None) or what       # a sequence says which frames
-    print(f"volrender: interrupted ({signal.Signals(signum).name}); {what}", file=sys.stderr)
+    # on a line of its own: the signal may have come between a note's text and its newline
+    fresh = "" if getattr(sys.stderr, "line_ended", True) else "\n"
+    say(f"{fresh}volrender: interrupted ({signal.Signals(signum).name}); {what}")
     return 128 + signum
 
 
@@ -270,11 +272,12 @@ def say(line: str):
     """`line` and its newline to stderr in one write: print() writes them in two, and a
     signal raised between them left the interrupted line on the same line."""
     sys.stderr.write(line + "\n")
+    sys.stderr.flush()
 
 
 def warn_one_line(message, category, filename, lineno, file=None, line=None):
     """warnings.showwarning for the CLI: one line, no source excerpt."""
-    print(f"volrender: warning: {printable(message)}", file=sys.stderr)
+    say(f"volrender: warning: {printable(message)}")
 
 
 class Stream:
@@ -286,8 +289,11 @@ class Stream:
 
     def __init__(self, stream):
         self._stream, self.error = stream, None
+        self.line_ended = True          # the last text written ended its line
 
     def write(self, text):
+        if text:
+            self.line_ended = text.endswith("\n")
         if self.error is None:
             try:
                 return self._stream.write(text)

@@ -12,6 +12,8 @@ import sys
 
 import numpy as np
 
+from . import process
+
 
 class Eta:
     """Seconds left of a render whose rows differ in cost. Each launch (rows y0..y0+rows-1,
@@ -105,4 +107,4 @@ def say(text: str, enabled: bool | None = None):
     """One status line on stderr ('volrender: ...') where a bar would be shown: for work
     that has no bar (the glass acceleration's build)."""
     if _interactive() if enabled is None else enabled:
-        print(f"volrender: {text}", file=sys.stderr, flush=True)
+        process.say(f"volrender: {text}")

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import UserError
-from .render_info import RenderInfo
 
 STILL_AFTER_S = 0.25     # a camera or option unchanged this long is still: accumulate
 PREVIEW_S = 0.1          # seconds a moving frame aims at
@@ -129,8 +128,9 @@ class Accumulation:
         return Image(rgba=rgba, aovs={}, kernel_ms=self.kernel_ms, wall_ms=1e3 * took,
                      cpu_ms=1e3 * (time.process_time() - c0), device=self.dev.name,
                      flags=self.plan.features.flags(), camera=cam,
-                     info=RenderInfo(transparent=bool(getattr(settings, "transparent", False)),
-                                     **self.plan.info, spp=s1, spp_target=self.spp))
+                     info=self.plan.info.replace(
+                         transparent=bool(getattr(settings, "transparent", False)),
+                         spp=s1, spp_target=self.spp))
 
 
 def preview_size(still, rate, seconds=PREVIEW_S):

@@ -256,13 +256,13 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
             aovs[name] = _derived_aov(name, rgba)
     return Image(rgba=rgba, aovs=aovs, kernel_ms=run.kernel_ms, wall_ms=wall_ms, cpu_ms=cpu_ms,
                  device=dev.name, flags=plan.features.flags(), camera=cam,
-                 info=RenderInfo(**{
-                     "transparent": bool(getattr(scene.settings, "transparent", False)),
-                     **plan.info, "setup_ms": setup_ms, "launches": run.launches,
-                     "spp": plan.spp, "row_cost": run.profile,
-                     "samples_taken": sum(r * k for _, r, k in run.took) // cam.height,
-                     "launch_s": tuple(t for t, _, _ in run.took),
-                     "launch_ends_s": tuple(run.ends)}))
+                 info=plan.info.replace(
+                     transparent=bool(getattr(scene.settings, "transparent", False)),
+                     setup_ms=setup_ms, launches=run.launches, spp=plan.spp,
+                     row_cost=run.profile,
+                     samples_taken=sum(r * k for _, r, k in run.took) // cam.height,
+                     launch_s=tuple(t for t, _, _ in run.took),
+                     launch_ends_s=tuple(run.ends)))
 
 
 def _derived_aov(name, rgba):

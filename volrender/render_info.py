@@ -1,23 +1,23 @@
 """What a render records besides its pixels (Image.info): a frozen record, read by attribute
 (`img.info.spp`). Fields a render did not fill stay None (or 0 for times and counts).
 
-Image.info was a dict; `img.info.spp` and `img.info.spp` still work and
-warn (DeprecationWarning): a field that is None reads as missing there, as an absent key did.
+Image.info was a dict; `img.info["spp"]`, `img.info.get("spp")` and `"spp" in img.info`
+still work and warn (DeprecationWarning, dict_reads.py).
 """
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from dataclasses import dataclass
 
-_MISSING = object()
+from .dict_reads import DictReads
 
 
 @dataclass(frozen=True, eq=False)
-class RenderInfo:
+class RenderInfo(DictReads):
     """Image.info. The planners (glass.plan, volume.plan) fill their integrator's fields
-    (dispatch.Plan.info names them), render the launch's, denoising and adaptive passes
-    theirs."""
+    in Plan.info, a RenderInfo that render then replaces the launch's fields in;
+    denoising and adaptive passes add theirs."""
+    WHAT = "Image.info"                  # in the dict reads' warnings
     # every render (render._beauty)
     spp: int | None = None               # samples per pixel taken: Plan.spp (passes: summed)
     samples_taken: int = 0               # counted launch by launch
@@ -33,7 +33,7 @@ class RenderInfo:
     model: str | None = None             # the glass model, said in the status line
     tree_ms: float = 0.0                 # builds made for this render (0 when reused)
     cells_ms: float = 0.0
-    cells: dict | None = None            # cells.Cells.summary()
+    cells: object = None                 # cells.CellsSummary
     note: str | None = None              # why the acceleration fell back
     # volume (volume.plan)
     background: tuple | None = None      # what PNGs are composited on
@@ -64,28 +64,6 @@ class RenderInfo:
 
     def replace(self, **changes) -> "RenderInfo":
         return dataclasses.replace(self, **changes)
-
-    # ------------------------------------------------- the dict of before (deprecated)
-    def _old(self, key, default=_MISSING):
-        warnings.warn(f"Image.info[{key!r}] is deprecated: read Image.info.{key}",
-                      DeprecationWarning, stacklevel=3)
-        value = getattr(self, key, None) if key in FIELDS else None
-        if value is None:
-            if default is _MISSING:
-                raise KeyError(key)
-            return default
-        return value
-
-    def __getitem__(self, key):
-        return self._old(key)
-
-    def get(self, key, default=None):
-        return self._old(key, default)
-
-    def __contains__(self, key) -> bool:
-        warnings.warn(f"`{key!r} in Image.info` is deprecated: read Image.info.{key}",
-                      DeprecationWarning, stacklevel=2)
-        return key in FIELDS and getattr(self, key) is not None
 
 
 FIELDS = frozenset(f.name for f in dataclasses.fields(RenderInfo))

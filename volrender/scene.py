@@ -97,8 +97,8 @@ class VolumeContent:
         return self.store[key]
 
     @classmethod
-    def load(cls, req, reuse=None, timings=None, device=None):
-        """(content, notes, fire) of a volume Request: the bricks (those of `reuse`, a
+    def load(cls, req, reuse=None, device=None):
+        """(content, notes, fire, None: no radii measured) of a volume Request: the bricks (those of `reuse`, a
         Scene, when they are what req would read), the fire defaults of a Mantaflow cache
         (its exposure, or smoke for an all-zero flame grid) and the automatic estimator
         (for the request's pixels on `device`)."""
@@ -124,7 +124,7 @@ class VolumeContent:
         w, h = req.view.size
         settings, note = auto_estimator(bricks, settings, int(w) * int(h), device)
         notes += [note] if note else []
-        return cls(bricks, settings, **({"store": old.store} if old else {})), notes, fire
+        return cls(bricks, settings, **({"store": old.store} if old else {})), notes, fire, None
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,10 +165,10 @@ class GlassContent:
         return self.store.builds
 
     @classmethod
-    def load(cls, req, reuse=None, timings=None, device=None):
-        """(content, notes, False) of a glass Request: the cloud (that of `reuse`, a Scene,
-        when it is what req would read) and, for a cloud without radii, the radius and
-        blend of its spacing (spheres.scan_defaults; its time in timings.radii)."""
+    def load(cls, req, reuse=None, device=None):
+        """(content, notes, False, radii_s) of a glass Request: the cloud (that of `reuse`,
+        a Scene, when it is what req would read) and, for a cloud without radii, the radius
+        and blend of its spacing (spheres.scan_defaults; radii_s its seconds, else None)."""
         from . import generators, points
         settings = req.settings
         old = req._reusable(reuse, settings)
@@ -186,17 +186,17 @@ class GlassContent:
             cloud = generated_cloud(req.source, settings.seed)
         else:
             cloud = points.load_points(req.source)
-        notes = list(cloud.notes)
+        notes, radii_s = list(cloud.notes), None
         if cloud.radii is None and (settings.radius is None or settings.blend is None):
             t1 = time.perf_counter()
             settings, note = scan_defaults(cloud, settings, old.store if old else None)
-            if timings is not None:
-                timings.radii = time.perf_counter() - t1
+            radii_s = time.perf_counter() - t1
             notes.append(note)
-        return cls(cloud, settings, **({"store": old.store} if old else {})), notes, False
+        return (cls(cloud, settings, **({"store": old.store} if old else {})), notes, False,
+                radii_s)
 
 
-@dataclass
+@dataclass(frozen=True)
 class Timings:
     """Seconds load_scene took: reading the content and the rest of resolving (load), and
     measuring the spacing of a cloud without radii (radii; None when not measured)."""
@@ -458,11 +458,10 @@ class Request:
         one when they are what it would read (Scene.replace); `device`: the one it will
         render on, which --estimator auto weighs (None: a CPU)."""
         t0 = time.perf_counter()
-        timings = Timings()
         notes = []
         environment = None
         cls = VolumeContent if self.kind == "volume" else GlassContent
-        content, load_notes, fire = cls.load(self, reuse, timings, device)
+        content, load_notes, fire, radii_s = cls.load(self, reuse, device)
         notes += load_notes
         settings = content.settings
         if settings.env is not None:
@@ -489,7 +488,7 @@ class Request:
         lights = self.lights
         if lights is None:                # the default sun, from above along the up axis
             lights = default_suns(up_frame(self.view.axis(hint)), FIRE_LIGHT if fire else 1.0)
-        timings.load = time.perf_counter() - t0 - (timings.radii or 0.0)
+        timings = Timings(time.perf_counter() - t0 - (radii_s or 0.0), radii_s)
         return Scene(camera, lights, content, environment, self.source, self.inputs,
                      tuple(notes), timings, request=self)
 

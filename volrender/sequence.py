@@ -881,6 +881,7 @@ def _start_client(workers, scheduler, device):
     cluster = None
     try:
         with process.children_unblocked(), _sigint_held():
+            _start_resource_tracker()
             cluster = _local_cluster(n_workers=n, threads_per_worker=1, processes=True,
                                      dashboard_address=":0", env=env,
                                      silence_logs=logging.CRITICAL)
@@ -894,6 +895,22 @@ def _start_client(workers, scheduler, device):
     if gpus:
         client.register_plugin(device_per_worker(gpus))
     return client, cluster
+
+
+def _start_resource_tracker():
+    """multiprocessing's resource tracker started here, this thread's signal mask put
+    back. The thread that starts it leaves SIGINT and SIGTERM unblocked (CPython 3.11
+    unblocks them instead of restoring the mask): started from Dask's spawner thread, it
+    made that thread start workers that took the terminal's Ctrl-C."""
+    from multiprocessing import resource_tracker
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, ())
+    except (AttributeError, ValueError, OSError):
+        return
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextlib.contextmanager
@@ -971,5 +988,5 @@ def _write_record(dst, result, pattern, output, settings=None, resume=False):
         return write_bytes(path, json.dumps(payload, indent=1, default=str).encode(),
                            "sequence record")
     except UserError as exc:
-        print(f"volrender: warning: {exc}", file=sys.stderr)
+        process.say(f"volrender: warning: {exc}")
         return None

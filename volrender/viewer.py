@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import process
 from .errors import UserError
 
 DEFAULT_PORT = 8080
@@ -353,7 +354,7 @@ class Viewer:
         try:
             self.run()
         except Exception as exc:           # said once; the server is stopped (run's finally)
-            print(f"volrender: the viewer stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
+            process.say(f"volrender: the viewer stopped: {type(exc).__name__}: {exc}")
 
     def stop(self):
         """Stop rendering and serving (waits for the step under way)."""
@@ -429,7 +430,7 @@ def cmd_view(args) -> int:
     dev = resolve(args.device)
     scene = req.load(device=dev)
     for note in scene.notes:
-        print(f"volrender: {note}", file=sys.stderr)
+        process.say(f"volrender: {note}")
     viewer = Viewer(scene, dev, port=args.port, host=args.host,
                     size=overrides.get("size", "canvas"), exposure=args.exposure,
                     view="standard" if args.tonemap == "clamp" else args.tonemap,

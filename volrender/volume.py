@@ -22,6 +22,7 @@ from .environment import env_distribution, env_mode, texels as env_texels
 from .errors import UserError
 from .features import VolumeFeatures
 from .lights import counts
+from .render_info import RenderInfo
 from .settings import (MAX_VALUE, NUM, STRS, VEC, CommonSettings, boolean, floats, in_range,
                        knob, number, one_of, rgb)
 
@@ -605,9 +606,9 @@ def plan(scene, device, variant=None, launch=None):
     outputs = [("rgba", (H, W, 4)), ("depth", (H, W, 2) if settings.depth else (1,))]
     return Plan(ENTRIES[settings.estimator], features, inputs, outputs, dispatch,
                 PIXELS_PER_LAUNCH, extra=extra, aovs=settings.aovs,
-                info={"background": tuple(settings.background), "estimator": settings.estimator,
-                      "ms_octaves": settings.octaves, **cache_info,
-                      **({"estimator_note": note} if note else {})})
+                info=RenderInfo(background=tuple(settings.background),
+                                estimator=settings.estimator, ms_octaves=settings.octaves,
+                                estimator_note=note or None, **cache_info))
 
 
 def ms_cache_fields(settings, choice) -> dict:
