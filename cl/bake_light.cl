@@ -267,7 +267,9 @@ __kernel void ms_gather(__constant VolumeParams* vp, __global const int* table,
     dst[3 * at] = sum.x; dst[3 * at + 1] = sum.y; dst[3 * at + 2] = sum.z;
 }
 
-/* The cache's ms channels: total plus the geometric tail after the last order S_K,
+/* The cache's ms channels: total plus the geometric tail after the last order S_K
+   (plus, with VR_ENV, the sky's channels: both are L1 harmonics read alike, so the
+   marcher reads one set of 12 instead of two),
    S_K r / (1 - r) per channel, r the smaller of the last two orders' ratios
    (S_K / S_{K-1}, S_{K-1} / S_{K-2}; the ratio grows with the order where the light's
    shape is still settling, so the smaller is the safer), at most r_max. */
@@ -287,9 +289,17 @@ __kernel void ms_finish(__global const int4* bricks, __global const float* total
     r = clamp(r, 0.0f, r_max.xyz);
     float3 tot = (float3)(total[at], total[at + 1], total[at + 2]) + a * r / (1.0f - r);
     __global float* out = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_MS;
-    out[0] = tot.x; out[1] = tot.y; out[2] = tot.z;
+    float v[12] = { tot.x, tot.y, tot.z };
     for (int i = 0; i < 9; ++i)
-        out[3 + i] = total1[3 * at + i];
+        v[3 + i] = total1[3 * at + i];
+#if VR_ENV
+    /* the sky's channels added in: the marcher reads the two as one (render_volume.cl) */
+    __global const float* e = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_LIGHTS;
+    for (int i = 0; i < 12; ++i)
+        v[i] += e[i];
+#endif
+    for (int i = 0; i < 12; ++i)
+        out[i] = v[i];
 }
 #endif
 
