@@ -18,7 +18,7 @@
 __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
                          __global const int* table, __global const float* data,
                          __global const float4* envq, __global const int4* bricks,
-                         __global float* cache, int n_bricks)
+                         __global float* cache, int n_bricks, float env_step)
 {
     int gid = get_global_id(0);
     if (gid >= n_bricks * VR_CACHE_NODES)
@@ -53,7 +53,10 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
         __global const float4* q = envq + 5 * j;
         float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2,
                             q[0].xyz);
-        float tau = vr_march_tau(&g, vp, p, dl, INFINITY, 0.5f, stop);
+        /* the sky's directions at env_step (light_cache.env_step), not the shadow step */
+        float2 tt = vr_ray_box(p, 1.0f / dl, (float3)(0.0f), vp->box_hi.xyz);
+        float tau = tt.y > 0.0f ? vr_optical_depth(&g, p, dl, 0.0f, tt.y, env_step, 0.5f,
+                                                   vp->density_scale, stop) : 0.0f;
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
         VrSpec f = vr_env_bands(vp, tau);
 #else

@@ -80,7 +80,7 @@ def furnace(cl_device, density, cell, orders=3):
 def test_white_furnace_with_propagated_orders(cl_device, cell):
     """Albedo 1 inside a uniform environment L: the thin ball (optical depth ~0.7) returns
     L (measured 1.000-1.003: what the orders after the fourth lose is little); the denser
-    one (~8 across) keeps most of it (measured: means 0.94 and 0.98, pixels 0.87-1.10: the
+    one (~8 across) keeps most of it (measured: means 0.94 and 1.00, pixels 0.87-1.15: the
     geometric tail is capped at ratio 0.9 where the true one nears 1, and the first
     order's L1 harmonics carry the 14 directions' ray effects; docs/error_time.md)."""
     thin = furnace(cl_device, 1.0, cell)

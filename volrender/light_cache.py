@@ -51,6 +51,12 @@ MS_TAIL = 0.9
 # 25.8 %, and smoke, dragon and 0190 nothing, for a 25-40 % shorter bake)
 MS_STEP_CELLS = (1.0, 0.5)
 MS_DENSE_TAU = 32.0
+# the bake's sky marches step this many node spacings (at least the shadow step; with
+# 4-voxel nodes 2 voxels: the bake's first pass 2x cheaper; covered-pixel error smoke 6.0 ->
+# 5.9 %, WDAS 23.6 -> 21.6 %, as exp(-tau) of a coarser midpoint sum is brighter on
+# average (Jensen), which offsets the orders' deficit there; the dense furnace 0.98 ->
+# 1.00; 1 spacing overshot it, x1.03; docs/error_time.md)
+ENV_STEP_CELLS = 0.5
 # a gather march stops where its transmittance (summed over rgb) falls below this, the
 # rest of the ray taken as its last sample (cl/bake_light.cl VR_MS_T_STOP; 0.03: smoke's
 # bake -10 %, the error as marching on to 3e-3)
@@ -270,6 +276,13 @@ def ms_dirs() -> np.ndarray:
     return out
 
 
+def env_step(bricks, choice, params) -> float:
+    """World step of the bake's sky marches (cl/bake_light.cl): ENV_STEP_CELLS node
+    spacings, at least the shadow step."""
+    return max(float(params["shadow_step"][0]),
+               ENV_STEP_CELLS * choice.cell * float(bricks.voxel_size))
+
+
 def ms_step(bricks, choice, params) -> float:
     """Longest world step of the orders' gather marches (cl/bake_light.cl ms_gather:
     they step a quarter of a mean free path, between the shadow step and this):
@@ -303,7 +316,7 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
     lights_buf, params_buf, occ_buf = upload(ctx, lights_packed), upload(ctx, params), upload(ctx, occ)
     kernel(q, glob, (local,), params_buf, lights_buf,
            table, data, upload(ctx, np.asarray(env, np.float32)), occ_buf, out,
-           np.int32(len(occ)))
+           np.int32(len(occ)), np.float32(env_step(bricks, choice, params)))
     done("bake_light")
     if choice.ms_orders:
         nbytes = max(4, 4 * 3 * int(bricks.n_slots) * nodes_per_brick(choice.cell))
