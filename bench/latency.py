@@ -7,8 +7,8 @@ the kernel, and what PNG encoding costs at 1080p.
    `python -X importtime` of a render command: each top-level package's cumulative import
    time (numpy, pyopencl, OpenEXR, PIL, OpenVDB, volrender, and whether dask, scipy or
    matplotlib were imported at all); the OpenCL device's choice and context; and
-   vdb.load_bricks of the demo cloud: its wall time and the CPU time of the renderer's own
-   process (OpenVDB reads in a reader process).
+   volrender.load_scene of the input (--scene; the demo cloud): its wall time and the CPU
+   time of the renderer's own process (OpenVDB reads in a reader process).
 2. Command: `volrender render scenes/demo_cloud.vdb --size 192x108 --spp 1 -o x.png -v`
    as a process, wall time split by its `-v` time line (load, setup, kernel, launch
    overhead, write), its CPU time (user + system, the OpenVDB reader process's included)
@@ -74,10 +74,10 @@ def wall(argv, root: Path, cpu=None, out=False) -> tuple[float, str]:
     return took, p.stdout if out else p.stderr
 
 
-def import_times(root: Path, out: Path) -> dict:
+def import_times(root: Path, out: Path, scene: Path = SCENE, command=None) -> dict:
     """{top-level package: cumulative import ms} of one render command (-X importtime)."""
-    _, err = wall([sys.executable, "-X", "importtime", "-m", "volrender", "render", str(SCENE),
-                   *COMMAND, "-o", str(out)], root)
+    _, err = wall([sys.executable, "-X", "importtime", "-m", "volrender", "render", str(scene),
+                   *(command or COMMAND), "-o", str(out)], root)
     found = {}
     for line in err.splitlines():
         m = re.match(r"import time:\s+\d+ \|\s+(\d+) \| \s*(\S+)$", line)
@@ -100,22 +100,22 @@ def command_run(root: Path, out: Path, scene=None, command=None) -> dict:
     return row
 
 
-def startup(root: Path, repeat: int) -> dict:
+def startup(root: Path, repeat: int, scene: Path = SCENE) -> dict:
     bare = [wall([sys.executable, "-c", "pass"], root)[0] for _ in range(repeat)]
     cli = [wall([sys.executable, "-c", "import volrender.cli"], root)[0] for _ in range(repeat)]
     probe = ("import time; t = time.perf_counter(); from volrender import device; "
              "t1 = time.perf_counter(); p, d = device.choose(None); t2 = time.perf_counter(); "
              "device.Device(p, d); t3 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2)")
     cl = [wall([sys.executable, "-c", probe], root, out=True)[1].split() for _ in range(repeat)]
-    load = ("import time; from volrender import vdb; c, t = time.process_time(), "
-            f"time.perf_counter(); vdb.load_bricks({str(SCENE)!r}); "
+    load = ("import time; import volrender; c, t = time.process_time(), "         # OpenVDB's
+            f"time.perf_counter(); volrender.load_scene({str(scene)!r}); "     # in a reader
             "print(time.process_time() - c, time.perf_counter() - t)")
     ld = [wall([sys.executable, "-c", load], root, out=True)[1].split() for _ in range(repeat)]
     med = lambda xs: statistics.median(float(x) for x in xs)  # noqa: E731
     return {"interpreter_s": med(bare), "import_cli_s": med(cli),
             "import_device_s": med(c[0] for c in cl), "choose_device_s": med(c[1] for c in cl),
             "context_s": med(c[2] for c in cl),
-            "vdb_load_own_cpu_s": med(x[0] for x in ld), "vdb_load_wall_s": med(x[1] for x in ld)}
+            "load_own_cpu_s": med(x[0] for x in ld), "load_wall_s": med(x[1] for x in ld)}
 
 
 def frame(path: Path, scene: Path = SCENE) -> np.ndarray:
@@ -149,6 +149,21 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
                      "bytes": len(buf.getvalue()), "identical_pixels": same})
         print(f"PNG level {level}: {rows[-1]['encode_s']:.3f} s, {rows[-1]['bytes'] / 1e6:.2f} MB, "
               f"identical {same}", flush=True)
+    variants = []                   # level 1 as RGB (an opaque image's alpha dropped) and
+    rgb = np.ascontiguousarray(px[..., :3])         # with zlib's strategies (compress_type)
+    for mode, ctype in (("RGB", -1), ("RGBA", 1), ("RGBA", 2), ("RGBA", 3), ("RGB", 3)):
+        ts = []
+        for _ in range(repeat):
+            buf = io.BytesIO()
+            t = time.perf_counter()
+            PILImage.fromarray(rgb if mode == "RGB" else px, mode).save(
+                buf, format="PNG", compress_level=1, compress_type=ctype)
+            ts.append(time.perf_counter() - t)
+        variants.append({"level": 1, "mode": mode, "compress_type": ctype,
+                         "encode_s": statistics.median(ts), "runs_s": ts,
+                         "bytes": len(buf.getvalue())})
+        print(f"PNG level 1 {mode} compress_type {ctype}: {variants[-1]['encode_s']:.3f} s, "
+              f"{variants[-1]['bytes'] / 1e6:.2f} MB", flush=True)
     whole = []
     with tempfile.TemporaryDirectory() as d:
         for _ in range(repeat):
@@ -156,7 +171,7 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
             image.write_image(Path(d) / "f.png", rgba)
             whole.append(time.perf_counter() - t)
     return {"size": list(rgba.shape[1::-1]), "tone_map_s": statistics.median(tone),
-            "tone_runs_s": tone, "levels": rows, "volrender_level": 1,
+            "tone_runs_s": tone, "levels": rows, "variants": variants, "volrender_level": 1,
             "write_image_s": statistics.median(whole), "write_runs_s": whole}
 
 
@@ -319,15 +334,21 @@ def main(argv=None):
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
                "command_argv": [str(scene), *command], "parts": sorted(parts)}
     if "start" in parts:
-        payload["start"] = {k: startup(r, args.repeat) for k, r in roots.items()}
-        payload["imports_ms"] = {k: import_times(r, tmp / "i.png") for k, r in roots.items()}
+        payload["start"] = {k: startup(r, args.repeat, scene) for k, r in roots.items()}
+        payload["imports_ms"] = {k: import_times(r, tmp / "i.png", scene, command)
+                                 for k, r in roots.items()}
         for k in roots:
             print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
                   {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
     if "command" in parts:
         runs = {k: [] for k in roots}
-        for r in roots.values():                     # warm: programs built, files cached
-            command_run(r, tmp / "w.png", scene, command)
+        # warm: programs built, files cached (its row: a first launch, on a fresh machine
+        # with cold program caches)
+        payload["command_first"] = {k: command_run(r, tmp / "w.png", scene, command)
+                                    for k, r in roots.items()}
+        for k, v in payload["command_first"].items():
+            print(k, "first", {f: round(x, 3) for f, x in v.items() if f != "other_stages"},
+                  flush=True)
         for _ in range(args.repeat):
             for k, r in roots.items():
                 runs[k].append(command_run(r, tmp / f"{k}.png", scene, command))

@@ -1,13 +1,25 @@
 #!/usr/bin/env bash
-# Issue 35 on the lent GPU (../shared/GPU.md set-up done by the caller), one call: the
-# whole command's wall time of 1080p renders at defaults (a volume, the bunny) in this
-# checkout and a baseline one, interleaved (bench/latency.py --only command); the
-# 10^5-sphere point sequence's frames/s as a pipeline and one frame after another
-# (bench/sequence.py --unpiped), and the baseline's; tone mapping at 1080p.
-#   VOLRENDER_COMMIT=... BASE_COMMIT=... bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR
-# (DATA_DIR: demo_cloud.npz from `volrender convert`, bun_zipper.ply). A dry run on PoCL:
-#   PY=.venv/bin/python VOLRENDER_DEVICE=portable SIZE=48x32 POINTS=2000 FRAMES=3 \
-#   VOLRENDER_BENCH_RESULTS=/tmp/r bash bench/latency_gpu.sh ...   (~90 s here)
+# Issue 35 on the lent GPU (../shared/GPU.md set-up done by the caller), one call:
+#   1. the 10^5-sphere point sequence's frames/s one frame after another, as the
+#      load/write pipeline with the set-up in the launching thread, and with render.prepare
+#      setting up frame n+1 on the second queue (bench/sequence.py --unpiped);
+#   2. the whole command's wall time of 1080p renders at defaults, a volume and the bunny,
+#      in this checkout and a baseline one, interleaved (bench/latency.py --only
+#      start,command[,png]): interpreter, imports, device choice and context, load, set-up,
+#      program builds, kernel, write; for the volume also tone mapping and Pillow's PNG
+#      encoding of a 1080p frame at every zlib level;
+#   3. the viewer's frames/s moving and time to a converged still, a volume and the bunny
+#      (bench/viewer.py).
+# Each step's results are copied to $OUT as it ends. The wheels must include fileseq
+# (sequence patterns; ../shared/GPU.md's `pip download` line plus fileseq): without it the
+# sequence step fails at its first frame. Ran on the H200 in 147 s (the sequence step then
+# failed so; it ran alone afterwards in 26 s with 10 frames).
+#   VOLRENDER_COMMIT=... bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR
+# (DATA_DIR: demo_cloud.npz and wdas_cloud_sixteenth.npz from `volrender convert`,
+# bun_zipper.ply). A dry run on PoCL (a few minutes here):
+#   PY=.venv/bin/python VOLRENDER_DEVICE=portable SIZE=48x32 POINTS=2000 FRAMES=3 SPP=4 \
+#   ORBIT=2 FRAME=/tmp/f.npy VOLRENDER_BENCH_RESULTS=/tmp/r OUT=/tmp/o \
+#   bash bench/latency_gpu.sh BASE DATA      (FRAME: any 1080p frame, else rendered at 1080p)
 set -u
 PY=${PY:-python3}
 OUT=${OUT:-/tmp/out}
@@ -15,18 +27,19 @@ BASE=$(cd "${1:?baseline checkout}" && pwd)
 DATA=$(cd "${2:?data folder}" && pwd)
 mkdir -p "$OUT"
 touch "$OUT/.start"                     # results newer than it are this call's
+RESULTS=${VOLRENDER_BENCH_RESULTS:-bench/results}
 export VOLRENDER_DEVICE=${VOLRENDER_DEVICE:-nvidia} PYTHONUNBUFFERED=1
-SIZE=${SIZE:-1920x1080} POINTS=${POINTS:-100000} FRAMES=${FRAMES:-12}   # smaller: a dry run
-step() { local limit=$1; shift; echo "== $(date +%T) $*"; timeout "$limit" "$@"; echo "== rc $?"; }
-step 35 "$PY" bench/latency.py --only command --scene "$DATA/demo_cloud.npz" \
-  --args "--size $SIZE" --baseline "$BASE" --repeat 3 --tag volume-1080p
-step 45 "$PY" bench/latency.py --only command --scene "$DATA/bun_zipper.ply" \
+SIZE=${SIZE:-1920x1080} POINTS=${POINTS:-100000} FRAMES=${FRAMES:-24}   # smaller: a dry run
+SPP=${SPP:-64} ORBIT=${ORBIT:-20}
+save() { find "$RESULTS" -newer "$OUT/.start" -type f -exec cp {} "$OUT/" \; ; }
+step() { local limit=$1; shift; echo "== $(date +%T) $*"; timeout "$limit" "$@"; echo "== rc $?"; save; }
+# the sequence first (the split's measure), then the volume's command, the viewer, the bunny
+step "${T1:-75}" "$PY" bench/sequence.py --device "$VOLRENDER_DEVICE" --points "$POINTS" \
+  --frames "$FRAMES" --size "$SIZE" --workers 0 --unpiped --format exr --tag points-pipeline
+step "${T2:-60}" "$PY" bench/latency.py --only start,command,png --scene "$DATA/demo_cloud.npz" \
+  --args "--size $SIZE" --baseline "$BASE" --repeat 3 --tag volume-1080p ${FRAME:+--frame "$FRAME"}
+step "${T3:-90}" "$PY" bench/viewer.py --device "$VOLRENDER_DEVICE" --size "$SIZE" --spp "$SPP" \
+  --frames "$ORBIT" --volume "$DATA/wdas_cloud_sixteenth.npz" --points "$DATA/bun_zipper.ply"
+step "${T4:-75}" "$PY" bench/latency.py --only start,command --scene "$DATA/bun_zipper.ply" \
   --args "--size $SIZE" --baseline "$BASE" --repeat 2 --tag bunny-1080p
-step 35 "$PY" bench/sequence.py --device "$VOLRENDER_DEVICE" --points "$POINTS" --frames "$FRAMES" \
-  --size "$SIZE" --workers 0 --unpiped --format exr --tag points-pipeline
-(cd "$BASE" && VOLRENDER_COMMIT=${BASE_COMMIT:-baseline} step 20 "$PY" bench/sequence.py --device "$VOLRENDER_DEVICE" --points "$POINTS" --frames "$FRAMES" \
-  --size "$SIZE" --workers 0 --format exr --tag points-before)
-step 25 "$PY" bench/latency.py --only tone --scene "$DATA/demo_cloud.npz" --baseline "$BASE" \
-  --repeat 3 --tag tone
-find bench/results "$BASE/bench/results" -newer "$OUT/.start" -type f -exec cp {} "$OUT/" \;
 ls "$OUT"

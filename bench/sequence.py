@@ -59,11 +59,16 @@ def make_point_frames(n_points: int, n: int, folder: Path) -> Path:
     return folder / "frame_####.npy"
 
 
-def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True):
+def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True, split=True):
     """The sequence in this process (workers=0): no Dask, one device; as the pipeline
     render_sequence runs (volrender/pipeline.py), or (piped=False) one frame after another
-    as before it (sequence.render_chunk per frame, the same camera)."""
+    as before it (sequence.render_chunk per frame, the same camera); split=False: the
+    pipeline with each frame's set-up (build, uploads) in the launching thread, as before
+    render.prepare (only the load and the write overlap)."""
+    import importlib
     import os
+    from unittest import mock
+    render_mod = importlib.import_module("volrender.render")     # (volrender.render: the function)
     if dev_spec:
         os.environ["VOLRENDER_DEVICE"] = dev_spec
     frame1 = sequence.parse_pattern(str(pattern)).path(1)
@@ -81,10 +86,14 @@ def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True):
         res = summarise(records, time.perf_counter() - t)
         res.update(workers="0, one frame after another", cluster_start_s=0.0, gpus=[], chunk=None)
         return res
-    r = sequence.render_sequence(str(pattern), str(out / f"f_####.{fmt}"), f"1-{n_frames}",
-                                 workers=0, size=size, **opts)
+    def inline(scene, dev, builder=None):           # everything left to finish()
+        return render_mod.Prepared(scene, dev)
+    with mock.patch.object(render_mod, "prepare", render_mod.prepare if split else inline):
+        r = sequence.render_sequence(str(pattern), str(out / f"f_####.{fmt}"), f"1-{n_frames}",
+                                     workers=0, size=size, **opts)
     res = summarise(r.records, r.wall_s)
-    res.update(workers=0, cluster_start_s=0.0, gpus=[], chunk=None)
+    res.update(workers=0 if split else "0, set-up in the launching thread", cluster_start_s=0.0,
+               gpus=[], chunk=None)
     unpiped = sorted(out.glob(f"u_*.{fmt}"))
     if unpiped:                 # the one-by-one run's files, where it ran first: same bytes?
         res["same_bytes_as_one_by_one"] = all(
@@ -165,7 +174,9 @@ def main(argv=None):
                     help="a point-cloud sequence of N-sphere blobs instead of a volume")
     ap.add_argument("--unpiped", action="store_true",
                     help="with --workers 0: first render the frames one after another as "
-                         "before the pipeline (issue 35), for its frames/s and bytes")
+                         "before the pipeline (issue 35), then as the pipeline before "
+                         "render.prepare (set-up in the launching thread), for their frames/s "
+                         "and bytes")
     ap.add_argument("--tag", default=None, help="added to the results' name: sequence_<device>-<tag>.json")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -195,13 +206,13 @@ def main(argv=None):
         what = f"{args.points}-sphere clouds" if args.points else src.name
         print(f"made {args.frames} frames of {what} in {time.perf_counter() - t0:.1f} s", flush=True)
         if args.unpiped and 0 in counts:
-            counts = ["unpiped"] + counts
+            counts = ["unpiped", "inline"] + counts
         for n in counts:
-            out = folder / f"out{0 if n == 'unpiped' else n}"
+            out = folder / f"out{0 if n in ('unpiped', 'inline') else n}"
             out.mkdir(exist_ok=True)
-            if n in (0, "unpiped"):
+            if n in (0, "unpiped", "inline"):
                 row = run_serial(pattern, args.frames, out, (width, height), opts, args.device,
-                                 args.format, piped=n == 0)
+                                 args.format, piped=n != "unpiped", split=n != "inline")
             else:
                 row = run(pattern, args.frames, out, n, (width, height), opts, args.chunk,
                           args.device, args.format)

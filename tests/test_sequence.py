@@ -169,18 +169,19 @@ def test_a_pipelined_sequence_writes_the_bytes_of_one_frame_after_another(frames
                for r in ra if r["status"] == "ok")
 
 
-def test_the_pipeline_overlaps_its_stages_and_keeps_the_device_in_one_thread(monkeypatch,
-                                                                              tmp_path):
-    """Frame n renders only once frame n+1's load and frame n-1's write have begun (each
-    waits for the other: a pipeline that ran the stages one after another would time out
-    here), loads and writes run in their own threads, every render in the calling one."""
+def test_the_pipeline_overlaps_its_stages_and_launches_in_one_thread(monkeypatch, tmp_path):
+    """Frame n's launches run only once frame n+1's load and set-up and frame n-1's write
+    have begun (each waits for the other: a pipeline that ran the stages one after another
+    would time out here); loads and set-ups (render.prepare, on the device's second queue)
+    run in their own thread, writes in theirs, every launch in the calling one."""
     import importlib
     import threading
     import types
     from volrender import pipeline
     render_mod, scene_mod = (importlib.import_module(f"volrender.{m}") for m in ("render", "scene"))
     began = {k: {f: threading.Event() for f in range(1, 6)} for k in ("load", "write")}
-    threads = {"load": set(), "render": set(), "write": set()}
+    threads = {"load": set(), "prepare": set(), "render": set(), "write": set()}
+    prepared = {f: threading.Event() for f in range(1, 6)}
 
     class Img:
         info, device, kernel_ms = RenderInfo(), "fake", 0.0
@@ -201,22 +202,34 @@ def test_the_pipeline_overlaps_its_stages_and_keeps_the_device_in_one_thread(mon
         began["load"][frame].set()
         return types.SimpleNamespace(frame=frame)
 
-    def render(scene, device=None):
-        threads["render"].add(threading.current_thread().name)
-        n = scene.frame
-        assert began["load"][min(n + 1, 5)].wait(20), f"frame {n + 1} was not loading"
-        if n > 1:
-            assert began["write"][n - 1].wait(20), f"frame {n - 1} was not being written"
-        return Img(n)
+    class Ready:
+        def __init__(self, scene, builder):
+            self.n, self.builder = scene.frame, builder
+
+        def finish(self):
+            threads["render"].add(threading.current_thread().name)
+            n = self.n
+            assert prepared[n].is_set(), f"frame {n} launched before its set-up"
+            assert prepared[min(n + 1, 5)].wait(20), f"frame {n + 1} was not set up"
+            if n > 1:
+                assert began["write"][n - 1].wait(20), f"frame {n - 1} was not being written"
+            return Img(n)
+
+    def prepare(scene, device=None, builder=None):
+        threads["prepare"].add(threading.current_thread().name)
+        assert builder is not None and builder.queue is not device.queue
+        assert builder.context is device.context
+        prepared[scene.frame].set()
+        return Ready(scene, builder)
 
     monkeypatch.setattr(scene_mod, "load_scene", load)
-    monkeypatch.setattr(render_mod, "render", render)
+    monkeypatch.setattr(render_mod, "prepare", prepare)
     jobs = [(f, f"in_{f}", tmp_path / f"o_{f}") for f in range(1, 6)]
     recs = pipeline.run_frames(jobs, {}, {}, [])
     assert [r.status for r in recs] == ["ok"] * 5
     assert [(tmp_path / f"o_{f}").read_text() for f in range(1, 6)] == [str(f) for f in range(1, 6)]
     assert threads["render"] == {threading.current_thread().name}
-    assert len(threads["load"]) == len(threads["write"]) == 1
+    assert threads["load"] == threads["prepare"] and len(threads["write"]) == 1
     assert not (threads["load"] | threads["write"]) & threads["render"]
 
 

@@ -110,3 +110,23 @@ def test_sequences_as_users_type_them(cloud_frames, tmp_path, capsys):
     assert by_frame[2]["status"] == "ok" and not by_frame[2].get("from_earlier_run")
     for f in (1, 3, 4):           # skipped now: the first run's rows, kept
         assert by_frame[f]["from_earlier_run"] and by_frame[f]["seconds"] == first[f]
+
+
+def test_a_pipelined_point_sequence_is_the_bytes_of_one_frame_after_another(cloud_frames,
+                                                                            tmp_path):
+    """workers=0 builds frame n+1's acceleration on the device's second queue while frame
+    n launches (pipeline.run_frames, render.prepare): every frame's file is the one a
+    render of that frame alone (sequence.render_chunk) writes."""
+    from volrender import sequence
+    r = _render(cloud_frames, tmp_path / "p", workers=0)
+    assert [rec.status for rec in r.records] == ["ok"] * 4
+    c = r.camera
+    kw = {"size": SIZE, "bounces": 2, **r.options, **sequence.camera_overrides(c)}
+    one = tmp_path / "one"
+    one.mkdir()
+    for f in range(1, 5):
+        rec, = sequence.render_chunk([(f, cloud_frames / f"p_{f:04d}.npy",
+                                       one / f"g_{f:04d}.exr")], kw, {})
+        assert rec.status == "ok"
+        assert (one / f"g_{f:04d}.exr").read_bytes() == \
+            (tmp_path / "p" / f"g_{f:04d}.exr").read_bytes(), f

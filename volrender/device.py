@@ -7,6 +7,7 @@ VOLRENDER_DEVICE picks another device by a case-insensitive substring of
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import logging
 import os
@@ -159,6 +160,18 @@ class Device:
             self.context = cl.Context([self.device])
             self.queue = cl.CommandQueue(
                 self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+
+    def side(self) -> "Device":
+        """This device with a second in-order queue: the same context, programs and
+        kernels, so buffers made on either queue serve both. A thread that builds and
+        uploads on it overlaps launches on this one (a sequence's next frame,
+        volrender/pipeline.py); finish its queue before the other uses its buffers."""
+        cl = _cl()
+        other = copy.copy(self)             # shares _programs: one program cache
+        with signals_held():
+            other.queue = cl.CommandQueue(
+                self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        return other
 
     @property
     def name(self) -> str:

@@ -193,14 +193,21 @@ def parse_tile(text: str) -> tuple:
     return w, h
 
 
-def upload(ctx, arr):
+def upload(ctx, arr, queue=None):
     """Read-only device copy of `arr`; an empty array becomes one zero element (OpenCL
-    has no zero-size buffers)."""
+    has no zero-size buffers). With `queue`: the copy is enqueued on it (not waited for:
+    `arr` must live until the queue is finished), so it runs where that queue's thread
+    runs, and not at a later launch on another queue (a driver may defer a COPY_HOST_PTR
+    buffer's transfer to its first use)."""
     import pyopencl as cl
     arr = np.ascontiguousarray(arr)
     if arr.nbytes == 0:
         arr = np.zeros((1,) + arr.shape[1:], arr.dtype)
-    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=arr)
+    if queue is None:
+        return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=arr)
+    buf = cl.Buffer(ctx, cl.mem_flags.READ_ONLY, arr.nbytes)
+    cl.enqueue_copy(queue, buf, arr, is_blocking=False)
+    return buf
 
 
 def is_gpu(device) -> bool:

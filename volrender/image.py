@@ -32,7 +32,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import OpenEXR
 
 from . import atomic
 from .errors import ImageWarning, UserError
@@ -397,6 +396,7 @@ def camera_attributes(camera) -> dict:
 def exr_threads() -> int:
     """Let OpenEXR compress on every core this process may use (its default is none; the
     bytes written are the same for any count)."""
+    import OpenEXR          # here, not at the top: a PNG or NPY command need not load it
     if OpenEXR.global_thread_count() == 0:
         try:
             n = len(os.sched_getaffinity(0))
@@ -407,6 +407,7 @@ def exr_threads() -> int:
 
 
 def _write_exr(f, rgba, channels: dict, options: dict) -> None:
+    import OpenEXR
     exr_threads()
     # The bindings read the raw buffer and ignore strides: pass C-contiguous arrays only.
     pixels = {'RGBA': np.ascontiguousarray(rgba, dtype=np.float32)}
@@ -529,6 +530,7 @@ def _warn_if_invisible(rgba, bits):
 
 def read_exr_channels(path) -> dict[str, np.ndarray]:
     """Every channel of an EXR file (first part) by name, as ``H x W`` arrays."""
+    import OpenEXR
     path = check_input(path, "image")
     try:
         with open(path, 'rb') as fh:            # a file object: any path, any encoding

@@ -1,9 +1,11 @@
-"""A sequence's frames in one process as a pipeline (issue 35): frame n+1 is read in one
-thread and frame n-1 written in another while frame n renders in the calling thread, the
-only one that uses the OpenCL queue. Each frame goes through the same steps as one after
-another (sequence._render_frame: load_scene, render, Image.save), so it writes the same
-bytes; its record's load/render/write seconds are its own stages', and `seconds` runs from
-its load's start to its write's end (they overlap other frames').
+"""A sequence's frames in one process as a pipeline (issue 35): frame n+1 is read and set
+up (render.prepare: the acceleration's build, the program, the uploads, on a second queue
+of the device, Device.side()) in one thread and frame n-1 written in another while frame
+n's launches and read-back run in the calling thread, on the device's own queue. Each
+frame goes through the same steps as one after another (sequence._render_frame:
+load_scene, render, Image.save), so it writes the same bytes; its record's load, build,
+set-up, render (the launches and read-back) and write seconds are its own stages', and
+`seconds` runs from its load's start to its write's end (they overlap other frames').
 
 Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
 finished and recorded, the next frame's load is dropped, and the exception goes on.
@@ -14,6 +16,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
+from . import device as device_mod
 from .errors import UserError
 from .frame_record import FrameRecord, FrameStatus
 from .process import hold_in_this_thread
@@ -36,17 +39,21 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
     """Render [(frame, input, output)] here, appending each frame's record to `records`
     when its file is written (or it failed) and calling `done()` then; `worker` names
     this process in them (sequence.render_chunk's name)."""
-    from .render import render        # looked up per call: tests put fakes in their place
+    from .render import prepare       # looked up per call: tests put fakes in their place
     from .scene import load_scene
-    device = os.environ.get("VOLRENDER_DEVICE") or None
+    dev = device_mod.resolve(os.environ.get("VOLRENDER_DEVICE") or None)
+    builder = dev.side()
 
     def load(job):
         t0 = time.perf_counter()
+        t1, ready, error = None, None, None
         try:
-            scene, error = load_scene(job[1], **overrides), None
+            scene = load_scene(job[1], **overrides)
+            t1 = time.perf_counter()
+            ready = prepare(scene, dev, builder=builder)
         except (UserError, MemoryError) as exc:
-            scene, error = None, _failure(exc)
-        return t0, time.perf_counter(), scene, error
+            error = _failure(exc)
+        return t0, t1 or time.perf_counter(), ready, error
 
     def write(rec, img, t0, load_s, render_s):
         t = time.perf_counter()
@@ -75,15 +82,15 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
         loading = loader.submit(load, jobs[0])
         for i, (frame, src, out) in enumerate(jobs):
             rec = FrameRecord(frame, str(src), str(out), worker=worker, pid=os.getpid())
-            t0, t1, scene, error = loading.result()
+            t0, t1, ready, error = loading.result()
             loading = loader.submit(load, jobs[i + 1]) if i + 1 < len(jobs) else None
             t2 = time.perf_counter()
             if error is None:
                 try:
-                    img = render(scene, device)
+                    img = ready.finish()
                 except (UserError, MemoryError) as exc:
                     error = _failure(exc)
-            scene = None
+            ready = None
             t3 = time.perf_counter()
             written()                           # frame n-1: written while frame n rendered
             if error is not None:

@@ -149,9 +149,15 @@ def render(scene, device=None, *, progress=None, variant=None, launch: Launch | 
     return img
 
 
+SAMPLED_PIXELS = 1 << 16             # image_problems' shares are read on about this many
+
+
 def image_problems(img, kind) -> list[str]:
     """Warnings for an image that came out empty, a solid silhouette or overexposed, each
-    with its fix (kind: "volume" or "glass")."""
+    with its fix (kind: "volume" or "glass"). Empty is read on every pixel; the shares
+    (opaque, overexposed) of an image over SAMPLED_PIXELS on a regular grid of about that
+    many pixels: at 1080p the whole image's median took 40-140 ms of every render (a
+    sequence's launching thread included) for a warning's threshold."""
     alpha = img.rgba[..., 3]
     what = "volume" if kind == "volume" else "point cloud"
     if not np.isfinite(alpha).all() or float(alpha.max()) < 1e-3:
@@ -160,11 +166,14 @@ def image_problems(img, kind) -> list[str]:
         return [spell(f"the image is empty: the {what} covers no pixel (alpha < 0.001 "
                       f"everywhere); {fix}")]
     out = []
+    step = max(1, math.isqrt(alpha.size // SAMPLED_PIXELS))
+    grid = img.rgba[::step, ::step]
+    alpha = grid[..., 3]
     covered = alpha > 0.01
     if kind == "volume" and covered.sum() >= 16 and float((alpha[covered] > 0.999).mean()) > 0.98:
         out.append("the volume renders as a solid silhouette (opaque in 98% of the pixels it "
                    "covers); lower --density-scale (`volrender info FILE` suggests one)")
-    rgb = img.rgba[..., :3][covered]
+    rgb = grid[..., :3][covered]
     if rgb.size and float(np.median(rgb.max(axis=-1))) > 4.0:
         out.append("the image is overexposed (half the covered pixels are above 4); lower the "
                    "lights' irradiance or --exposure")
@@ -217,10 +226,21 @@ def denoised(scene, dev, img) -> Image:
                               denoise_cpu_ms=1e3 * (c2 - c1)))
 
 
-def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
-            profile=None) -> Image:
-    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
-    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
+@dataclass
+class Setup:
+    """A render's set-up (_setup): its plan, kernel, argument buffers and output buffers,
+    made on one queue; _launch runs it on another queue of the same context."""
+    plan: object
+    kernel: object
+    args: list
+    outs: dict
+    setup_ms: float
+
+
+def _setup(scene, dev, *, progress=None, variant=None, launch=None) -> Setup:
+    """Everything before a pass's launches: the plan (the acceleration's build runs on
+    dev.queue), the program, the uploads; dev.queue is finished, so another queue of the
+    context may launch with it."""
     import pyopencl as cl
     cam = scene.camera
     t_plan = time.perf_counter()
@@ -229,16 +249,34 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
     plan = PLANNERS[scene.kind](scene, dev, variant, launch)
     check_image_memory(cam.width, cam.height, dev, len(plan.aovs))
     kernel = dev.kernel(plan.entry, plan.features.flags(), options=plan.build_options)
-    ctx = dev.context
-    args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.inputs]
+    ctx, q = dev.context, dev.queue
+    args = [upload(ctx, a, q) if isinstance(a, np.ndarray) else a for _, a in plan.inputs]
     outs = {name: cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * int(np.prod(shape)))
             for name, shape in plan.outputs}
     args += list(outs.values())
-    args += [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
+    args += [upload(ctx, a, q) if isinstance(a, np.ndarray) else a for _, a in plan.extra]
+    dev.queue.finish()                  # the uploads done (their arrays live until here)
+    # packing, program (cached after the first), uploads
+    return Setup(plan, kernel, args, outs, 1e3 * (time.perf_counter() - t_plan))
+
+
+def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=None,
+            profile=None) -> Image:
+    """One render of a Scene's beauty (and AOVs) in one pass of settings.spp samples
+    (deadline: a time.perf_counter() past which its launches stop, dispatch.PastDeadline)."""
+    setup = _setup(scene, dev, progress=progress, variant=variant, launch=launch)
+    return _launch(scene, dev, setup, progress=progress, launch=launch, deadline=deadline,
+                   profile=profile)
+
+
+def _launch(scene, dev, setup: Setup, *, progress=None, launch=None, deadline=None,
+            profile=None) -> Image:
+    """A set-up pass's launches on dev.queue, and the read-back."""
+    import pyopencl as cl
+    cam, plan, outs = scene.camera, setup.plan, setup.outs
     t0, c0 = time.perf_counter(), time.process_time()
-    setup_ms = 1e3 * (t0 - t_plan)      # packing, program (cached after the first), uploads
-    run = run_rows(dev, kernel, args, cam.width, cam.height, plan.band_pixels, progress,
-                   dispatch=plan.dispatch, spp=plan.spp,
+    run = run_rows(dev, setup.kernel, setup.args, cam.width, cam.height, plan.band_pixels,
+                   progress, dispatch=plan.dispatch, spp=plan.spp,
                    launch=launch, deadline=deadline, profile=profile)
     host = {}
     for name, shape in plan.outputs:
@@ -258,11 +296,46 @@ def _beauty(scene, dev, *, progress=None, variant=None, launch=None, deadline=No
                  device=dev.name, flags=plan.features.flags(), camera=cam,
                  info=plan.info.replace(
                      transparent=bool(getattr(scene.settings, "transparent", False)),
-                     setup_ms=setup_ms, launches=run.launches, spp=plan.spp,
+                     setup_ms=setup.setup_ms, launches=run.launches, spp=plan.spp,
                      row_cost=run.profile,
                      samples_taken=sum(r * k for _, r, k in run.took) // cam.height,
                      launch_s=tuple(t for t, _, _ in run.took),
                      launch_ends_s=tuple(run.ends)))
+
+
+@dataclass(eq=False)
+class Prepared:
+    """A render split in two (render.prepare): the set-up done, the launches left to
+    finish(). A sequence builds and uploads frame n+1 in one thread while frame n's
+    launches run in another (volrender/pipeline.py)."""
+    scene: Scene
+    device: object
+    setup: Setup | None = None       # None: a render that does not split (passes, denoise)
+
+    def finish(self, *, progress=None) -> Image:
+        """The launches and the read-back on the device's queue: render()'s Image, and its
+        warnings."""
+        if self.setup is None:
+            img = _render(self.scene, self.device, progress=progress)
+        else:
+            img = _launch(self.scene, self.device, self.setup, progress=progress)
+        self.setup = None                 # the device buffers go with it
+        for problem in image_problems(img, self.scene.kind):
+            warnings.warn(problem, ImageWarning, stacklevel=2)
+        return img
+
+
+def prepare(scene: Scene, device=None, *, builder=None) -> Prepared:
+    """The first half of render(scene, device): the plan, the acceleration's build, the
+    program and the uploads, made on `builder`'s queue (a Device sharing the device's
+    context, Device.side(); default: the device itself); Prepared.finish() renders on the
+    device's own queue, so the same bytes as render(). Adaptive passes and denoised renders
+    do all their work in finish()."""
+    dev = device_mod.resolve(device)
+    if (scene.kind == "volume" and volume.adaptive(scene.settings)) or \
+            getattr(scene.settings, "denoise", "off") == "on":
+        return Prepared(scene, dev)
+    return Prepared(scene, dev, _setup(scene, builder or dev))
 
 
 def _derived_aov(name, rgba):
