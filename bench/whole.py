@@ -26,6 +26,11 @@ CASES = {
     # the glass issue's targets on PoCL (issue 20)
     "bunny-look-good-320x240": [BUNNY, "--radius", "0.002", "--blend", "0.004", "--size", "320x240"],
     "blob100k-preview-160x120": ["blob:100000", "--size", "160x120"],
+    # the volumes' default command (issue 33: <= 5 s each, smoke <= 3 s, at 640x480)
+    **{f"{short}-default-640x480": [str(shared_data() / "vdb" / f"{stem}.vdb")]
+       for short, stem in (("smoke", "smoke"), ("wdas", "wdas_cloud_sixteenth"),
+                           ("dragon", "dragon_with_xform"), ("fire0056", "fluid_data_0056"),
+                           ("0190", "fluid_data_0190"))},
 }
 VARIANTS = {"default": [], "tree": ["--accel", "tree"], "grid": ["--accel", "grid"],
             "fast": ["--glass-model", "fast"], "fast-tree": ["--glass-model", "fast", "--accel", "tree"]}

@@ -18,7 +18,7 @@
 __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
                          __global const int* table, __global const float* data,
                          __global const float4* envq, __global const int4* bricks,
-                         __global float* cache, int n_bricks)
+                         __global float* cache, int n_bricks, float env_step)
 {
     int gid = get_global_id(0);
     if (gid >= n_bricks * VR_CACHE_NODES)
@@ -53,7 +53,10 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
         __global const float4* q = envq + 5 * j;
         float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2,
                             q[0].xyz);
-        float tau = vr_march_tau(&g, vp, p, dl, INFINITY, 0.5f, stop);
+        /* the sky's directions at env_step (light_cache.env_step), not the shadow step */
+        float2 tt = vr_ray_box(p, 1.0f / dl, (float3)(0.0f), vp->box_hi.xyz);
+        float tau = tt.y > 0.0f ? vr_optical_depth(&g, p, dl, 0.0f, tt.y, env_step, 0.5f,
+                                                   vp->density_scale, stop) : 0.0f;
 #if VR_MS_OCTAVES > 1 || VR_CHROMATIC
         VrSpec f = vr_env_bands(vp, tau);
 #else
@@ -92,6 +95,12 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
  volume.ms_medium). The gather marches step about half a grey mean free path, between
    the shadow step and dt. src/dst/total: 3 floats per node (rgb). */
 #define VR_MS_MFP 0.25f       /* the gather's step, grey mean free paths (docs/error_time.md) */
+/* a gather march stops where the transmittance (summed over rgb) is below this, the rest
+   of the ray taken as its last sample (docs/error_time.md: smoke's bake -10 %, the error
+   as with 3e-3 and no rest) */
+#ifndef VR_MS_T_STOP                 /* light_cache.MS_T_STOP passes it */
+#define VR_MS_T_STOP 0.03f
+#endif
 __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
                         __global const int4* bricks, __global const float* cache,
                         __global float* src, int n_bricks)
@@ -124,28 +133,26 @@ __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
     src[3 * at] = s.x; src[3 * at + 1] = s.y; src[3 * at + 2] = s.z;
 }
 
-/* The once-scattered light at local p (cell c, fraction f of brick `slot`) leaving
-   towards -w (w: world), from the baked channels as the marcher reads them (the lights'
-   optical depth, the sky's harmonics) through the phase. dl: unused. */
-inline float3 vr_once_scattered(__constant VolumeParams* vp, __constant Light* lights,
-                                __global const float* cache, int slot, int3 c, float3 f,
-                                float3 p, float3 dl, float3 w)
+/* The once-scattered light at node `at` (local p) leaving towards -w (w: world), from
+   its baked channels as the marcher reads them (the lights' optical depth, the sky's
+   harmonics) through the phase. */
+inline float3 vr_once_at_node(__constant VolumeParams* vp, __constant Light* lights,
+                              __global const float* cache, int at, float3 p, float3 w)
 {
-    VrCacheTap t;
-    vr_cache_tap(slot, c, f, &t);
+    VrCacheTap t;                        /* the node alone */
+    t.base = at * VR_CACHE_CH;
+    for (int n = 0; n < 8; ++n) {
+        t.off[n] = 0;
+        t.w[n] = n ? 0.0f : 1.0f;
+    }
     float3 s = (float3)(0.0f);
-    (void)dl;
 #if VR_CACHE_LIGHTS > 0
     for (int i = 0; i < VR_CACHE_LIGHTS; ++i) {
         float3 l, prop;
         float tmax, atten;
         if (vr_light_at(vp, lights, i, p, &l, &tmax, &prop, &atten))
-        {
-            float3 tr = (float3)(0.0f);     /* the nodes' transmittance, interpolated */
-            for (int n = 0; n < 8; ++n)
-                tr += t.w[n] * exp(-cache[t.base + i + t.off[n]] * (float3)(VR_EXTINCTION(vp)));
-            s += vr_phase(dot(prop, -w), vp->phase) * tr * lights[i].radiance.xyz / atten;
-        }
+            s += vr_phase(dot(prop, -w), vp->phase) * lights[i].radiance.xyz / atten
+               * exp(-cache[t.base + i] * (float3)(VR_EXTINCTION(vp)));
     }
 #else
     (void)lights;
@@ -156,12 +163,37 @@ inline float3 vr_once_scattered(__constant VolumeParams* vp, __constant Light* l
     return s;
 }
 
+/* The once-scattered light at every node towards each of the VR_CACHE_DIRS directions
+   (once: 3 floats per direction per node), which the first ms_gather reads trilinearly
+   as the later ones read an order: the marcher's reading (the nodes' transmittance and
+   sky harmonics interpolated) folded through the phase per direction at the nodes, the
+   same where the sky's L1 light is positive at the eight nodes (with point lights their
+   phase and falloff are taken at the nodes). */
+__kernel void ms_once(__constant VolumeParams* vp, __constant Light* lights,
+                      __global const int4* bricks, __global const float* cache,
+                      __global const float4* dirs, __global float* once, int n_bricks)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_bricks * VR_CACHE_NODES)
+        return;
+    int4 b = bricks[gid / VR_CACHE_NODES];
+    int node = gid % VR_CACHE_NODES;
+    int at = b.w * VR_CACHE_NODES + node;
+    int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
+                      node % VR_CACHE_N);
+    float3 p = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
+    __global float* out = once + at * 3 * VR_CACHE_DIRS;
+    for (int j = 0; j < VR_CACHE_DIRS; ++j) {
+        float3 v = vr_once_at_node(vp, lights, cache, at, p, dirs[j].xyz);
+        out[3 * j] = v.x; out[3 * j + 1] = v.y; out[3 * j + 2] = v.z;
+    }
+}
+
 /* One order: dst = the next order of src at every node (see above), total += it (total
-   = it with `first`, which gathers S_1 from the baked channels through the phase:
-   vr_once_scattered; src is S_1's isotropic part then, for the tail's ratio). dirs: per direction its world vector (xyz) and its cell's solid
-   angle / 4 pi (w). */
-__kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
-                        __global const float* cache, __global const int* table,
+   = it with `first`, which gathers S_1 through the phase from ms_once's buffer, src
+   then). dirs: per direction its world vector (xyz) and its cell's solid angle / 4 pi
+   (w). */
+__kernel void ms_gather(__constant VolumeParams* vp, __global const int* table,
                         __global const float* data, __global const float4* dirs,
                         __global const int4* bricks, __global const float* src,
                         __global float* dst, __global float* total, __global float* total1,
@@ -183,12 +215,12 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
         float3 dl = vr_mat3(vp->world_to_local0, vp->world_to_local1, vp->world_to_local2, q.xyz);
         float3 inv_d = 1.0f / dl;
         float t1 = vr_ray_box(o, inv_d, (float3)(0.0f), vp->box_hi.xyz).y;
-        float3 T = (float3)(1.0f), acc = (float3)(0.0f);
+        float3 T = (float3)(1.0f), acc = (float3)(0.0f), sk = acc;
         /* steps of VR_MS_MFP grey mean free paths (from the sample before), between the
            shadow step and dt, sampled at their midpoints */
         float t = 0.0f, h = vp->shadow_step;
         for (int k = 0; k < VR_MAX_RAY_SAMPLES; ++k) {
-            if (t + 0.5f * h >= t1 || T.x + T.y + T.z < 3e-3f)
+            if (t + 0.5f * h >= t1 || T.x + T.y + T.z < VR_MS_T_STOP)
                 break;
             float3 p = o + (t + 0.5f * h) * dl;
             float3 cf = floor(p);
@@ -208,18 +240,19 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
             float3 a = 1.0f - exp(-sigma * ext.xyz * h);
             t += h;
             h = clamp(VR_MS_MFP / fmax(sigma, 1e-30f), vp->shadow_step, dt);
-            float3 sk;
-            if (first)          /* S_1 through the phase towards o (the light's direction) */
-                sk = vr_once_scattered(vp, lights, cache, slot, c, f, p, dl, q.xyz);
-            else {
-                VrCacheTap tap;
-                vr_cache_tap_n(slot, c, f, 3, &tap);
-                sk = (float3)(vr_cache_read(src, &tap, 0), vr_cache_read(src, &tap, 1),
-                              vr_cache_read(src, &tap, 2));
-            }
+            /* first: S_1 through the phase towards o (ms_once's direction j) */
+            int nch = first ? 3 * VR_CACHE_DIRS : 3, ch = first ? 3 * j : 0;
+            VrCacheTap tap;
+            vr_cache_tap_n(slot, c, f, nch, &tap);
+            sk = (float3)(vr_cache_read(src, &tap, ch), vr_cache_read(src, &tap, ch + 1),
+                          vr_cache_read(src, &tap, ch + 2));
             acc += T * a * sk;
             T *= 1.0f - a;
         }
+        /* stopped at VR_MS_T_STOP: the rest of the ray as its last sample (the medium
+           beyond is optically deep; docs/error_time.md) */
+        if (T.x + T.y + T.z < VR_MS_T_STOP)
+            acc += T * sk;
         sum += q.w * acc;
         mx += q.w * q.x * acc; my += q.w * q.y * acc; mz += q.w * q.z * acc;
     }
@@ -237,7 +270,9 @@ __kernel void ms_gather(__constant VolumeParams* vp, __constant Light* lights,
     dst[3 * at] = sum.x; dst[3 * at + 1] = sum.y; dst[3 * at + 2] = sum.z;
 }
 
-/* The cache's ms channels: total plus the geometric tail after the last order S_K,
+/* The cache's ms channels: total plus the geometric tail after the last order S_K
+   (plus, with VR_ENV, the sky's channels: both are L1 harmonics read alike, so the
+   marcher reads one set of 12 instead of two),
    S_K r / (1 - r) per channel, r the smaller of the last two orders' ratios
    (S_K / S_{K-1}, S_{K-1} / S_{K-2}; the ratio grows with the order where the light's
    shape is still settling, so the smaller is the safer), at most r_max. */
@@ -257,9 +292,17 @@ __kernel void ms_finish(__global const int4* bricks, __global const float* total
     r = clamp(r, 0.0f, r_max.xyz);
     float3 tot = (float3)(total[at], total[at + 1], total[at + 2]) + a * r / (1.0f - r);
     __global float* out = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_MS;
-    out[0] = tot.x; out[1] = tot.y; out[2] = tot.z;
+    float v[12] = { tot.x, tot.y, tot.z };
     for (int i = 0; i < 9; ++i)
-        out[3 + i] = total1[3 * at + i];
+        v[3 + i] = total1[3 * at + i];
+#if VR_ENV
+    /* the sky's channels added in: the marcher reads the two as one (render_volume.cl) */
+    __global const float* e = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_LIGHTS;
+    for (int i = 0; i < 12; ++i)
+        v[i] += e[i];
+#endif
+    for (int i = 0; i < 12; ++i)
+        out[i] = v[i];
 }
 #endif
 

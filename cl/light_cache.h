@@ -18,7 +18,8 @@
                        2 and up, per unit scattering coefficient) as the sky's: a0 rgb, then
                        a1 x rgb, y rgb, z rgb, propagated over the nodes by
                        cl/bake_light.cl's ms_gather (a1: of the orders it gathered, not the
-                       geometric tail).
+                       geometric tail), with VR_ENV plus the sky's 12 above (ms_finish: the
+                       marcher reads this set alone).
    Layout: cache[(slot * nodes + (i * n + j) * n + k) * VR_CACHE_CH + ch].
    Include after volume.h and lights.h. */
 #ifndef VR_LIGHT_CACHE_H

@@ -144,11 +144,10 @@ __kernel void render_volume(__constant Camera* cam, __constant VolumeParams* vp,
                 S = vr_cached_inscatter(&g, vp, lights, light_cache, &tap, p, -dir, cam->seed, pixel,
                                         (uint)s, (uint)k);
 #endif
-#if VR_ENV
-                S += vr_cached_env(vp, light_cache, &tap, dir);
-#endif
-#if VR_MS_CACHE
+#if VR_MS_CACHE             /* the orders with the sky's light added (bake_light.cl ms_finish) */
                 S += vr_cached_ms(vp, light_cache, &tap, dir);
+#elif VR_ENV
+                S += vr_cached_env(vp, light_cache, &tap, dir);
 #endif
 #else
 #if VR_N_SUNS + VR_N_POINTS > 0

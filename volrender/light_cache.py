@@ -46,8 +46,21 @@ MS_CH = 12                     # the propagated orders' channels (L1 harmonics, 
 # ratio to the order before, at most this (and the albedo)
 MS_TAIL = 0.9
 # the gather marches' longest step, node spacings (the step is shorter where the medium is
-# dense: cl/bake_light.cl VR_MS_MFP; 1 spacing: WDAS 26 % against 24 %, docs/error_time.md)
-MS_STEP_CELLS = 0.5
+# dense: cl/bake_light.cl VR_MS_MFP): one spacing, half of one in media of typical optical
+# depth above MS_DENSE_TAU (docs/error_time.md: one spacing costs WDAS (tau 123) 23.7 ->
+# 25.8 %, and smoke, dragon and 0190 nothing, for a 25-40 % shorter bake)
+MS_STEP_CELLS = (1.0, 0.5)
+MS_DENSE_TAU = 32.0
+# the bake's sky marches step this many node spacings (at least the shadow step; with
+# 4-voxel nodes 2 voxels: the bake's first pass 2x cheaper; covered-pixel error smoke 6.0 ->
+# 5.9 %, WDAS 23.6 -> 21.6 %, as exp(-tau) of a coarser midpoint sum is brighter on
+# average (Jensen), which offsets the orders' deficit there; the dense furnace 0.98 ->
+# 1.00; 1 spacing overshot it, x1.03; docs/error_time.md)
+ENV_STEP_CELLS = 0.5
+# a gather march stops where its transmittance (summed over rgb) falls below this, the
+# rest of the ray taken as its last sample (cl/bake_light.cl VR_MS_T_STOP; 0.03: smoke's
+# bake -10 %, the error as marching on to 3e-3)
+MS_T_STOP = 0.03
 # with scattering orders, auto bakes where that costs up to this many times the exact
 # march (which takes the octave bands): on the real files the orders' covered-pixel error
 # is 0.2-0.9x the bands' (docs/error_time.md)
@@ -68,6 +81,7 @@ class Choice:
     exact: float               # the same for the exact march
     reason: str
     ms_orders: int = 0         # scattering orders propagated over the nodes (0: none)
+    ms_step_cells: float = MS_STEP_CELLS[0]   # their gather's longest step, node spacings
 
     @property
     def nbytes(self) -> int:
@@ -198,7 +212,7 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
                           f"would cost more than {'%g x ' % worth if worth != 1 else ''}the "
                           f"exact march's ~{exact / 1e6:.3g}M")
     return Choice(cell, slots * nodes_per_brick(cell), channels, cost(cell), exact, why,
-                  ms_orders)
+                  ms_orders, MS_STEP_CELLS[tau > MS_DENSE_TAU])
 
 
 def occupied_slots(bricks) -> np.ndarray:
@@ -216,6 +230,8 @@ class LightCache:
     buffer: object             # cl.Buffer of float32
     choice: Choice
     bake_ms: float
+    passes_ms: dict = dataclasses.field(default_factory=dict)   # per bake pass: wall ms
+    passes_cpu_ms: dict = dataclasses.field(default_factory=dict)   # ... the process's CPU ms
 
 
 def builds(content) -> int:
@@ -260,11 +276,19 @@ def ms_dirs() -> np.ndarray:
     return out
 
 
-def ms_step(bricks, cell, params) -> float:
+def env_step(bricks, choice, params) -> float:
+    """World step of the bake's sky marches (cl/bake_light.cl): ENV_STEP_CELLS node
+    spacings, at least the shadow step."""
+    return max(float(params["shadow_step"][0]),
+               ENV_STEP_CELLS * choice.cell * float(bricks.voxel_size))
+
+
+def ms_step(bricks, choice, params) -> float:
     """Longest world step of the orders' gather marches (cl/bake_light.cl ms_gather:
     they step a quarter of a mean free path, between the shadow step and this):
-    MS_STEP_CELLS node spacings, at least the shadow step."""
-    return max(float(params["shadow_step"][0]), MS_STEP_CELLS * cell * float(bricks.voxel_size))
+    choice.ms_step_cells node spacings, at least the shadow step."""
+    return max(float(params["shadow_step"][0]),
+               choice.ms_step_cells * choice.cell * float(bricks.voxel_size))
 
 
 def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
@@ -280,11 +304,20 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
     kernel = device.kernel("bake_light", flags)
     local = 64
     t0 = time.perf_counter()
+    passes, cpu = {}, {}
+
+    def done(name, t=[t0, time.process_time()]):   # each pass's times (a finish per pass)
+        q.finish()
+        now, now_cpu = time.perf_counter(), time.process_time()
+        passes[name] = 1e3 * (now - t[0])
+        cpu[name] = 1e3 * (now_cpu - t[1])
+        t[:] = now, now_cpu
     glob = (-(-n // local) * local,)
     lights_buf, params_buf, occ_buf = upload(ctx, lights_packed), upload(ctx, params), upload(ctx, occ)
     kernel(q, glob, (local,), params_buf, lights_buf,
            table, data, upload(ctx, np.asarray(env, np.float32)), occ_buf, out,
-           np.int32(len(occ)))
+           np.int32(len(occ)), np.float32(env_step(bricks, choice, params)))
+    done("bake_light")
     if choice.ms_orders:
         nbytes = max(4, 4 * 3 * int(bricks.n_slots) * nodes_per_brick(choice.cell))
         orders = [cl.Buffer(ctx, cl.mem_flags.READ_WRITE, nbytes) for _ in range(3)]
@@ -292,21 +325,32 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
         total1 = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 3 * nbytes)
         device.kernel("bake_light", flags, "ms_source")(
             q, glob, (local,), params_buf, lights_buf, occ_buf, out, orders[0], np.int32(len(occ)))
+        done("ms_source")
         alb, ext = (cl.cltypes.make_float4(*map(float, v), 0.0) for v in similar)
-        gather = device.kernel("bake_light", flags, "ms_gather")
+        gather = device.kernel("bake_light", flags, "ms_gather",
+                               options=(f"-DVR_MS_T_STOP={MS_T_STOP:.6g}f",))
         dirs = upload(ctx, ms_dirs())
+        # the once-scattered light towards each direction at the nodes: the first gather's
+        # source (3 floats per direction per node; freed after the bake)
+        once = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, ENV_DIRS * nbytes)
+        device.kernel("bake_light", flags, "ms_once")(
+            q, glob, (local,), params_buf, lights_buf, occ_buf, out, dirs, once,
+            np.int32(len(occ)))
+        done("ms_once")
         n = choice.ms_orders
         for k in range(n):
-            gather(q, glob, (local,), params_buf, lights_buf, out, table, data, dirs, occ_buf,
-                   orders[k % 3],
+            gather(q, glob, (local,), params_buf, table, data, dirs, occ_buf,
+                   once if k == 0 else orders[k % 3],
                    orders[(k + 1) % 3], total, total1, np.int32(len(occ)), alb, ext,
-                   np.float32(ms_step(bricks, choice.cell, params)), np.int32(k == 0))
+                   np.float32(ms_step(bricks, choice, params)), np.int32(k == 0))
+            done(f"ms_gather{k + 1}")
         r_max = np.minimum(np.asarray(similar[0], np.float64), MS_TAIL)
         device.kernel("bake_light", flags, "ms_finish")(
             q, glob, (local,), occ_buf, total, total1, orders[max(n - 2, 0) % 3], orders[(n - 1) % 3],
             orders[n % 3], out, np.int32(len(occ)), cl.cltypes.make_float4(*map(float, r_max), 0.0))
+        done("ms_finish")
     q.finish()
-    return LightCache(out, choice, 1e3 * (time.perf_counter() - t0))
+    return LightCache(out, choice, 1e3 * (time.perf_counter() - t0), passes, cpu)
 
 
 def cached(content, device) -> LightCache:
