@@ -6,7 +6,8 @@ same file runs against an older checkout (a model full:K is skipped where the se
 have no split_events) for a before/after in one run.
 
     python3 bench/glass_speed.py --device nvidia --size 1920x1080 --bounces 2,6 \\
-        --cases 3000,1000000,bunny --models full,fast,full:1 [--repeat 3] [--out FILE]
+        --cases 3000,1000000,bunny --models full,fast,full:1 [--relax 1.3,1.6] [--repeat 3] \\
+        [--out FILE]
 
 Writes FILE (default bench/results/glass_speed_<device>.json) with the device and commit.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -37,6 +39,9 @@ def main(argv=None):
     ap.add_argument("--bounces", default="2,6")
     ap.add_argument("--cases", default="3000,1000000,bunny")
     ap.add_argument("--models", default="full,fast")
+    ap.add_argument("--relax", default="",
+                    help="over-relaxation factors to sweep, comma-separated (default: the "
+                         "settings' default only)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--label", default="")
     ap.add_argument("--out", default=None)
@@ -46,6 +51,7 @@ def main(argv=None):
     fields = {f.name for f in dataclasses.fields(glass.GlassSettings)}
     record = {**device_info(dev), "label": args.label, "size": [w, h], "rows": []}
     out = Path(args.out) if args.out else result_path("glass_speed", dev)
+    relaxes = [float(x) for x in args.relax.split(",")] if args.relax else [None]
     for case in args.cases.split(","):
         if case == "bunny":
             src = scan_path(BUNNY[0])
@@ -57,7 +63,7 @@ def main(argv=None):
             cloud, opts, lights = generate("blob", int(case), seed=1), {}, [SUN]
         cam = glass.default_camera(cloud, w, h, radius=opts.get("radius"))
         for bounces in map(int, args.bounces.split(",")):
-            for model in args.models.split(","):
+            for model, relax in itertools.product(args.models.split(","), relaxes):
                 name, _, k = model.partition(":")
                 kw = dict(opts, bounces=bounces, accel="grid", dispatch="fragment",
                           glass_model=name)
@@ -65,13 +71,16 @@ def main(argv=None):
                     if "split_events" not in fields:
                         continue
                     kw["split_events"] = int(k)
+                if relax is not None:
+                    kw["relax"] = relax
                 t0 = time.perf_counter()
-                _, t = measure(cloud, cam, glass.GlassSettings(**kw), dev, args.repeat, lights)
-                row = {"case": case, "bounces": bounces, "model": model, **t,
-                       "bench_s": time.perf_counter() - t0}
+                settings = glass.GlassSettings(**kw)
+                _, t = measure(cloud, cam, settings, dev, args.repeat, lights)
+                row = {"case": case, "bounces": bounces, "model": model,
+                       "relax": settings.relax, **t, "bench_s": time.perf_counter() - t0}
                 record["rows"].append(row)
                 wk = row["work"]
-                print(f"{args.label:>6} {case:>8} b{bounces} {model:7s} kernel "
+                print(f"{args.label:>6} {case:>8} b{bounces} {model:7s} w{settings.relax:g} kernel "
                       f"{t['kernel_ms']['median']:9.2f} ms  evals {wk['evals_mean']:.1f} "
                       f"(p99 {wk['evals_p99']:.0f})  tests/eval {wk['nodes_per_eval']:.1f}+"
                       f"{wk['spheres_per_eval']:.0f}  simd {wk['simd_efficiency']:.2f}",

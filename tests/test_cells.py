@@ -477,8 +477,9 @@ def test_cpu_rule_counts_the_full_models_work(shared_data):
     """The CPU cell rule (cells.choose_edge) was fitted on one refracted path per sample;
     a full-model sample does about twice that (spheres.sample_work). For the bunny at
     320x240 with the defaults the cells were x1.5 faster than the tree walk on PoCL
-    (issue 32), so the rule must choose cells there, and with the fast model's work the
-    tree (where both were within x1.15)."""
+    (issue 32), so the rule must choose cells there; and with the fast model too, where
+    since the walk by key the whole command took 14.1 CPU s with cells against 31.3 with
+    the tree walk (the rule had chosen the tree)."""
     cells_mod = cells
     from volrender.points import load_points
     cloud = load_points(shared_data / "points" / "bun_zipper.ply")
@@ -491,4 +492,4 @@ def test_cpu_rule_counts_the_full_models_work(shared_data):
                                  samples * spheres.sample_work(s)) is not None
     fast = dataclasses.replace(s, glass_model="fast")
     assert cells_mod.choose_edge(packed.spheres, packed.blend, packed.box_lo, base,
-                                 samples * spheres.sample_work(fast)) is None
+                                 samples * spheres.sample_work(fast)) is not None

@@ -123,20 +123,21 @@ def _first_crossing(o, d, cloud, k, side, t_max=6.0, h=2e-3):
 
 
 @pytest.mark.parametrize("accel", ["grid", "tree"])
-@pytest.mark.parametrize("relax", [1.0, 1.6])
-@pytest.mark.parametrize("side", [1.0, -1.0])
-def test_trace_finds_the_first_crossing(cl_device, rng, relax, side, accel):
+@pytest.mark.parametrize("relax", [1.0, 1.6, 1.9])
+@pytest.mark.parametrize("side,spread", [(1.0, 0.1), (1.0, 0.4), (-1.0, 0.0)])
+def test_trace_finds_the_first_crossing(cl_device, rng, relax, side, spread, accel):
     """Sphere tracing with the gradient bound and over-relaxation never steps over a
     surface, and neither does crossing support cells without evaluations: from outside
-    (rays aimed into the blob) and from inside (rays from sphere centres), the hit is the
-    oracle's first crossing."""
+    (rays aimed into the blob, and with the wider spread many that graze its bumps, where
+    the adaptive factor climbs to its cap) and from inside (rays from sphere centres), the
+    hit is the oracle's first crossing."""
     cloud = generators.blob(120, seed=7)
     k = 0.25
     probe = Probe(cl_device, cloud, glass.GlassSettings(blend=k, leaf_size=4, accel=accel,
                                                          epsilon=1e-5))
     n = 64
     if side > 0:
-        aim = cloud.centers[rng.integers(0, len(cloud.centers), n)] + rng.normal(0, 0.1, (n, 3))
+        aim = cloud.centers[rng.integers(0, len(cloud.centers), n)] + rng.normal(0, spread, (n, 3))
         o = rng.normal(0, 1, (n, 3))
         o = 3.0 * o / np.linalg.norm(o, axis=1, keepdims=True)
         d = aim - o
@@ -146,7 +147,7 @@ def test_trace_finds_the_first_crossing(cl_device, rng, relax, side, accel):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t, _ = probe.trace(o, d, side, relax)
     ref = np.array([_first_crossing(o[i], d[i], cloud, k, side) for i in range(n)])
-    assert np.isfinite(ref).mean() > 0.9
+    assert np.isfinite(ref).mean() > (0.9 if spread < 0.2 else 0.3)
     hit = t >= 0
     np.testing.assert_array_equal(hit, np.isfinite(ref))
     np.testing.assert_allclose(t[hit], ref[hit], atol=2e-3)

@@ -59,7 +59,7 @@ SEQUENCE_OPTIONS = ("frames", "workers", "scheduler", "chunk", "skip_existing")
 def time_breakdown(scene, img, write_s) -> str:
     """Where a render's time went (-v): load, radii (clouds without radii), tree and cells
     (glass: the scene's acceleration, 0 when reused), the program set-up, the kernels, the
-    rest of the launches and the write."""
+    rest of the launches, the denoiser's guides and OIDN (when denoised) and the write."""
     parts = [("load", scene.timings.load), ("radii", scene.timings.radii)]
     if scene.kind == "glass":
         parts += [("tree", img.info.tree_ms / 1e3),
@@ -67,7 +67,9 @@ def time_breakdown(scene, img, write_s) -> str:
     build = sum(v for k, v in parts[2:]) if scene.kind == "glass" else 0.0
     setup = max(img.info.setup_ms / 1e3 - build, 0.0)
     parts += [("setup", setup), ("kernel", img.kernel_ms / 1e3),
-              ("launch overhead", max(img.wall_ms - img.kernel_ms, 0.0) / 1e3), ("write", write_s)]
+              ("launch overhead", max(img.wall_ms - img.kernel_ms, 0.0) / 1e3),
+              ("guides", img.info.guides_ms / 1e3 or None),
+              ("denoise", img.info.denoise_ms / 1e3 or None), ("write", write_s)]
     return ", ".join(f"{k} {v:.3f} s" for k, v in parts if v is not None)
 
 

@@ -121,8 +121,9 @@ class GlassSettings(CommonSettings):
                           check=in_range(1e-7, 0.1), toml=("render", "epsilon"))
     max_steps: int = knob(256, "sphere-tracing steps per ray segment",
                           check=in_range(1, 65536, integer=True), toml=("render", "max_steps"))
-    relax: float = knob(1.6, "over-relaxed sphere tracing factor in [1, 1.9]; 1 = plain "
-                        "(misses nothing; bench error: x1.3 faster at the same error)",
+    relax: float = knob(1.6, "largest over-relaxed sphere tracing factor in [1, 1.9], "
+                        "each step's chosen from the field's slope; 1 = plain (misses "
+                        "nothing; bench error: x1.3 faster at the same error)",
                         check=in_range(1, 1.9), toml=("render", "relax"))
     shadow_angle: float = knob(0.0, "angular radius of the lights, degrees: 0 = hard shadows, "
                                "more = soft", check=in_range(0, 45), metavar="DEG",

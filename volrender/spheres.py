@@ -248,15 +248,22 @@ def pack_scene(cloud, settings, device=None, samples=None,
 # splitting at more than one event, about FULL_SPLIT_WORK times the field work (issue 32:
 # kernel ms full/fast x3-7 on the H200). The bunny at 320x240 on PoCL, CPU s tree/cells:
 # fast 9.7/8.4, full split once 10.5/7.1, split always 25.6/16.3; the rule alone chose the
-# tree for all three.
+# tree for all three. Since the walk by key the cells' sample is cheaper still: whole
+# command, fast, tree 31.3 / cells 14.1 CPU s (user; PoCL, 2 shared cores), so a refracting
+# fast sample weighs as a full one split once (FAST_WORK) until the rule is refitted
+# (bench/edge.py).
 FULL_WORK = 2.0
 FULL_SPLIT_WORK = 4.0
+FAST_WORK = 2.0
 
 
 def sample_work(settings) -> float:
-    """A pixel sample's field work relative to one refracted path (the CPU cell rule)."""
-    if getattr(settings, "glass_model", "fast") != "full" or not settings.refraction:
+    """A pixel sample's weight in the CPU cell rule: its field work relative to one
+    refracted path before the walk by key (FAST_WORK for the fast model since)."""
+    if not settings.refraction:
         return 1.0
+    if getattr(settings, "glass_model", "fast") != "full":
+        return FAST_WORK
     split = getattr(settings, "split_events", None)
     return FULL_SPLIT_WORK if split is not None and split > 1 else FULL_WORK
 
