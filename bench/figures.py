@@ -218,15 +218,31 @@ def volume_table(data) -> str:
     """The default command on the five files: estimator, kernel and bake ms, whole s and
     the covered-pixel error, one row per file and variant."""
     out = []
-    for r in data["rows"]:
+    for r in volume_rows(data):
         e = r["error"]["covered"]
         what = r["estimator"] + (f", {r['spp']} spp" if r["spp"] > 1 else "")
         label = VOLUME_LABELS[r["file"]] + ("" if r["variant"] == "default"
-                                            else ", `--estimator march --ms-octaves 4`")
+                                            else ", `--estimator march --light-cache on`")
         bake = ms(r["bake_ms"]) if r["bake_ms"] else "–"
         out.append(f"| {label} | {what} | {ms(r['kernel_ms'])} | {bake} | "
                    f"{r['whole_s']:.2f} | {pct(e['rel_rmse'])}, ×{e['mean_ratio']:.3f} |")
     return "\n".join(out)
+
+
+def volume_rows(data) -> list:
+    """bench/volume_default.py's rows, one per file and variant (its JSON nests the
+    variants under each file; a transcribed file has them flat)."""
+    return [{**v, "file": r["file"], "variant": name, "reference": r.get("reference")}
+            for r in data["rows"] for name, v in r["variants"].items()] \
+        if data["rows"] and "variants" in data["rows"][0] else data["rows"]
+
+
+def _volume_size(data) -> str:
+    return "×".join(map(str, data.get("size") or volume_rows(data)[0]["size"]))
+
+
+def _volume_ref_spp(data) -> str:
+    return str((data.get("reference") or volume_rows(data)[0]["reference"])["spp"])
 
 
 def _seq_gain(data) -> str:
@@ -274,8 +290,8 @@ FIGURES = {
     "bunny_sample_ratio": (EDGE, _bunny_sample_ratio, str),
     "bunny_build_cpu_s": (EDGE, EDGE_BUNNY + ".build_cpu_s", one),
     "volume_table": (VOLUMES, volume_table, str),
-    "volume_size": (VOLUMES, lambda d: "×".join(map(str, d["size"])), str),
-    "volume_ref_spp": (VOLUMES, "reference.spp", str),
+    "volume_size": (VOLUMES, _volume_size, str),
+    "volume_ref_spp": (VOLUMES, _volume_ref_spp, str),
     **{f"vol_whole_{short}": (VOL_WHOLE, f"rows[case={short}-default-640x480].wall_s", one)
        for short in ("smoke", "wdas", "dragon", "fire0056", "0190")},
     "volume_fps_1": ("sequence_gpu-nvidiah200.json", "rows[workers=1].fps", one),
