@@ -199,6 +199,7 @@ BUILD = "build_gpu-nvidiah200-lazy.json"
 SEQ_FULL = "sequence_gpu-nvidiah200-points-full.json"
 SEQ_FAST = "sequence_gpu-nvidiah200-points-fast.json"
 VOLUMES = "volume_default_gpu-nvidiah200-issue33-1080p.json"
+BUNNY_S42 = "bunny_cpu_pocl-s42.json"
 VOL_WHOLE = "whole_pocl-issue33-volumes.json"
 SEQ_PIPE = "sequence_gpu-nvidiah200-points-pipeline.json"
 LAT_VOL = "latency_gpu-nvidiah200-volume-1080p.json"
@@ -206,7 +207,8 @@ LAT_BUNNY = "latency_gpu-nvidiah200-bunny-1080p.json"
 VIEWER = "viewer_gpu-nvidiah200.json"
 NAMES = {"BUILD": BUILD, "VOLUMES": VOLUMES, "SPHERES": SPHERES, "EDGE": EDGE,   # files cited
          "VOL_WHOLE": VOL_WHOLE,
-         "SEQ_PIPE": SEQ_PIPE, "LAT_VOL": LAT_VOL, "VIEWER": VIEWER, "GLASS": GLASS}
+         "SEQ_PIPE": SEQ_PIPE, "LAT_VOL": LAT_VOL, "VIEWER": VIEWER, "GLASS": GLASS,
+         "BUNNY_S42": BUNNY_S42}
 
 
 VOLUME_LABELS = {"smoke": "smoke", "wdas_cloud_sixteenth": "WDAS cloud (1/16)",
@@ -243,6 +245,17 @@ def _volume_size(data) -> str:
 
 def _volume_ref_spp(data) -> str:
     return str((data.get("reference") or volume_rows(data)[0]["reference"])["spp"])
+
+
+def _bunny_s42(key):
+    """The bunny's default command in bench/results' BUNNY_S42 (this code's runs): the
+    range of `key` (wall_s, or a stage of the -v time line) over them."""
+    def read(data):
+        runs = [r for r in data["runs"] if r["code"] == "new" and r["options"] == "(defaults)"]
+        vals = sorted(r[key] if key == "wall_s" else r["breakdown_s"][key] for r in runs)
+        lo, hi = one(vals[0]), one(vals[-1])
+        return lo if lo == hi else f"{lo}–{hi}"
+    return read
 
 
 def _seq_gain(data) -> str:
@@ -312,6 +325,10 @@ FIGURES = {
     "seq_gain": (SEQ_PIPE, _seq_gain, str),
     "seq_render": (SEQ_PIPE, "rows[2].mean_s.render", ms_of_s),
     "seq_kernel": (SEQ_PIPE, "rows[2].mean_s.kernel", ms_of_s),
+    "bunny_s42_wall": (BUNNY_S42, _bunny_s42("wall_s"), str),
+    "bunny_s42_cells": (BUNNY_S42, _bunny_s42("cells"), str),
+    "bunny_s42_kernel": (BUNNY_S42, _bunny_s42("kernel"), str),
+    "bunny_s42_guides": (BUNNY_S42, _bunny_s42("guides"), str),
     "view_vol_fps": (VIEWER, "results[0].moving_fps_median", one),
     "view_vol_size": (VIEWER, _view_size, str),
     "view_vol_conv": (VIEWER, "results[0].time_to_converged_s", two),
@@ -395,7 +412,9 @@ reach {points_fps_full}–{points_fps_fast} frames/s, not 10 (per frame: kernel
 {points_kernel_full} ms full / {points_kernel_fast} ms fast, set-up and build {points_setup} ms,
 EXR write {points_write} ms); the whole 1080p volume command is not within the ≤ 1.0 s target
 (the start-up above is most of it), and the pipelined sequence gains ×{seq_gain}, not ×3 (its
-launching thread's stage is {seq_render} ms for {seq_kernel} ms of kernel).
+launching thread's stage is {seq_render} ms for {seq_kernel} ms of kernel); the bunny's
+default command at 320×240 on PoCL takes {bunny_s42_wall} s (`{BUNNY_S42}`, cells build
+{bunny_s42_cells} s, kernel {bunny_s42_kernel} s, the denoiser's guides {bunny_s42_guides} s), not ≤ 6 s.
 """
 
 
@@ -417,7 +436,7 @@ LITERALS = {
     "issue\n32": "the issue's number", "issue 32": "the issue's number",
     "(p99)": "a percentile's name (the column's figures are read)",
     "the p99 column": "a column's name",
-    "≤ 1.0 s target": "issue target", "not ×3": "issue target",
+    "≤ 1.0 s target": "issue target", "not ×3": "issue target", "not ≤ 6 s": "issue target",
     "frame n+1": "a pipeline's frames", "while frame n": "a pipeline's frames",
 }
 
