@@ -441,16 +441,16 @@ def test_dask_workers_keep_sigint_blocked_and_take_sigterm():
     pytest.importorskip("distributed")
     script = (
         "import signal\n"
-        "from volrender.sequence import _start_client, _stop_client\n"
+        "from volrender.sequence_frames import start_client, stop_client\n"
         "def blocked():\n"
         "    s = open('/proc/self/status').read()\n"
         "    return int(s.split('SigBlk:')[1].split()[0], 16)\n"
         "before = signal.pthread_sigmask(signal.SIG_BLOCK, [])\n"
-        "client, cluster = _start_client(2, None, None)\n"
+        "client, cluster = start_client(2, None, None)\n"
         "try:\n"
         "    masks = list(client.run(blocked).values())\n"
         "finally:\n"
-        "    _stop_client(client, cluster)\n"
+        "    stop_client(client, cluster)\n"
         "after = signal.pthread_sigmask(signal.SIG_BLOCK, [])\n"
         "print(len(masks), all(m >> 1 & 1 for m in masks), any(m >> 14 & 1 for m in masks),"
         " before == after)\n")

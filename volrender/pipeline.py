@@ -2,7 +2,7 @@
 up (render.prepare: the acceleration's build, the program, the uploads, on a second queue
 of the device, Device.side()) in one thread and frame n-1 written in another while frame
 n's launches and read-back run in the calling thread, on the device's own queue. Each
-frame goes through the same steps as one after another (sequence._render_frame:
+frame goes through the same steps as one after another (sequence_frames._render_frame:
 load_scene, render, Image.save), so it writes the same bytes; its record's load, build,
 set-up, render (the launches and read-back) and write seconds are its own stages', and
 `seconds` runs from its load's start to its write's end (they overlap other frames').
