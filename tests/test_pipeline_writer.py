@@ -67,6 +67,25 @@ def test_its_errors_and_warnings_come_back_as_image_save_raises_them(img, writer
     assert (tmp_path / "g.png").stat().st_size > 0
 
 
+def test_small_frames_and_frames_sent_while_it_starts_are_written_here(tmp_path, monkeypatch):
+    """A sequence of frames under MIN_PIXELS starts no process (its writes cost less than
+    one); a frame sent before the process has said it started is written here."""
+    monkeypatch.delenv(frame_writer.MODE_ENV, raising=False)
+    n = frame_writer.MIN_PIXELS
+    assert not frame_writer.wanted((n // 2 - 1, 2)) and frame_writer.wanted((n // 2, 2))
+    assert not frame_writer.wanted(None)
+    monkeypatch.setenv(frame_writer.MODE_ENV, "thread")
+    assert not frame_writer.wanted((4096, 4096))
+    monkeypatch.setenv(frame_writer.MODE_ENV, "process")
+    assert frame_writer.wanted((2, 2))
+    w = frame_writer.FrameWriter()
+    try:
+        assert not w.ready()                    # its interpreter is still starting
+        assert w.ready(wait=60)
+    finally:
+        w.close()
+
+
 def test_it_outlives_ctrl_c_and_exits_when_its_input_closes(img, writer, tmp_path):
     """SIGINT, SIGTERM and SIGHUP to the writer (a terminal's Ctrl-C reaches the process
     group) leave it writing; closing its stdin ends it with status 0."""
@@ -94,6 +113,7 @@ def test_a_pipeline_whose_writer_dies_writes_every_frame_here(img, tmp_path, mon
             return super().save(img, output, save_kw)
 
     monkeypatch.setattr(frame_writer, "FrameWriter", Dying)
+    monkeypatch.setenv(frame_writer.MODE_ENV, "process")     # small frames: by the process too
     src = tmp_path / "in"
     src.mkdir()
     for f in range(1, 5):

@@ -11,14 +11,17 @@ from the same working directory. Warnings and errors come back and are raised he
 The process ignores SIGINT, SIGTERM and SIGHUP (a terminal's Ctrl-C reaches the whole
 process group): this process decides, and it exits when its stdin closes, after the
 frame it is writing (also when this process is killed). Where it cannot start or dies,
-the frames are written in this process (`WriterDied`). VOLRENDER_FRAME_WRITER=thread
-writes in this process from the start.
+the frames are written in this process (`WriterDied`); so are frames sent before it has
+started (its Python's start-up: a fraction of a second) and frames under MIN_PIXELS
+(`wanted`: their write costs less than the process). VOLRENDER_FRAME_WRITER=thread writes
+in this process, =process in the process whatever the size.
 """
 from __future__ import annotations
 
 import fcntl
 import os
 import pickle
+import select
 import signal
 import struct
 import sys
@@ -28,8 +31,10 @@ from pathlib import Path
 
 from . import atomic, process
 
-MODE_ENV = "VOLRENDER_FRAME_WRITER"       # "thread": write in this process
+MODE_ENV = "VOLRENDER_FRAME_WRITER"       # "thread": write in this process; "process": always
 PIPE_BYTES = 1 << 20                       # the pipe's buffer (Linux: at most pipe-max-size)
+MIN_PIXELS = 1 << 18                       # smaller frames are written in this process
+READY = b"volrender frame writer"          # its first words, once it has started
 
 
 class WriterDied(Exception):
@@ -40,8 +45,13 @@ class NotSent(Exception):
     """A frame that does not pickle (an Image of the caller's own class): write it here."""
 
 
-def wanted() -> bool:
-    return os.environ.get(MODE_ENV, "process") != "thread"
+def wanted(size=None) -> bool:
+    """Whether a sequence of frames of `size` (width, height; None: not known) is written
+    by the process."""
+    mode = os.environ.get(MODE_ENV, "")
+    if mode in ("thread", "process"):
+        return mode == "process"
+    return size is not None and size[0] * size[1] >= MIN_PIXELS
 
 
 class FrameWriter:
@@ -62,13 +72,27 @@ class FrameWriter:
         except OSError as exc:
             raise WriterDied(f"the frame writer process did not start ({exc})") from None
         _grow_pipe(self.proc.stdin)
+        self.started = False
 
+    def ready(self, wait: float = 0.0) -> bool:
+        """Whether it has started (said READY), waiting up to `wait` seconds; False once
+        it has ended."""
+        if self.started or self.proc is None:
+            return self.started and self.proc is not None
+        try:
+            if select.select([self.proc.stdout], [], [], wait)[0]:
+                self.started = _receive(self.proc.stdout) == READY
+                if not self.started:
+                    self.proc = None
+        except (EOFError, OSError, ValueError):
+            self.proc = None
+        return self.started
     def save(self, img, output, save_kw) -> Path:
         """img.save(output, **save_kw) in the process: the file written; its warnings
         raised here; UserError / MemoryError as Image.save raises them."""
+        if not self.ready(wait=60.0):
+            raise WriterDied(f"the frame writer process has ended{self.last_words()}")
         proc = self.proc
-        if proc is None:
-            raise WriterDied("the frame writer process has ended")
         buffers = []
         try:
             head = pickle.dumps(img, protocol=5, buffer_callback=buffers.append)
@@ -170,6 +194,8 @@ def serve():
     os.dup2(2, 1)                                    # stray prints go to stderr
     inp = sys.stdin.buffer
     _grow_pipe(out)
+    _send(out, READY)
+    out.flush()
     while True:
         try:
             cwd, output, save_kw, sizes = pickle.loads(_receive(inp))

@@ -7,10 +7,11 @@ load_scene, render, Image.save), so it writes the same bytes; its record's load,
 set-up, render (the launches and read-back) and write seconds are its own stages', and
 `seconds` runs from its load's start to its write's end (they overlap other frames').
 
-The writes go to a process of their own (volrender/frame_writer.py): encoding a frame in
-this interpreter held the GIL the other two stages need (H200, 10^5 spheres at 1080p, EXR:
-build 80 -> 162 ms, write 69 -> 190 ms). The write thread sends the frame and waits; where
-the process cannot start or dies, the frames are written in that thread.
+The writes of frames of a quarter of a megapixel and more go to a process of their own
+(volrender/frame_writer.py): encoding a frame in this interpreter held the GIL the other
+two stages need (H200, 10^5 spheres at 1080p, EXR: build 80 -> 162 ms, write 69 -> 190
+ms). The write thread sends the frame and waits; while the process starts, and where it
+cannot start or dies, the frames are written in that thread.
 
 Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
 finished and recorded, the next frame's load is dropped, and the exception goes on.
@@ -71,15 +72,16 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
         return rec
 
     proc = None
-    if frame_writer.wanted():
+    if frame_writer.wanted(overrides.get("size")):
         try:
             proc = frame_writer.FrameWriter()
         except frame_writer.WriterDied:
             proc = None
+    always = os.environ.get(frame_writer.MODE_ENV) == "process"
 
     def save(img, output):
         nonlocal proc
-        if proc is not None:
+        if proc is not None and (always or proc.ready()):      # here while it starts
             try:
                 return proc.save(img, output, save_kw)
             except frame_writer.NotSent:
