@@ -13,17 +13,12 @@ two stages need (H200, 10^5 spheres at 1080p, EXR: build 80 -> 162 ms, write 69 
 ms). The write thread sends the frame and waits; while the process starts, and where it
 cannot start or dies, the frames are written in that thread.
 
-While it runs the interpreter hands its GIL over every SWITCH_S seconds instead of 5 ms:
-the launching thread waits for each launch with the GIL released and needs it back at once
-to launch the next, while the loading thread holds it in the next frame's set-up.
-
 Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
 finished and recorded, the next frame's load is dropped, and the exception goes on.
 """
 from __future__ import annotations
 
 import os
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -31,9 +26,6 @@ from . import device as device_mod, frame_writer
 from .errors import UserError
 from .frame_record import FrameRecord, FrameStatus
 from .process import hold_in_this_thread
-
-
-SWITCH_S = 0.0005       # sys.setswitchinterval while frames run (None: the interpreter's)
 
 
 def _failure(exc) -> str:
@@ -111,9 +103,6 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
             records.append(rec)
             done()
 
-    switch = sys.getswitchinterval()
-    if SWITCH_S is not None:
-        sys.setswitchinterval(min(switch, SWITCH_S))
     try:
         loading = loader.submit(load, jobs[0])
         for i, (frame, src, out) in enumerate(jobs):
@@ -147,5 +136,4 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
         writer.shutdown(wait=True)
         if proc is not None:
             proc.close()
-        sys.setswitchinterval(switch)
     return records
