@@ -52,11 +52,8 @@ STAGES = ("load", "radii", "tree", "cells", "setup", "kernel", "launch overhead"
           "denoise", "write")
 
 
-EXTRA_ENV: dict = {}         # str(checkout path) -> environment added for it (--also-env)
-
-
 def env_for(root: Path) -> dict:
-    return {**os.environ, **EXTRA_ENV.get(str(root), {}), "PYTHONPATH": os.pathsep.join(
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
 
 
@@ -113,8 +110,7 @@ def startup(root: Path, repeat: int, scene: Path = SCENE) -> dict:
     cli = [wall([sys.executable, "-c", "import volrender.cli"], root)[0] for _ in range(repeat)]
     probe = ("import time; t = time.perf_counter(); from volrender import device; "
              "t1 = time.perf_counter(); p, d = device.choose(None); t2 = time.perf_counter(); "
-             "a = device.Device(p, d); t3 = time.perf_counter(); b = device.Device(p, d); "
-             "t4 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2, t4 - t3)")
+             "device.Device(p, d); t3 = time.perf_counter(); print(t1 - t, t2 - t1, t3 - t2)")
     cl = [wall([sys.executable, "-c", probe], root, out=True)[1].split() for _ in range(repeat)]
     load = ("import time; import volrender; c, t = time.process_time(), "         # OpenVDB's
             f"time.perf_counter(); volrender.load_scene({str(scene)!r}); "     # in a reader
@@ -123,7 +119,7 @@ def startup(root: Path, repeat: int, scene: Path = SCENE) -> dict:
     med = lambda xs: statistics.median(float(x) for x in xs)  # noqa: E731
     return {"interpreter_s": med(bare), "import_cli_s": med(cli),
             "import_device_s": med(c[0] for c in cl), "choose_device_s": med(c[1] for c in cl),
-            "context_s": med(c[2] for c in cl), "second_context_s": med(c[3] for c in cl),
+            "context_s": med(c[2] for c in cl),
             "load_own_cpu_s": med(x[0] for x in ld), "load_wall_s": med(x[1] for x in ld)}
 
 
@@ -384,9 +380,6 @@ def main(argv=None):
     ap.add_argument("--args", default=None,
                     help=f"the command part's render options (default: {' '.join(COMMAND)}); "
                          "-v and --no-progress are added")
-    ap.add_argument("--also-env", default=None, metavar="KEY=VALUE",
-                    help="also run this checkout with KEY=VALUE in its environment, "
-                         "interleaved (e.g. VOLRENDER_CL_WARM=0)")
     ap.add_argument("--only", default=",".join(PARTS),
                     help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
     args = ap.parse_args(argv)
@@ -399,11 +392,6 @@ def main(argv=None):
     dev = device.get(None)
     roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
     tmp = Path(tempfile.mkdtemp())
-    if args.also_env:               # this checkout again (by a link), with KEY=VALUE set
-        key, _, value = args.also_env.partition("=")
-        (tmp / "also").symlink_to(ROOT, target_is_directory=True)
-        roots[f"this {args.also_env}"] = tmp / "also"
-        EXTRA_ENV[str(tmp / "also")] = {key: value}
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
                "command_argv": [str(scene), *command], "parts": sorted(parts),
                "bytecode": {k: bytecode(r) for k, r in roots.items()}}

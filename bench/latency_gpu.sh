@@ -53,8 +53,7 @@ if has bytecode; then
   echo "== compileall volrender, the baseline's, and $SITE"
   "$PY" -m compileall -q -j 0 volrender "$BASE/volrender" "$SITE" > /dev/null
   step "${T3:-45}" "$PY" bench/latency.py --only start,command --scene "$DATA/demo_cloud.npz" \
-    --args "--size $SIZE" --baseline "$BASE" --repeat 3 --tag "volume-1080p$TAG-bytecode" \
-    --also-env VOLRENDER_CL_WARM=0
+    --args "--size $SIZE" --baseline "$BASE" --repeat 3 --tag "volume-1080p$TAG-bytecode"
 fi
 has viewer && step "${T4:-90}" "$PY" bench/viewer.py --device "$VOLRENDER_DEVICE" --size "$SIZE" --spp "$SPP" \
   --frames "$ORBIT" --volume "$DATA/wdas_cloud_sixteenth.npz" --points "$DATA/bun_zipper.ply"

@@ -34,9 +34,6 @@ if _argv[:1] and _argv[0].rsplit("/", 1)[-1] == "volrender" or _argv == ["-m", "
     _start()
     from . import process as _process
     _process.route_signals(_starting)   # before numpy: its threads inherit the block
-    if {"render", "view"} & set(_sys.orig_argv[2:4]):   # their drivers start while it imports
-        from . import cl_warm as _cl_warm
-        _cl_warm.start()
 del _argv
 
 __version__ = "0.1.0"

@@ -17,8 +17,6 @@ import time
 import warnings
 from dataclasses import dataclass, field
 
-from . import cl_warm
-from .cl_warm import pocl_cache_dir
 from .errors import UserError
 from .paths import cl_dir
 from .process import signals_held
@@ -27,6 +25,33 @@ log = logging.getLogger("volrender")
 ENV_DEVICE = "VOLRENDER_DEVICE"
 ENV_OPTIONS = "VOLRENDER_CL_OPTIONS"    # extra OpenCL build options (experiments), e.g.
                                         # "-cl-nv-verbose -cl-nv-maxrregcount=64"
+
+
+def _writable_dir(path) -> bool:
+    try:
+        os.makedirs(path, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            return True
+    except OSError:
+        return False
+
+
+def pocl_cache_dir() -> str | None:
+    """Make sure the OpenCL stack has a writable cache before it starts: PoCL fails to
+    list its device at all when it cannot create its kernel cache, and pyopencl (through
+    pytools) raises when it cannot create its own. Both live under $XDG_CACHE_HOME (else
+    ~/.cache); when that is not writable (a read-only or missing $HOME), point
+    $XDG_CACHE_HOME at a private folder under the temporary directory. Returns the cache
+    root in use, or None when none is writable."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if _writable_dir(base):
+        return base
+    fallback = os.path.join(tempfile.gettempdir(), f"volrender-cache-{os.getuid()}")
+    if _writable_dir(fallback):
+        os.environ["XDG_CACHE_HOME"] = fallback
+        log.info("the cache folder %s is not writable; using %s", base, fallback)
+        return fallback
+    return None
 
 
 _CACHE_CHECKED = False
@@ -51,7 +76,6 @@ def all_devices():
     # held: PoCL starts its worker threads here, and they inherit this thread's signal
     # mask; they compile kernels at first launch, and a signal landing in one of them
     # breaks its compiler ("1 error generated."). Held, the signals go to the main thread.
-    cl_warm.wait()          # the command's early listing (cl_warm.py): not two at once
     with signals_held():
         try:
             platforms = cl.get_platforms()
