@@ -17,7 +17,8 @@
 # (sequence patterns; ../shared/GPU.md's `pip download` line plus fileseq): without it the
 # sequence step fails at its first frame. Ran on the H200 in 147 s (the sequence step then
 # failed so; it ran alone afterwards in 26 s with 10 frames).
-# Session 43: STEPS=sequence,volume,bytecode TAG=s43 (the writer process; the bytecode).
+# Session 43: STEPS=sequence,volume,bytecode TAG=s43 (the writer process; the bytecode), then
+# STEPS=sequence,bytecode BYTECODE_PARTS=start,command,png REPEAT=7 TAG=s43b (its final code).
 #   VOLRENDER_COMMIT=... bash bench/latency_gpu.sh BASELINE_DIR DATA_DIR
 # (DATA_DIR: demo_cloud.npz and wdas_cloud_sixteenth.npz from `volrender convert`,
 # bun_zipper.ply). A dry run on PoCL (a few minutes here):
@@ -52,8 +53,9 @@ if has bytecode; then
   SITE=$("$PY" -c "import pyopencl, pathlib; print(pathlib.Path(pyopencl.__file__).parents[1])")
   echo "== compileall volrender, the baseline's, and $SITE"
   "$PY" -m compileall -q -j 0 volrender "$BASE/volrender" "$SITE" > /dev/null
-  step "${T3:-45}" "$PY" bench/latency.py --only start,command --scene "$DATA/demo_cloud.npz" \
-    --args "--size $SIZE" --baseline "$BASE" --repeat 3 --tag "volume-1080p$TAG-bytecode"
+  step "${T3:-45}" "$PY" bench/latency.py --only "${BYTECODE_PARTS:-start,command}" \
+    --scene "$DATA/demo_cloud.npz" --args "--size $SIZE" --baseline "$BASE" \
+    --repeat "${REPEAT:-3}" --tag "volume-1080p$TAG-bytecode" ${FRAME:+--frame "$FRAME"}
 fi
 has viewer && step "${T4:-90}" "$PY" bench/viewer.py --device "$VOLRENDER_DEVICE" --size "$SIZE" --spp "$SPP" \
   --frames "$ORBIT" --volume "$DATA/wdas_cloud_sixteenth.npz" --points "$DATA/bun_zipper.ply"
