@@ -63,13 +63,15 @@ class FrameWriter:
         root = str(Path(__file__).resolve().parents[1])
         env = {**os.environ,
                "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
+        if not sys.executable:                  # an embedded interpreter: no Python to start
+            raise WriterDied("no Python executable to start the frame writer with")
         self.err = tempfile.TemporaryFile()      # what it says as it dies
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-c", "from volrender import frame_writer; frame_writer.serve()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.err, env=env,
                 close_fds=True)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             raise WriterDied(f"the frame writer process did not start ({exc})") from None
         _grow_pipe(self.proc.stdin)
         self.started = False
