@@ -1,8 +1,8 @@
 """A process that writes a sequence's frames (volrender/pipeline.py), so that encoding a
 frame (OpenEXR's compression, PNG's tone mapping and zlib) does not hold this process's
-GIL while the next frame builds and the current one launches: in one interpreter the
-three stages slowed each other (H200, 10^5 spheres at 1080p: build 80 -> 162 ms, EXR
-write 69 -> 190 ms).
+GIL while the next frame builds and the current one launches. Measured on the H200 (10^5
+spheres at 1080p, EXR, docs/benchmarks.md): the write stage 182 -> 142 ms, frames/s
+x1.02-1.05 (the loading thread's build, not the write, is the slowest stage there).
 
 The frame goes over a pipe as the Image itself (pickle protocol 5: its arrays as raw
 out-of-band buffers) and the process calls Image.save on it: the same code as writing
@@ -89,6 +89,7 @@ class FrameWriter:
         except (EOFError, OSError, ValueError):
             self.proc = None
         return self.started
+
     def save(self, img, output, save_kw) -> Path:
         """img.save(output, **save_kw) in the process: the file written; its warnings
         raised here; UserError / MemoryError as Image.save raises them."""

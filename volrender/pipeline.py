@@ -8,10 +8,9 @@ set-up, render (the launches and read-back) and write seconds are its own stages
 `seconds` runs from its load's start to its write's end (they overlap other frames').
 
 The writes of frames of a quarter of a megapixel and more go to a process of their own
-(volrender/frame_writer.py): encoding a frame in this interpreter held the GIL the other
-two stages need (H200, 10^5 spheres at 1080p, EXR: build 80 -> 162 ms, write 69 -> 190
-ms). The write thread sends the frame and waits; while the process starts, and where it
-cannot start or dies, the frames are written in that thread.
+(volrender/frame_writer.py): encoding a frame in this interpreter holds the GIL the other
+two stages need. The write thread sends the frame and waits; while the process starts,
+and where it cannot start or dies, the frames are written in that thread.
 
 Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
 finished and recorded, the next frame's load is dropped, and the exception goes on.
