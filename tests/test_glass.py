@@ -54,6 +54,24 @@ def test_field_matches_oracle(cl_device, rng, accel, k):
     np.testing.assert_allclose(f, ref, atol=atol)
 
 
+@pytest.mark.parametrize("cell,k", [(0.1, 0.02), (0.3, 0.05), (0.6, 0.15)])
+def test_one_pass_field_with_cells_wider_than_the_blend(cl_device, rng, cell, k):
+    """The cells' one walk (cl/sdf.h sdf_grid_sums) takes spheres within the running
+    minimum + k and rebases their sums as the minimum falls; in cells wider than k a
+    sphere taken early often ends beyond the final m + k (far side of the cell), where the
+    walk must fall back to pass 2: field and gradient stay brute force's (skipping the
+    fallback was off by 0.03-0.24 here)."""
+    cloud = generators.blob(300, seed=3)
+    x = _samples(rng, cloud, 1000)
+    s = glass.GlassSettings(blend=k, accel="grid", cell_skip=False, cell_size=cell)
+    f, g, scene = field(cl_device, cloud, s, x)
+    assert scene.accel == "grid"
+    ref = reference.smooth_union(x, cloud.centers, cloud.radii, k)
+    np.testing.assert_allclose(f, ref, atol=ATOL_FIELD)
+    _, g_ref, _ = field(cl_device, cloud, glass.GlassSettings(blend=k, accel="none"), x)
+    np.testing.assert_allclose(g, g_ref, atol=1e-4)
+
+
 def test_two_sphere_blend_is_c1_and_compact():
     """Two spheres: F equals the plain union where |a - b| >= k, lies below it inside,
     by (k/2) ln 2 on the seam, and its slope along a-b is 1/2 from both sides there."""
@@ -240,6 +258,40 @@ def test_accelerations_give_the_brute_force_image(cl_device, leaf_size, bounces,
     grid = render(accel="grid")
     np.testing.assert_array_equal(grid[..., 3], none[..., 3])
     assert _differ(grid, none) <= _differ(none, render(accel="none", epsilon=base.epsilon / 2))
+
+
+@pytest.mark.parametrize("colors", [False, True])
+def test_entry_spheres_give_the_gathered_image(cl_device, monkeypatch, colors):
+    """The cells' spheres copied in list order (glass.entry_spheres, the GPU default) are
+    the spheres the entries point at, read in the same order: the image is the gathered
+    one bit for bit, per-point colours included."""
+    cloud = generators.blob(250, seed=5)
+    if colors:
+        rgb = np.random.default_rng(1).uniform(0, 1, (250, 3)).astype(np.float32)
+        cloud = PointCloud(cloud.centers, cloud.radii, rgb)
+    s = glass.GlassSettings(blend=0.3, accel="grid", bounces=3)
+    lights = [Sun((-0.5, -1.0, -0.3), 3.0)]
+    images = []
+    for mode in ("0", "1"):
+        monkeypatch.setenv("VOLRENDER_ENTRY_SPHERES", mode)
+        images.append(_render(cl_device, cloud, s, lights=lights))
+    assert images[0][..., 3].mean() > 0.2
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_cell_reuse_gives_the_looked_up_image(cl_device, monkeypatch):
+    """A march that keeps its last cell's list while it stays in that cell (VR_CELL_REUSE,
+    cl/sdf.h) reads the list a lookup would: the image is the one with a lookup at every
+    step, bit for bit (cells smaller than the spheres, so rays cross many)."""
+    cloud = generators.blob(250, seed=5)
+    s = glass.GlassSettings(blend=0.15, accel="grid", bounces=3, cell_size=0.03)
+    lights = [Sun((-0.5, -1.0, -0.3), 3.0)]
+    images = []
+    for reuse in ("0", "1"):
+        monkeypatch.setenv("VOLRENDER_CL_OPTIONS", f"-DVR_CELL_REUSE={reuse}")
+        images.append(_render(cl_device, cloud, s, lights=lights))
+    assert images[0][..., 3].mean() > 0.2
+    np.testing.assert_array_equal(images[0], images[1])
 
 
 # ------------------------------------------------------------------ single sphere, optics
