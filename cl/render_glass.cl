@@ -1,8 +1,7 @@
 /* Molten-glass point clouds: one work-item per pixel follows one path per sample through
    up to `bounces` surface events of the smooth union of spheres (render frame).
    Inputs: Camera, GlassParams, lights, spheres (tree order), tree nodes, environment,
-   per-sphere colours, support cells (bricks, cells, lists, entries: cl/cells.h; with
-   VR_ENTRY_SPHERES the entries' spheres in list order, glass.entry_spheres). Output:
+   per-sphere colours, support cells (bricks, cells, lists, entries: cl/cells.h). Output:
    rgba, alpha = coverage of the primary ray.
    Flags: VR_TREE, VR_GRID, VR_N_SUNS, VR_N_POINTS, VR_SHADOWS, VR_REFRACTION, VR_ABSORPTION,
           VR_GLOW, VR_ENV_MAP, VR_COLORS, VR_FULL (both Fresnel branches, shade_glass.h), VR_TILED (+ VR_TILE_W, VR_TILE_H, VR_TILE_CAP),
@@ -37,8 +36,7 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
                   __global const TreeNode* restrict nodes, __global const float4* env,
                   __global const float4* restrict colors, __global const int2* restrict bricks,
                   __global const int2* restrict cells, __global const int4* restrict lists,
-                  __global const int2* restrict entries,
-                  __global const float4* restrict entry_spheres, __global float4* out, int y0, int s0,
+                  __global const int2* restrict entries, __global float4* out, int y0, int s0,
                   int s1)
 {
     int x = get_global_id(0), y = y0 + get_global_id(1);
@@ -55,9 +53,6 @@ void render_glass(__constant Camera* cam, __constant GlassParams* gp,
         return;
     uint pixel = (uint)(y * cam->width + x);
     SdfScene sc = sdf_scene(gp, spheres, nodes, colors, bricks, cells, lists, entries);
-#if VR_GRID && VR_ENTRY_SPHERES
-    sc.entry_spheres = entry_spheres;
-#endif
 #if VR_TILED
     sc.tile = tile;
     sc.tile_idx = tile_idx;

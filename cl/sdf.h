@@ -29,17 +29,10 @@
 #define VR_RELAX_MARGIN 0.95f /* times the factor that just keeps the balls overlapping on a
                                  plane: 0.85 and 1.0 took 2-16% more evaluations (PoCL) */
 #endif
-#ifndef VR_ONE_PASS
-#define VR_ONE_PASS 1         /* VR_GRID: m and the blend sums in one walk of the list
-                                 (sdf_grid_sums); 0: two passes */
-#endif
-#ifndef VR_CELL_REUSE
-#define VR_CELL_REUSE 1       /* VR_GRID: sdf_march keeps the last listed cell's list while
-                                 the ray stays in that cell (no lookup); 0: look up each step */
-#endif
-#ifndef VR_ENTRY_SPHERES
-#define VR_ENTRY_SPHERES 0    /* VR_GRID: the lists' spheres copied in list order
-                                 (SdfScene.entry_spheres, glass.entry_spheres) */
+#ifndef VR_LIST_PREFETCH
+#define VR_LIST_PREFETCH 2    /* VR_GRID: a cell's list is walked with its loads issued
+                                 ahead (SDF_WALK_LIST): 0 none, 1 the next entry, 2 the next
+                                 entry's sphere and the entry after it */
 #endif
 #ifndef VR_STATS
 #define VR_STATS 0            /* count the field's work (diagnostics; glass.GlassSettings.stats) */
@@ -73,10 +66,6 @@ typedef struct {
     float nudge;                      /* step past a skipped cell's exit face */
     int3 dims, bdims;                 /* cells and bricks per axis */
     int max_skips;                    /* skips per ray segment */
-#if VR_ENTRY_SPHERES
-    __global const float4* entry_spheres;   /* spheres[entries[j].x] at j: read in list
-                                               order, without the gather */
-#endif
 #endif
 #if VR_STATS
     int3* stats;                      /* counters: evaluations, node tests (cell lookups with
@@ -95,11 +84,6 @@ typedef struct {
 
 #if VR_GRID
 #include "cells.h"
-#endif
-#if VR_GRID && VR_ENTRY_SPHERES
-#define SDF_LIST_SPHERE(sc, j, e) ((sc)->entry_spheres[j])
-#else
-#define SDF_LIST_SPHERE(sc, j, e) ((sc)->spheres[(e).x])
 #endif
 
 /* The field of a glass kernel's arguments (render_glass.cl, and the tests' probes: one
@@ -172,6 +156,59 @@ inline float sdf_node_bound(const SdfScene* sc, int node, float3 x)
 #define SDF_COUNT_SPHERE
 #endif
 
+/* Walk a cell's list (VR_GRID) by ascending key up to the first key >= stop (re-read each
+   step: pass 1's running m), running BODY with the sphere s4 and its index idx. The loads
+   are chained (an entry, then its sphere), so with VR_LIST_PREFETCH they are issued ahead:
+   the next entry (1), or the next entry's sphere and the entry after that (2), while this
+   sphere is tested. Reads ahead are clamped to the list's last entry. */
+#if VR_LIST_PREFETCH == 2
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    {                                                                         \
+        int j_ = (list).x, end_ = (list).x + (list).y;                        \
+        if (j_ < end_) {                                                      \
+            int2 e_ = (sc)->entries[j_];                                      \
+            int2 en_ = (sc)->entries[min(j_ + 1, end_ - 1)];                  \
+            float4 s4 = (sc)->spheres[e_.x];                                  \
+            for (;;) {                                                        \
+                if (as_float(e_.y) >= (stop))                                 \
+                    break;                                                    \
+                float4 sn_ = (sc)->spheres[en_.x];                            \
+                int2 enn_ = (sc)->entries[min(j_ + 2, end_ - 1)];             \
+                int idx = e_.x;                                               \
+                BODY                                                          \
+                if (++j_ >= end_)                                             \
+                    break;                                                    \
+                e_ = en_; en_ = enn_; s4 = sn_;                               \
+            }                                                                 \
+        }                                                                     \
+    }
+#elif VR_LIST_PREFETCH == 1
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    {                                                                         \
+        int j_ = (list).x, end_ = (list).x + (list).y;                        \
+        int2 e_ = j_ < end_ ? (sc)->entries[j_] : (int2)(0);                  \
+        for (; j_ < end_; ++j_) {                                             \
+            int2 en_ = (sc)->entries[min(j_ + 1, end_ - 1)];                  \
+            if (as_float(e_.y) >= (stop))                                     \
+                break;                                                        \
+            float4 s4 = (sc)->spheres[e_.x];                                  \
+            int idx = e_.x;                                                   \
+            BODY                                                              \
+            e_ = en_;                                                         \
+        }                                                                     \
+    }
+#else
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    for (int j_ = (list).x; j_ < (list).x + (list).y; ++j_) {                 \
+        int2 e_ = (sc)->entries[j_];                                          \
+        if (as_float(e_.y) >= (stop))                                         \
+            break;                                                            \
+        float4 s4 = (sc)->spheres[e_.x];                                      \
+        int idx = e_.x;                                                       \
+        BODY                                                                  \
+    }
+#endif
+
 /* Pass 1: the nearest sphere, m = min_i d_i (returned) and its index *arg (-1: none).
    The traversal visits the nearer child first and prunes against the running m; with
    VR_GRID it walks the cell's list by key up to the first key >= m (within the core). */
@@ -194,12 +231,7 @@ inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, 
     }
 #endif
 #if VR_GRID
-    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m */
-        int2 e = sc->entries[j];
-        if (as_float(e.y) >= m)
-            break;
-        SDF_NEAREST(SDF_LIST_SPHERE(sc, j, e), e.x)
-    }
+    SDF_WALK_LIST(sc, list, m, SDF_NEAREST(s4, idx))     /* by key: stop at key >= m */
 #elif VR_TREE
     int stack[VR_TREE_STACK];
     float sb[VR_TREE_STACK];
@@ -277,12 +309,7 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
 #endif
     {
 #if VR_GRID
-    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m + k */
-        int2 e = sc->entries[j];
-        if (as_float(e.y) >= thr)
-            break;
-        SDF_ACCUMULATE(SDF_LIST_SPHERE(sc, j, e), e.x)
-    }
+    SDF_WALK_LIST(sc, list, thr, SDF_ACCUMULATE(s4, idx))     /* stop at key >= m + k */
 #elif VR_TREE
     int stack[VR_TREE_STACK];
     int sp = 0;
@@ -313,78 +340,6 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
     SdfSums r = { s1, s2, g, col };
     return r;
 }
-
-#if VR_GRID && VR_ONE_PASS
-/* Passes 1 and 2 in one walk of a cell's list, up to the first key >= m + k for the
-   running minimum m: the sums take every sphere with d_i < m + k at its visit, with h
-   measured from the running m and rebased when m falls (h is linear in m: h' = h +
-   (m' - m) / k, so the sums of h, h^2, h n, h^2 c move by the sums of 1, h, n, c). A
-   sphere taken while m was larger may lie beyond the final m + k: then (*ok = 0, rare)
-   the caller runs pass 2. Else the sums are pass 2's over the same spheres, and the
-   list's prefix up to key >= m is tested once instead of twice. */
-typedef struct {
-    float m;
-    int arg;
-    int ok;
-    SdfSums u;
-} SdfOnePass;
-
-inline SdfOnePass sdf_grid_sums(const SdfScene* sc, float3 x, int4 list)
-{
-    float k = sc->k, inv_k = 1.0f / k;
-    float m = INFINITY, dmax = -INFINITY, n = 0.0f;
-    float s1 = 0.0f, s2 = 0.0f;
-    float3 g = (float3)(0.0f), gn = (float3)(0.0f);
-#if VR_COLORS
-    float3 c1 = (float3)(0.0f), c0 = (float3)(0.0f), col = (float3)(0.0f);
-#endif
-    int a = -1;
-    for (int j = list.x; j < list.x + list.y; ++j) {
-        int2 e = sc->entries[j];
-        if (as_float(e.y) >= m + k)
-            break;
-        float4 s4 = SDF_LIST_SPHERE(sc, j, e);
-        float d = sdf_sphere(s4, x);
-        SDF_COUNT_SPHERE
-        if (d < m) {
-            if (n > 0.0f) {                    /* rebase the sums on the new minimum */
-                float dl = (d - m) * inv_k;
-                s2 += dl * (2.0f * s1 + n * dl);
-                s1 += n * dl;
-                g += dl * gn;
-#if VR_COLORS
-                col += dl * (2.0f * c1 + dl * c0);
-                c1 += dl * c0;
-#endif
-            }
-            m = d;
-            a = e.x;
-        }
-        if (d < m + k) {
-            float h = 1.0f - (d - m) * inv_k;
-            float3 nn = sdf_sphere_normal(s4, x);
-            s1 += h; s2 += h * h; n += 1.0f;
-            g += h * nn; gn += nn;
-            dmax = fmax(dmax, d);
-#if VR_COLORS
-            float3 c = sc->colors[e.x].xyz;
-            col += (h * h) * c; c1 += h * c; c0 += c;
-#endif
-        }
-    }
-    SdfOnePass r;
-    r.m = m;
-    r.arg = a;
-    r.ok = dmax < m + k;
-#if VR_COLORS
-    SdfSums u = { s1, s2, g, col };
-#else
-    SdfSums u = { s1, s2, g, (float3)(0.0f) };
-#endif
-    r.u = u;
-    return r;
-}
-#endif
 
 /* Can x use the tile's list (inside the tile's frustum)? */
 #if VR_TILED
@@ -423,24 +378,11 @@ inline SdfSample sdf_eval_in(const SdfScene* sc, float3 x, int4 list)
     in_tile = in_tile && sc->tile_n < list.y;
 #endif
     float m;
-#if VR_GRID && VR_ONE_PASS
-    SdfOnePass one;
-    one.ok = 0;
-    if (!in_tile) {
-        one = sdf_grid_sums(sc, x, list);
-        m = one.m;
-        a = one.arg;
-    }
-#endif
     /* the list serves when every sphere off it (d_i > margin) is beyond m + k */
     if (in_tile)
         m = sdf_nearest(sc, x, 1, list, &a);
     int use_tile = in_tile && m + sc->k <= SDF_TILE_MARGIN(sc);
-#if VR_GRID && VR_ONE_PASS
-    if (!use_tile && in_tile)
-#else
     if (!use_tile)
-#endif
         m = sdf_nearest(sc, x, 0, list, &a);
     r.f = m;
     if (a < 0)
@@ -453,11 +395,7 @@ inline SdfSample sdf_eval_in(const SdfScene* sc, float3 x, int4 list)
     /* k -> 0, or k below m's precision: the plain union */
     if (!(sc->k > VR_BLEND_MIN) || !(m + sc->k > m))
         return r;
-#if VR_GRID && VR_ONE_PASS
-    SdfSums u = one.ok ? one.u : sdf_blend_sums(sc, x, m, use_tile, list);
-#else
     SdfSums u = sdf_blend_sums(sc, x, m, use_tile, list);
-#endif
     float s1 = u.s1, s2 = u.s2;
     float3 g = u.g, col = u.col;
     s2 = fmax(s2, 1.0f);                   /* the argmin's h = 1 is in the sums */
@@ -506,33 +444,12 @@ inline SdfSample sdf_eval(const SdfScene* sc, float3 x)
    set; 0 when the cell is skipped (*t moved past its exit, *skips counted). A cell of the
    other side means the surface lies behind: its bound sample (side * F < 0) is a hit. */
 #if VR_GRID
-typedef struct {
-    int4 q;        /* the last listed cell's integer coordinates (w 0; x -1: none) */
-    int4 list;     /* and its list */
-} SdfCellCache;
-
 inline int sdf_step_sample(const SdfScene* sc, float3 o, float3 d, float3 inv_d, float side,
-                           float* t, int* skips, SdfSample* s, float* bound, float* t_exit,
-                           SdfCellCache* cache)
+                           float* t, int* skips, SdfSample* s, float* bound, float* t_exit)
 {
-    float3 x = o + *t * d;
-#if VR_CELL_REUSE
-    /* still in the last listed cell (sdf_cell's own mapping, no loads): its list */
-    int3 q = convert_int3(clamp(floor((x - sc->grid_lo) * sc->inv_cell), (float3)(0.0f),
-                                convert_float3(sc->dims - 1)));
-    if (all(q == cache->q.xyz)) {
-        *s = sdf_eval_in(sc, x, cache->list);
-        return 1;
-    }
-#endif
-    SdfCell c = sdf_cell(sc, x);
+    SdfCell c = sdf_cell(sc, o + *t * d);
     if (c.code >= 0) {
-        int4 list = sc->lists[c.code];
-#if VR_CELL_REUSE
-        cache->q = (int4)(q, 0);
-        cache->list = list;
-#endif
-        *s = sdf_eval_in(sc, x, list);
+        *s = sdf_eval_in(sc, o + *t * d, sc->lists[c.code]);
         return 1;
     }
     if (!sdf_cell_skips(&c, side)) {
@@ -571,8 +488,6 @@ inline int sdf_march(const SdfScene* sc, float3 o, float3 d, float t0, float t1,
 #if VR_GRID
     float3 inv_d = 1.0f / d;
     int skips = 0;
-    SdfCellCache cache;
-    cache.q = (int4)(-1);
 #endif
     for (int i = 0; i < max_steps;) {
         int past = !(t <= t1);
@@ -580,7 +495,7 @@ inline int sdf_march(const SdfScene* sc, float3 o, float3 d, float t0, float t1,
 #if VR_GRID
         float bound = 0.0f, t_exit = t, t_next = t;
         int skip = !past && !sdf_step_sample(sc, o, d, inv_d, side, &t_next, &skips, &s,
-                                             &bound, &t_exit, &cache);
+                                             &bound, &t_exit);
 #else
         int skip = 0;
 #endif

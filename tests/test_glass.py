@@ -55,12 +55,12 @@ def test_field_matches_oracle(cl_device, rng, accel, k):
 
 
 @pytest.mark.parametrize("cell,k", [(0.1, 0.02), (0.3, 0.05), (0.6, 0.15)])
-def test_one_pass_field_with_cells_wider_than_the_blend(cl_device, rng, cell, k):
-    """The cells' one walk (cl/sdf.h sdf_grid_sums) takes spheres within the running
-    minimum + k and rebases their sums as the minimum falls; in cells wider than k a
-    sphere taken early often ends beyond the final m + k (far side of the cell), where the
-    walk must fall back to pass 2: field and gradient stay brute force's (skipping the
-    fallback was off by 0.03-0.24 here)."""
+def test_field_with_cells_wider_than_the_blend(cl_device, rng, cell, k):
+    """Cells wider than the blend k: a list's key (a sphere's distance bound over the
+    whole cell) then orders spheres far from the point's own order, so a walk that
+    stopped or weighted by key instead of by the point's distances would be off (a one-pass
+    walk that kept spheres taken before the minimum fell was off by 0.03-0.24 here). Field
+    and gradient stay brute force's."""
     cloud = generators.blob(300, seed=3)
     x = _samples(rng, cloud, 1000)
     s = glass.GlassSettings(blend=k, accel="grid", cell_skip=False, cell_size=cell)
@@ -261,37 +261,24 @@ def test_accelerations_give_the_brute_force_image(cl_device, leaf_size, bounces,
 
 
 @pytest.mark.parametrize("colors", [False, True])
-def test_entry_spheres_give_the_gathered_image(cl_device, monkeypatch, colors):
-    """The cells' spheres copied in list order (glass.entry_spheres, the GPU default) are
-    the spheres the entries point at, read in the same order: the image is the gathered
-    one bit for bit, per-point colours included."""
+def test_list_prefetch_gives_the_plain_walk_image(cl_device, monkeypatch, colors):
+    """Walking a cell's list with its loads issued ahead (VR_LIST_PREFETCH 1 and 2,
+    cl/sdf.h SDF_WALK_LIST) tests the same spheres in the same order as the plain walk:
+    the image is the plain walk's bit for bit, per-point colours included (cells smaller
+    than the spheres, so rays read many lists, some short)."""
     cloud = generators.blob(250, seed=5)
     if colors:
         rgb = np.random.default_rng(1).uniform(0, 1, (250, 3)).astype(np.float32)
         cloud = PointCloud(cloud.centers, cloud.radii, rgb)
-    s = glass.GlassSettings(blend=0.3, accel="grid", bounces=3)
-    lights = [Sun((-0.5, -1.0, -0.3), 3.0)]
-    images = []
-    for mode in ("0", "1"):
-        monkeypatch.setenv("VOLRENDER_ENTRY_SPHERES", mode)
-        images.append(_render(cl_device, cloud, s, lights=lights))
-    assert images[0][..., 3].mean() > 0.2
-    np.testing.assert_array_equal(images[0], images[1])
-
-
-def test_cell_reuse_gives_the_looked_up_image(cl_device, monkeypatch):
-    """A march that keeps its last cell's list while it stays in that cell (VR_CELL_REUSE,
-    cl/sdf.h) reads the list a lookup would: the image is the one with a lookup at every
-    step, bit for bit (cells smaller than the spheres, so rays cross many)."""
-    cloud = generators.blob(250, seed=5)
     s = glass.GlassSettings(blend=0.15, accel="grid", bounces=3, cell_size=0.03)
     lights = [Sun((-0.5, -1.0, -0.3), 3.0)]
     images = []
-    for reuse in ("0", "1"):
-        monkeypatch.setenv("VOLRENDER_CL_OPTIONS", f"-DVR_CELL_REUSE={reuse}")
+    for level in ("0", "1", "2"):
+        monkeypatch.setenv("VOLRENDER_CL_OPTIONS", f"-DVR_LIST_PREFETCH={level}")
         images.append(_render(cl_device, cloud, s, lights=lights))
     assert images[0][..., 3].mean() > 0.2
     np.testing.assert_array_equal(images[0], images[1])
+    np.testing.assert_array_equal(images[0], images[2])
 
 
 # ------------------------------------------------------------------ single sphere, optics

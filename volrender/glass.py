@@ -36,7 +36,6 @@ SPLIT_EVENTS_CPU = 1
 SPLIT_EVENTS_GPU = 64
 SPLIT_ALL = 64
 GLASS_MODELS = ("full", "fast")
-ENTRY_SPHERES_SHARE = 0.25    # of a GPU's memory, at most, for glass.entry_spheres
 
 
 @dataclass(frozen=True)
@@ -220,7 +219,6 @@ def plan(scene, device, variant=None, launch=None):
         params["eye_color"] = eye_color(packed, eye)
     colors = packed.colors if packed.colors is not None else np.zeros((1, 4), np.float32)
     spheres, grid_arrays = kernel_arrays(packed, params, device.context)
-    listed = entry_spheres(packed, device)
     info = RenderInfo(tree_ms=packed.tree_ms, accel=packed.accel, cells_ms=0.0,
                       model=describe_model(settings, device), note=packed.note or None)
     if packed.cells is not None:
@@ -228,50 +226,11 @@ def plan(scene, device, variant=None, launch=None):
     inputs = [("cam", scene.camera.pack(w2f, settings.spp, settings.seed)), ("gp", params),
               ("lights", lights_mod.pack(scene.lights, w2f)), ("spheres", spheres),
               ("nodes", packed.nodes), ("env", env), ("colors", colors),
-              *zip(("bricks", "cells", "lists", "entries"), grid_arrays),
-              ("entry_spheres", listed if listed is not None else np.zeros((1, 4), np.float32))]
+              *zip(("bricks", "cells", "lists", "entries"), grid_arrays)]
     W, H = scene.camera.width, scene.camera.height
     return Plan("render_glass", features, inputs, [("rgba", (H, W, 4))], dispatch,
                 PIXELS_PER_LAUNCH, info=info,
-                build_options=build_options(features, device) + stack_option(params)
-                + (("-DVR_ENTRY_SPHERES=1",) if listed is not None else ()))
-
-
-def entry_spheres(packed: PackedSpheres, device):
-    """The support cells' spheres copied in list order (float4 per entry, spheres[entry's
-    sphere]): the field reads them in sequence instead of gathering through the entries
-    (cl/sdf.h, VR_ENTRY_SPHERES). Built once per cells on the device that built them, on
-    GPUs, when they fit ENTRY_SPHERES_SHARE of its memory (else None: the gather);
-    $VOLRENDER_ENTRY_SPHERES=0 turns it off, =1 on for CPUs too (experiments, tests)."""
-    grid = packed.cells
-    mode = os.environ.get("VOLRENDER_ENTRY_SPHERES", "").strip()
-    if grid is None or not grid.walk_device or device is None or mode == "0":
-        return None
-    if not (is_gpu(device) or mode == "1"):
-        return None
-    if grid.runs_device.context.int_ptr != device.context.int_ptr:
-        return None
-    n = max(grid.n_entries, 1)
-    if 16 * n > ENTRY_SPHERES_SHARE * device.device.global_mem_size:
-        return None
-    cached = grid.__dict__.get("_entry_spheres")    # a derived array, kept with its cells
-    if cached is None:
-        import pyopencl as cl
-        import pyopencl.array as cla
-        from pyopencl.elementwise import ElementwiseKernel
-        ctx, q = device.context, grid.queue
-        gather = ElementwiseKernel(ctx, "__global float4* out, __global const float4* spheres, "
-                                   "__global const int2* entries", "out[i] = spheres[entries[i].x]",
-                                   "gather_entry_spheres")
-        out = cla.empty(q, n, cl.cltypes.float4)
-        balls = cla.to_device(q, np.ascontiguousarray(packed.spheres, np.float32)
-                              .view(cl.cltypes.float4).reshape(-1))
-        entries = cla.Array(q, n, cl.cltypes.int2, data=grid.walk_device[1])
-        gather(out, balls, entries)
-        q.finish()
-        cached = out.data
-        object.__setattr__(grid, "_entry_spheres", cached)
-    return cached
+                build_options=build_options(features, device) + stack_option(params))
 
 
 def stack_option(params) -> tuple:
