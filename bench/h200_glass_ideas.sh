@@ -5,9 +5,9 @@
 # cells' list walk with its loads issued ahead; 0 = the plain walk) the kernel times and
 # counters (and level 2 under the register caps CAPS, default 48; the glass kernel's is
 # 40), then the glass kernel's registers, stack frame and spills per level and model
-# (-cl-nv-verbose build logs, ptxas). Earlier ideas measured with this script (one walk
-# for m and the sums, the march keeping its cell's list, the lists' spheres in list order)
-# were slower and are gone (bench/results/glass_speed_gpu-nvidiah200-s43-x-*.json).
+# (-cl-nv-verbose build logs, ptxas; levels PTX_LEVELS, default 0 1 2). Earlier ideas
+# measured with this script (one walk for m and the sums, the march keeping its cell's
+# list, the lists' spheres in list order) were slower and are gone (bench/results/glass_speed_gpu-nvidiah200-s43-x-*.json).
 # Writes bench/results/glass_speed_gpu-nvidiah200-$TAG-p<level>.json. Test here:
 #   DEVICE=portable SIZE=32x18 REPEAT=1 CASES=3000 bash bench/h200_glass_ideas.sh
 set -euo pipefail
@@ -31,7 +31,7 @@ for cap in ${CAPS:-48}; do
 --label p2-cap$cap --out $R-p2-cap$cap.json")
 done
 if [ "$DEVICE" = nvidia ]; then
-    for lv in ${LEVELS//,/ }; do
+    for lv in ${PTX_LEVELS:-0 1 2}; do
         cmds+=("echo ptxas level $lv; VOLRENDER_CL_OPTIONS='-cl-nv-verbose -DVR_LIST_PREFETCH=$lv' $PY -c \"import logging, runpy, sys; \
 logging.basicConfig(level=logging.INFO); sys.argv = ['glass_speed', '--device', 'nvidia', \
 '--size', '64x36', '--repeat', '1', '--cases', '3000', '--bounces', '2', '--out', '/tmp/regs.json']; \
