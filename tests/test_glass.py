@@ -279,6 +279,10 @@ def test_list_prefetch_gives_the_plain_walk_image(cl_device, monkeypatch, colors
     assert images[0][..., 3].mean() > 0.2
     np.testing.assert_array_equal(images[0], images[1])
     np.testing.assert_array_equal(images[0], images[2])
+    # and the options do reach the kernel (the device's kernel cache keys them): a
+    # smaller relaxation margin moves hit points within the hit band
+    monkeypatch.setenv("VOLRENDER_CL_OPTIONS", "-DVR_RELAX_MARGIN=0.5f")
+    assert not np.array_equal(images[0], _render(cl_device, cloud, s, lights=lights))
 
 
 # ------------------------------------------------------------------ single sphere, optics
