@@ -1,6 +1,6 @@
 /* Denoising guides of molten glass (volrender/guides.py, docs/guide.md "Denoising"): per
-   pixel, averaged over the camera's spp jittered sub-pixel rays (guides.GUIDE_SPP: the
-   guides come out anti-aliased and noise-free, OIDN's clean_aux):
+   pixel, averaged over the camera's spp jittered sub-pixel rays (guides.SPP: the
+   guides come out noise-free, OIDN's clean_aux):
    - albedo: the first surface's tint, the glass colour (per-point colours blended as the
      field blends them, VR_COLORS) scaled to a brightest channel of 1; where the ray meets
      no glass, the environment it sees, clamped to [0, 1];

@@ -1,7 +1,9 @@
 """Denoising guides: albedo and normal images written by small kernels of their own
 (cl/guide_volume.cl, cl/guide_glass.cl) that read the render kernel's own arguments by
 name, so they follow the integrators without touching them. Each pixel averages
-denoise.GUIDE_SPP jittered sub-pixel rays (prefiltered: OIDN takes them as clean).
+SPP[kind] jittered sub-pixel rays (1: the pixel's centre, as a 1-spp render's), taken as
+clean by OIDN; a volume's march takes VOLUME_STEP x the render's step. Both measured
+against the denoised error (bench/guides_spp.py, docs/benchmarks.md "Denoiser guides").
 
     albedo  H x W x 3 in [0, 1]   volumes: (1 - T) albedo + T min(behind, 1);
                                   glass: the first surface's tint, else the environment
@@ -18,8 +20,14 @@ import dataclasses
 
 import numpy as np
 
-from .denoise import GUIDE_SPP
 from .dispatch import Dispatch, Plan, run_rows, upload
+
+# Rays a pixel. Volumes: 1 ray gave the same denoised error as 4 (smoke 320x240: relative
+# RMSE 0.340 % both, guides 1.22 -> 0.20 s on PoCL), and twice the render's step the same
+# again (0.13 s; 4 x: +4 %). Glass: 4 (the guides anti-alias the silhouette OIDN keeps).
+SPP = {"volume": 1, "glass": 4}
+VOLUME_STEP = 2.0             # the volume guide's march step, x the render's
+T_STOP = 1e-4                 # the volume guide stops marching below this transmittance
 
 ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
         "glass": ("cam", "gp", "spheres", "nodes", "env", "colors", "bricks", "cells", "lists",
@@ -27,13 +35,19 @@ ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
 UNTILED = ("tiled", "tile_w", "tile_h", "tile_cap")
 
 
-def plan(scene, main: Plan, spp: int = GUIDE_SPP) -> Plan:
+def plan(scene, main: Plan, spp: int | None = None, step: float = VOLUME_STEP,
+         t_stop: float = T_STOP) -> Plan:
     """The guide launch beside a render's Plan `main` (volume.plan or glass.plan of the
-    same scene): its arguments by name, the camera's samples set to `spp`, fragment
-    dispatch (no tile lists)."""
+    same scene): its arguments by name, the camera's samples set to `spp` (None:
+    SPP[kind]), fragment
+    dispatch (no tile lists); volumes march `step` x the render's step and stop where the
+    transmittance falls below `t_stop` (cl/guide_volume.cl)."""
+    options = tuple(main.build_options)
+    if scene.kind == "volume":
+        options += (f"-DVR_GUIDE_STEP={float(step)!r}f", f"-DVR_GUIDE_T_STOP={float(t_stop)!r}f")
     inputs = dict(main.inputs)
     cam = inputs["cam"].copy()
-    cam["spp"] = spp
+    cam["spp"] = SPP[scene.kind] if spp is None else spp
     inputs["cam"] = cam
     f = main.features
     plain = type(f)()
@@ -42,15 +56,16 @@ def plan(scene, main: Plan, spp: int = GUIDE_SPP) -> Plan:
     return Plan(f"guide_{scene.kind}", features, [(n, inputs[n]) for n in ARGS[scene.kind]],
                 [("albedo", (H, W, 4)), ("normal", (H, W, 4))],
                 Dispatch("fragment", main.dispatch.tile), main.band_pixels,
-                build_options=main.build_options)
+                build_options=options)
 
 
-def render_guides(scene, device, main: Plan, spp: int = GUIDE_SPP) -> dict:
+def render_guides(scene, device, main: Plan, spp: int | None = None,
+                  step: float = VOLUME_STEP, t_stop: float = T_STOP) -> dict:
     """{'albedo': H x W x 3, 'normal': H x W x 3} float32 of the scene (see the module
     docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
-    centre)."""
+    centre; None: SPP[kind]); `step` and `t_stop` as plan's."""
     import pyopencl as cl
-    p = plan(scene, main, spp)
+    p = plan(scene, main, spp, step, t_stop)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
     ctx = device.context
     args = [upload(ctx, a) if isinstance(a, np.ndarray) else a for _, a in p.inputs]
