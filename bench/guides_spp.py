@@ -8,7 +8,9 @@ and the guides' and OIDN's seconds. Issues 32 and 33: how light the guides can b
     python bench/guides_spp.py [--scene bunny|smoke|wdas] [--size 160x120]
         [--variants 4,2,1] [--device SPEC] [--tag TAG]
 
-A variant is SPP[/STEP[/T_STOP]][:QUALITY] (OIDN's, default high): 4, 1/2, 1/4/0.01:fast. Writes bench/results/guides_spp_<device>[-TAG].json.
+A variant is SPP[/STEP[/T_STOP]][+EDGE_SPP][:QUALITY]: rays a pixel, the volume march's step
+factor and stop, rays again on the glass guide's edge pixels (guides.edges), OIDN's quality
+(default high): 4, 1/2, 1/4/0.01:fast, 1+4. Writes bench/results/guides_spp_<device>[-TAG].json.
 """
 import argparse
 import json
@@ -30,26 +32,35 @@ SCENES = {"bunny": "points/bun_zipper.ply", "smoke": "vdb/smoke.vdb",
 
 def variant(text):
     text, _, quality = text.partition(":")
+    text, _, edge = text.partition("+")
     v = [float(x) for x in text.split("/")]
     spp, step, t_stop = (v + [1.0, 1e-4][len(v) - 1:])[:3]
-    return {"spp": int(spp), "step": step, "t_stop": t_stop, "quality": quality or "high"}
+    return {"spp": int(spp), "step": step, "t_stop": t_stop, "edge_spp": int(edge or 0),
+            "quality": quality or "high"}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="bunny", choices=list(SCENES))
     ap.add_argument("--size", default="160x120", help="WxH (default 160x120)")
-    ap.add_argument("--variants", default="4,2,1", help="comma-separated SPP[/STEP[/T_STOP]][:QUALITY]")
+    ap.add_argument("--variants", default="4,2,1", help="comma-separated SPP[/STEP[/T_STOP]][+EDGE_SPP][:QUALITY]")
     ap.add_argument("--seeds", type=int, default=3, help="noisy beauties (default 3)")
     ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
     ap.add_argument("--tag", default=None, help="added to the results' name")
+    ap.add_argument("--reference", default=None, metavar="NPZ",
+                    help="the 64-spp batches: read from NPZ when it exists, else written there")
     args = ap.parse_args(argv)
     dev = device.resolve(args.device)
     w, h = (int(v) for v in args.size.lower().split("x"))
     sc = scene_mod.load_scene(shared_data() / SCENES[args.scene], size=(w, h))
     t = time.perf_counter()
-    imgs = np.stack([render(sc.replace(spp=8, seed=40_000 + k), dev).rgba.astype(np.float64)
-                     for k in range(8)])
+    if args.reference and Path(args.reference).exists():
+        imgs = np.load(args.reference)["batches"]
+    else:
+        imgs = np.stack([render(sc.replace(spp=8, seed=40_000 + k), dev).rgba.astype(np.float64)
+                         for k in range(8)])
+        if args.reference:
+            np.savez_compressed(args.reference, batches=imgs)
     ref_s = time.perf_counter() - t
     ref, var = imgs.mean(0), imgs.var(0, ddof=1) / 8
     cov = ref[..., 3] > 0.05
@@ -70,15 +81,16 @@ def main(argv=None):
         row = {"seed": seed, "noisy": rel(img.rgba), "variants": []}
         for v in variants:
             if seed == 1:
-                guides.render_guides(sc, dev, plan, v["spp"], v["step"], v["t_stop"])
+                guides.render_guides(sc, dev, plan, v["spp"], v["step"], v["t_stop"], v["edge_spp"])
             t0 = time.perf_counter()
-            g = guides.render_guides(sc, dev, plan, v["spp"], v["step"], v["t_stop"])
+            g = guides.render_guides(sc, dev, plan, v["spp"], v["step"], v["t_stop"], v["edge_spp"])
             t1 = time.perf_counter()
             normal = g["normal"] if sc.kind == "glass" else None
             out = denoise.denoise(img.rgba, g["albedo"], normal, v["quality"])
             t2 = time.perf_counter()
             row["variants"].append({**v, "guides_s": t1 - t0, "denoise_s": t2 - t1,
-                                    "denoised": rel(out)})
+                                    "denoised": rel(out),
+                                    "edge_share": float(guides.edges(g["albedo"], g["normal"]).mean())})
         record["rows"].append(row)
         print(json.dumps(row), flush=True)
     summary = []

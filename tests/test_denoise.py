@@ -23,8 +23,9 @@ pyoidn = pytest.importorskip("pyoidn", reason="Open Image Denoise (the `denoise`
 SUN = (Sun((-0.6, -1.0, -0.5), 4.0),)
 
 
-def guide_images(scene, dev, spp=1):
-    return guides.render_guides(scene, dev, PLANNERS[scene.kind](scene, dev, None, None), spp)
+def guide_images(scene, dev, spp=1, edge_spp=0):
+    return guides.render_guides(scene, dev, PLANNERS[scene.kind](scene, dev, None, None), spp,
+                                edge_spp=edge_spp)
 
 
 def test_the_albedo_guide_of_a_uniform_medium_is_its_albedo(cl_device):
@@ -60,6 +61,54 @@ def test_the_normal_guide_of_a_glass_sphere_is_its_normal(cl_device):
     assert np.all(g["normal"][~hit] == 0)
     np.testing.assert_allclose(g["albedo"][inner], np.broadcast_to([1, 0.5, 0.25],
                                                                    g["albedo"][inner].shape), atol=1e-6)
+
+
+def test_the_glass_guide_takes_more_rays_exactly_on_its_edges(cl_device):
+    """The default glass guide (1 ray, EDGE_SPP on guides.edges' pixels): on the edge pixels
+    of the one-ray guide it is the EDGE_SPP-ray guide (the same jittered rays), elsewhere
+    the one-ray guide, bit for bit; the edges hold the silhouette and little else."""
+    r, c = 0.7, np.array([0.2, -0.1, 0.3])
+    cloud = PointCloud(c[None], np.array([r]))
+    cam = Camera((0.5, 0.8, 4.0), tuple(c), (0, 1, 0), 30.0, 32, 24)
+    s = glass.GlassSettings(blend=0.0, epsilon=1e-5, color=(1.0, 0.5, 0.25))
+    scene = Scene.of(cam, list(SUN), GlassContent(cloud, s))
+    main = PLANNERS["glass"](scene, cl_device, None, None)
+    assert guides.SPP["glass"] == 1 and guides.EDGE_SPP["glass"] == 4
+    one = guide_images(scene, cl_device, spp=1)
+    many = guide_images(scene, cl_device, spp=4)
+    got = guides.render_guides(scene, cl_device, main)
+    edge = guides.edges(one["albedo"], one["normal"])
+    hit = np.any(one["normal"] != 0, axis=-1)
+    rim = hit & ~np.all(np.pad(hit, 1)[1:-1, 1:-1][None] == np.stack(
+        [np.roll(hit, (dy, dx), (0, 1)) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]), axis=0)
+    assert rim.sum() > 20 and np.all(edge[rim]) and 0 < edge.mean() < 0.5
+    for k in ("albedo", "normal"):
+        np.testing.assert_array_equal(got[k][edge], many[k][edge])
+        np.testing.assert_array_equal(got[k][~edge], one[k][~edge])
+    assert np.abs(many["normal"][edge] - one["normal"][edge]).max() > 0.05
+
+
+def test_guide_edges_are_where_the_neighbourhood_changes(rng):
+    """guides.edges on a synthetic guide: a disc of +z normals on nothing (0) with a right
+    half tilted by 45 degrees and a strip of albedo 0.5 on 0.3: edges are the pixels with a
+    different neighbour in their 3 x 3 (the albedo counted between disc pixels only: what
+    is behind is smooth), and only those."""
+    h, w = 20, 24
+    y, x = np.mgrid[0:h, 0:w]
+    disc = (x - 11.5) ** 2 + (y - 9.5) ** 2 < 49
+    n = np.zeros((h, w, 3), np.float32)
+    n[disc] = (0, 0, 1)
+    n[disc & (x >= 12)] = (0, math.sqrt(0.5), math.sqrt(0.5))
+    a = np.full((h, w, 3), 0.3, np.float32)
+    a[:, 6:8] = 0.5
+    a[~disc] = rng.uniform(0, 1, (int((~disc).sum()), 3))      # the sky: not edges
+    label = np.where(disc, np.where(x >= 12, 2, 1) * 10 + ((x >= 6) & (x < 8)), 0)
+    pad = np.pad(label, 1, mode="edge")
+    want = np.zeros((h, w), bool)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            want |= pad[dy:dy + h, dx:dx + w] != label
+    np.testing.assert_array_equal(guides.edges(a, n), want)
 
 
 def test_the_normal_guide_of_a_gaussian_blob_is_radial_at_half_transmittance(cl_device):

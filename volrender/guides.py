@@ -25,7 +25,10 @@ from .dispatch import Dispatch, Plan, run_rows, upload
 # Rays a pixel. Volumes: 1 ray gave the same denoised error as 4 (smoke 320x240: relative
 # RMSE 0.340 % both, guides 1.22 -> 0.20 s on PoCL), and twice the render's step the same
 # again (0.13 s; 4 x: +4 %). Glass: 4 (the guides anti-alias the silhouette OIDN keeps).
-SPP = {"volume": 1, "glass": 4}
+SPP = {"volume": 1, "glass": 1}
+EDGE_SPP = {"glass": 4}       # rays a pixel again where the one-ray guide has an edge (edges)
+EDGE_COS = 0.9                # a normal turning by more than ~26 degrees to a neighbour's
+EDGE_ALBEDO = 0.1             # an albedo channel moving by more than this to a neighbour's
 VOLUME_STEP = 2.0             # the volume guide's march step, x the render's
 T_STOP = 1e-4                 # the volume guide stops marching below this transmittance
 
@@ -60,10 +63,13 @@ def plan(scene, main: Plan, spp: int | None = None, step: float = VOLUME_STEP,
 
 
 def render_guides(scene, device, main: Plan, spp: int | None = None,
-                  step: float = VOLUME_STEP, t_stop: float = T_STOP) -> dict:
+                  step: float = VOLUME_STEP, t_stop: float = T_STOP,
+                  edge_spp: int | None = None) -> dict:
     """{'albedo': H x W x 3, 'normal': H x W x 3} float32 of the scene (see the module
     docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
-    centre; None: SPP[kind]); `step` and `t_stop` as plan's."""
+    centre; None: SPP[kind]); `step` and `t_stop` as plan's. Glass: the pixels on an edge
+    of the first pass (edges()) are rendered again with `edge_spp` jittered rays (None:
+    EDGE_SPP; at most spp: not again)."""
     import pyopencl as cl
     p = plan(scene, main, spp, step, t_stop)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
@@ -73,9 +79,52 @@ def render_guides(scene, device, main: Plan, spp: int | None = None,
             for name, shape in p.outputs}
     run_rows(device, kernel, args + list(outs.values()), scene.camera.width,
              scene.camera.height, p.band_pixels, False, dispatch=p.dispatch, spp=p.spp)
+    host = _read(device, outs, p.outputs)
+    edge_spp = EDGE_SPP.get(scene.kind, 0) if edge_spp is None else edge_spp
+    if scene.kind == "glass" and edge_spp > p.spp:
+        pixels = np.flatnonzero(edges(host["albedo"], host["normal"])).astype(np.int32)
+        if len(pixels):
+            cam = dict(p.inputs)["cam"].copy()
+            cam["spp"] = edge_spp
+            args[0] = upload(ctx, cam)
+            listed = device.kernel(p.entry, p.features.flags(), name=f"{p.entry}_list",
+                                   options=p.build_options)
+            listed(device.queue, (len(pixels),), None, *args, *outs.values(),
+                   upload(ctx, pixels), np.int32(len(pixels)))
+            host = _read(device, outs, p.outputs)
+    return {name: np.ascontiguousarray(v[..., :3]) for name, v in host.items()}
+
+
+def _read(device, outs, shapes) -> dict:
+    import pyopencl as cl
     host = {}
-    for name, shape in p.outputs:
+    for name, shape in shapes:
         host[name] = np.empty(shape, np.float32)
         cl.enqueue_copy(device.queue, host[name], outs[name])
     device.queue.finish()
-    return {name: np.ascontiguousarray(v[..., :3]) for name, v in host.items()}
+    return host
+
+
+def edges(albedo, normal) -> np.ndarray:
+    """H x W bool: the pixels of a one-ray guide whose 3 x 3 neighbourhood changes, where
+    more rays a pixel would blend what they see: a surface against nothing (normal 0), and
+    between surface pixels a normal turning by over EDGE_COS or an albedo channel moving by
+    over EDGE_ALBEDO (the environment behind, smooth, is left to the one ray)."""
+    n = normal[..., :3]
+    a = albedo[..., :3]
+    hit = np.any(n != 0, axis=-1)
+    H, W = hit.shape
+    out = np.zeros((H, W), bool)
+    pad = lambda v: np.pad(v, [(1, 1), (1, 1)] + [(0, 0)] * (v.ndim - 2), mode="edge")  # noqa: E731
+    hp, np_, ap = pad(hit), pad(n), pad(a)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy == dx == 1:
+                continue
+            h2 = hp[dy:dy + H, dx:dx + W]
+            n2 = np_[dy:dy + H, dx:dx + W]
+            a2 = ap[dy:dy + H, dx:dx + W]
+            out |= h2 != hit
+            out |= hit & h2 & ((np.einsum("hwc,hwc->hw", n, n2) < EDGE_COS)
+                               | (np.abs(a2 - a).max(axis=-1) > EDGE_ALBEDO))
+    return out
