@@ -64,7 +64,7 @@ def test_the_normal_guide_of_a_glass_sphere_is_its_normal(cl_device):
 
 
 def test_the_glass_guide_takes_more_rays_exactly_on_its_edges(cl_device):
-    """The default glass guide (1 ray, EDGE_SPP on guides.edges' pixels): on the edge pixels
+    """The CPUs' glass guide (1 ray, EDGE_SPP on guides.edges' pixels): on the edge pixels
     of the one-ray guide it is the EDGE_SPP-ray guide (the same jittered rays), elsewhere
     the one-ray guide, bit for bit; the edges hold the silhouette and little else."""
     r, c = 0.7, np.array([0.2, -0.1, 0.3])
@@ -76,7 +76,7 @@ def test_the_glass_guide_takes_more_rays_exactly_on_its_edges(cl_device):
     assert guides.SPP["glass"] == 1 and guides.EDGE_SPP["glass"] == 4
     one = guide_images(scene, cl_device, spp=1)
     many = guide_images(scene, cl_device, spp=4)
-    got = guides.render_guides(scene, cl_device, main)
+    got = guides.render_guides(scene, cl_device, main, 1, edge_spp=4)
     edge = guides.edges(one["albedo"], one["normal"])
     hit = np.any(one["normal"] != 0, axis=-1)
     rim = hit & ~np.all(np.pad(hit, 1)[1:-1, 1:-1][None] == np.stack(

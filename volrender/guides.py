@@ -2,8 +2,9 @@
 (cl/guide_volume.cl, cl/guide_glass.cl) that read the render kernel's own arguments by
 name, so they follow the integrators without touching them. Each pixel averages
 SPP[kind] jittered sub-pixel rays (1: the pixel's centre, as a 1-spp render's), taken as
-clean by OIDN; a volume's march takes VOLUME_STEP x the render's step. Both measured
-against the denoised error (bench/guides_spp.py, docs/benchmarks.md "Denoiser guides").
+clean by OIDN; glass on a CPU takes EDGE_SPP rays again on the one-ray guide's edges; a
+volume's march takes VOLUME_STEP x the render's step. All measured against the denoised
+error (bench/guides_spp.py, docs/benchmarks.md "Denoiser guides").
 
     albedo  H x W x 3 in [0, 1]   volumes: (1 - T) albedo + T min(behind, 1);
                                   glass: the first surface's tint, else the environment
@@ -20,13 +21,16 @@ import dataclasses
 
 import numpy as np
 
-from .dispatch import Dispatch, Plan, run_rows, upload
+from .dispatch import Dispatch, Plan, is_gpu, run_rows, upload
 
 # Rays a pixel. Volumes: 1 ray gave the same denoised error as 4 (smoke 320x240: relative
 # RMSE 0.340 % both, guides 1.22 -> 0.20 s on PoCL), and twice the render's step the same
-# again (0.13 s; 4 x: +4 %). Glass: 4 (the guides anti-alias the silhouette OIDN keeps).
+# again (0.13 s; 4 x: +4 %). Glass on CPUs: 1 ray, then EDGE_SPP where it has an edge
+# (edges; the guides anti-alias the silhouette OIDN keeps); on GPUs, where 4 rays cost a
+# few ms and edges' host pass more, GPU_GLASS_SPP everywhere.
 SPP = {"volume": 1, "glass": 1}
 EDGE_SPP = {"glass": 4}       # rays a pixel again where the one-ray guide has an edge (edges)
+GPU_GLASS_SPP = 4
 EDGE_COS = 0.9                # a normal turning by more than ~26 degrees to a neighbour's
 EDGE_ALBEDO = 0.1             # an albedo channel moving by more than this to a neighbour's
 VOLUME_STEP = 2.0             # the volume guide's march step, x the render's
@@ -67,10 +71,12 @@ def render_guides(scene, device, main: Plan, spp: int | None = None,
                   edge_spp: int | None = None) -> dict:
     """{'albedo': H x W x 3, 'normal': H x W x 3} float32 of the scene (see the module
     docstring), rendered on `device` beside the Plan `main`, `spp` rays a pixel (1: its
-    centre; None: SPP[kind]); `step` and `t_stop` as plan's. Glass: the pixels on an edge
-    of the first pass (edges()) are rendered again with `edge_spp` jittered rays (None:
-    EDGE_SPP; at most spp: not again)."""
+    centre; None: SPP[kind], for glass on a GPU GPU_GLASS_SPP); `step` and `t_stop` as
+    plan's. Glass: the pixels on an edge of the first pass (edges()) are rendered again
+    with `edge_spp` jittered rays (None: EDGE_SPP; at most spp: not again)."""
     import pyopencl as cl
+    if scene.kind == "glass" and spp is None and is_gpu(device):
+        spp, edge_spp = GPU_GLASS_SPP, 0
     p = plan(scene, main, spp, step, t_stop)
     kernel = device.kernel(p.entry, p.features.flags(), options=p.build_options)
     ctx = device.context
@@ -109,22 +115,21 @@ def edges(albedo, normal) -> np.ndarray:
     """H x W bool: the pixels of a one-ray guide whose 3 x 3 neighbourhood changes, where
     more rays a pixel would blend what they see: a surface against nothing (normal 0), and
     between surface pixels a normal turning by over EDGE_COS or an albedo channel moving by
-    over EDGE_ALBEDO (the environment behind, smooth, is left to the one ray)."""
-    n = normal[..., :3]
-    a = albedo[..., :3]
-    hit = np.any(n != 0, axis=-1)
+    over EDGE_ALBEDO (the environment behind, smooth, is left to the one ray). Each of the
+    four neighbour directions is compared once and marks both pixels of a pair."""
+    n = np.moveaxis(np.asarray(normal[..., :3], np.float32), -1, 0)     # 3 x H x W planes
+    a = np.moveaxis(np.asarray(albedo[..., :3], np.float32), -1, 0)
+    hit = (n[0] != 0) | (n[1] != 0) | (n[2] != 0)
     H, W = hit.shape
     out = np.zeros((H, W), bool)
-    pad = lambda v: np.pad(v, [(1, 1), (1, 1)] + [(0, 0)] * (v.ndim - 2), mode="edge")  # noqa: E731
-    hp, np_, ap = pad(hit), pad(n), pad(a)
-    for dy in (0, 1, 2):
-        for dx in (0, 1, 2):
-            if dy == dx == 1:
-                continue
-            h2 = hp[dy:dy + H, dx:dx + W]
-            n2 = np_[dy:dy + H, dx:dx + W]
-            a2 = ap[dy:dy + H, dx:dx + W]
-            out |= h2 != hit
-            out |= hit & h2 & ((np.einsum("hwc,hwc->hw", n, n2) < EDGE_COS)
-                               | (np.abs(a2 - a).max(axis=-1) > EDGE_ALBEDO))
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        p = (slice(0, H - dy), slice(max(0, -dx), W - max(0, dx)))         # a pixel
+        q = (slice(dy, H), slice(max(0, dx), W - max(0, -dx)))             # its neighbour
+        both = hit[p] & hit[q]
+        turn = n[0][p] * n[0][q] + n[1][p] * n[1][q] + n[2][p] * n[2][q] < EDGE_COS
+        tint = ((np.abs(a[0][p] - a[0][q]) > EDGE_ALBEDO) | (np.abs(a[1][p] - a[1][q]) > EDGE_ALBEDO)
+                | (np.abs(a[2][p] - a[2][q]) > EDGE_ALBEDO))
+        pair = (hit[p] != hit[q]) | (both & (turn | tint))
+        out[p] |= pair
+        out[q] |= pair
     return out
