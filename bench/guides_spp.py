@@ -43,7 +43,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="bunny", choices=list(SCENES))
     ap.add_argument("--size", default="160x120", help="WxH (default 160x120)")
-    ap.add_argument("--variants", default="4,2,1", help="comma-separated SPP[/STEP[/T_STOP]][+EDGE_SPP][:QUALITY]")
+    ap.add_argument("--variants", default="4,2,1",
+                    help="comma-separated SPP[/STEP[/T_STOP]][+EDGE_SPP][:QUALITY]")
     ap.add_argument("--seeds", type=int, default=3, help="noisy beauties (default 3)")
     ap.add_argument("--device", default=None, help="OpenCL device (default: PoCL)")
     ap.add_argument("--tag", default=None, help="added to the results' name")
@@ -90,14 +91,16 @@ def main(argv=None):
             t2 = time.perf_counter()
             row["variants"].append({**v, "guides_s": t1 - t0, "denoise_s": t2 - t1,
                                     "denoised": rel(out),
-                                    "edge_share": float(guides.edges(g["albedo"], g["normal"]).mean())})
+                                    "edge_share": float(guides.edges(g["albedo"],
+                                                                     g["normal"]).mean())})
         record["rows"].append(row)
         print(json.dumps(row), flush=True)
     summary = []
     for i, v in enumerate(variants):
         e = [r["variants"][i]["denoised"] for r in record["rows"]]
         s = [r["variants"][i]["guides_s"] for r in record["rows"]]
-        summary.append({**v, "denoised_mean": float(np.mean(e)), "guides_s_median": float(np.median(s))})
+        summary.append({**v, "denoised_mean": float(np.mean(e)),
+                        "guides_s_median": float(np.median(s))})
         print(f"{v}: denoised {np.mean(e):.4f}  guides {np.median(s):.3f} s")
     record["summary"] = summary
     record["load_end"] = os.getloadavg()[0]

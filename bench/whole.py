@@ -101,7 +101,8 @@ def main(argv=None):
             if best[3]:
                 row["parts_s"] = best[3]
             rows.append(row)
-            print(f"{case:26s} {c:6s} {v:10s} wall {row['wall_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  "
+            print(f"{case:26s} {c:6s} {v:10s} wall {row['wall_s']:6.2f} s  "
+                  f"cpu {row['cpu_s']:6.2f} s  "
                   f"{row['status'][:90]}", flush=True)
     path = write_json(result_path("whole", dev, args.tag), {"benchmark": "whole", **device_info(dev),
                                                              "repeat": args.repeat, "codes": codes,

@@ -13,8 +13,9 @@ banner and docs/DESIGN.md; tests/reference.py's `oracle` is the same constructio
 The build runs on the render device (cl/build_cells.cl), walking the partition tree
 (volrender/tree.py) for boxes of up to 16 bricks, then classifying the octants of the boxes
 left unclassified from their parent's list, down to cells; each level's lists are counted,
-prefix-summed here (numpy on CPUs, pyopencl scans on GPUs) and written by a second pass. tests/reference.py's `host_lists` is the
-numpy alternative (vectorised tree queries; x10 slower per cell, measured in docs/DESIGN.md).
+prefix-summed here (numpy on CPUs, pyopencl scans on GPUs) and written by a second pass.
+tests/reference.py's `host_lists` is the numpy alternative (vectorised tree queries; x10
+slower per cell, measured in docs/DESIGN.md).
 
 Long file: one idea, the device builder (_Builder's named steps) with the Cells record and
 the edge heuristics that size it; the numpy oracles live in tests/reference.py.

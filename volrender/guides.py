@@ -127,8 +127,9 @@ def edges(albedo, normal) -> np.ndarray:
         q = (slice(dy, H), slice(max(0, dx), W - max(0, -dx)))             # its neighbour
         both = hit[p] & hit[q]
         turn = n[0][p] * n[0][q] + n[1][p] * n[1][q] + n[2][p] * n[2][q] < EDGE_COS
-        tint = ((np.abs(a[0][p] - a[0][q]) > EDGE_ALBEDO) | (np.abs(a[1][p] - a[1][q]) > EDGE_ALBEDO)
-                | (np.abs(a[2][p] - a[2][q]) > EDGE_ALBEDO))
+        tint = np.abs(a[0][p] - a[0][q]) > EDGE_ALBEDO
+        tint |= np.abs(a[1][p] - a[1][q]) > EDGE_ALBEDO
+        tint |= np.abs(a[2][p] - a[2][q]) > EDGE_ALBEDO
         pair = (hit[p] != hit[q]) | (both & (turn | tint))
         out[p] |= pair
         out[q] |= pair
