@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from volrender import scene as scene_mod, volume
+from volrender import light_cache, scene as scene_mod, volume
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Scene, VolumeContent
@@ -206,9 +206,10 @@ class _FakeGPU:
 
 def test_auto_weighs_error_per_second(monkeypatch):
     """auto's model (volume.auto_model): thin smoke gets single scattering everywhere; a
-    dense bright cloud gets the march's octave bands on a CPU at 640x480 (the path
-    estimator would be noisier in the time budget) but the path estimator on a GPU and on a
-    small image, at the samples that reach AUTO_TARGET; the note gives the prediction."""
+    dense bright cloud gets the march (the cache's orders) on a CPU at 640x480 (the path
+    estimator would be noisier in the time budget) and on a GPU that bakes it 1-voxel
+    nodes, but the path estimator on a GPU that cannot and on a small image, at the samples
+    that reach AUTO_TARGET; the note gives the prediction."""
     thin, dense = uniform_ball(0.05), uniform_ball(20.0)
     big = 640 * 480
     for dev in (None, _FakeGPU()):
@@ -220,12 +221,24 @@ def test_auto_weighs_error_per_second(monkeypatch):
     m = volume.auto_model(dense, VolumeSettings(), big)
     assert m["march_orders"]          # the light cache's orders at 640x480 (AUTO_ORDERS_PIXELS)
     assert m["path_error"] >= m["march_error"] and m["path_ms"] <= volume.AUTO_BUDGET_MS
+    # a GPU bakes 1-voxel nodes for a medium this dense (typical optical depth above
+    # light_cache.MS_DENSE_TAU): the march's predicted error x AUTO_FINE_ERROR, below the
+    # path estimator's within its budget
+    fine = volume.auto_model(dense, VolumeSettings(), big, gpu=True)
+    assert fine["fine_bake_ms"] is not None and fine["tau"] > light_cache.MS_DENSE_TAU
+    assert fine["march_error"] == pytest.approx(volume.AUTO_FINE_ERROR * m["march_error"])
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
-    # the path estimator aims at AUTO_TARGET, or half the march's predicted error where
+    assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
+    assert "1-voxel nodes" in note
+    # where that bake is not affordable the path estimator: it aims at AUTO_TARGET, or half
+    # the march's predicted error where
     # lower (not below AUTO_TARGET / 2)
     aim = max(volume.AUTO_TARGET / 2, min(volume.AUTO_TARGET, volume.AUTO_PATH_GAIN * m["march_error"]))
     assert aim == volume.path_aim(m["march_error"]) < volume.AUTO_TARGET
     want = math.ceil((volume.AUTO_PATH_NOISE / aim) ** 2)
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.0)
+    assert volume.auto_model(dense, VolumeSettings(), big, gpu=True)["fine_bake_ms"] is None
+    s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
     assert (s.estimator, s.spp) == ("path", want), note
     assert note.startswith(f"estimator auto: path, {want} spp: predicted error "
                            f"{volume.AUTO_PATH_NOISE / math.sqrt(want):.0%}") and "GPU" in note

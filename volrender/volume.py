@@ -56,6 +56,10 @@ AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
 # ... from this many pixels (auto runs before the camera exists, so before the cache's
 # cost model: at 640x480 it bakes for the four files, at 160x120 for 0190 alone)
 AUTO_ORDERS_PIXELS = 320 * 240
+# ... times this where a GPU bakes 1-voxel nodes for a dense medium (light_cache.gpu_fine_ms):
+# WDAS on the H200 at 1080p, 7.1 % (1-voxel nodes, 6 orders) against 22.7 % (4-voxel, 3),
+# the one dense file measured (docs/error_time.md)
+AUTO_FINE_ERROR = 0.31
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -197,14 +201,15 @@ class VolumeSettings(CommonSettings):
                                         check=lambda v: None if v in (None, 1, 2, 4, 8)
                                         else "must be 1, 2, 4 or 8", toml=("volume",
                                         "light_cache_cell"), kind=int, show_default=False)
-    ms_orders: int = knob(3, "march with the light cache and multiple scattering: scattering "
-                          "orders 2 to N+1 propagated over the cache's nodes from the baked "
-                          "light (the rest as a geometric tail; volrender/light_cache.py) "
-                          "instead of the octave bands; 0: the octave bands",
-                          check=lambda v: None if isinstance(v, int) and not isinstance(v, bool)
-                          and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
+    ms_orders: int | None = knob(None, "march with the light cache and multiple scattering: "
+                          "scattering orders 2 to N+1 propagated over the cache's nodes from "
+                          "the baked light (the rest as a geometric tail; "
+                          "volrender/light_cache.py) instead of the octave bands; 0: the octave "
+                          "bands; default: 3, or 6 on 1-voxel nodes in a dense medium",
+                          check=lambda v: None if v is None or isinstance(v, int) and not
+                          isinstance(v, bool) and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
                           "2 to 16 (one order's tail, from the phase-weighted first, overshoots)",
-                          toml=("volume", "ms_orders"))
+                          toml=("volume", "ms_orders"), kind=int, show_default=False)
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
@@ -334,8 +339,9 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
     n = -ln(1 - a):
     * the march's error (relative RMSE on covered pixels): with the light cache's
-      scattering orders (--ms-orders > 0, --light-cache on, or auto from
-      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      scattering orders (--ms-orders not 0, --light-cache on, or auto from
+      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)), x AUTO_FINE_ERROR
+      where a GPU bakes 1-voxel nodes (light_cache.gpu_fine_ms); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
       e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
@@ -344,11 +350,17 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
-    orders = settings.ms_orders > 0 and settings.light_cache != "off" and \
+    orders = settings.ms_orders != 0 and settings.light_cache != "off" and \
         (pixels >= AUTO_ORDERS_PIXELS or settings.light_cache == "on")
+    fine = None
     if orders:
         c0, c1, c2 = AUTO_ORDERS_ERROR
         march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
+        if gpu and settings.light_cache_cell is None:
+            from .light_cache import gpu_fine_ms
+            fine = gpu_fine_ms(int(bricks.n_slots), o["tau"], settings.ms_orders)
+            if fine is not None:
+                march_error *= AUTO_FINE_ERROR
     else:
         c0, c1, c2 = AUTO_MARCH_ERROR
         march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
@@ -360,7 +372,7 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
-    return {**o, "march_error": march_error, "march_orders": orders,
+    return {**o, "march_error": march_error, "march_orders": orders, "fine_bake_ms": fine,
             "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
@@ -398,6 +410,9 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     gain = octave_gain(settings, m["tau"])
     how = ("the light cache's scattering orders where baked, else "
            if m["march_orders"] else "")
+    if m["fine_bake_ms"] is not None:
+        how = (f"the light cache's scattering orders on 1-voxel nodes (a dense medium on a "
+               f"GPU: bake ~{m['fine_bake_ms']:.0f} ms) where baked, else ")
     march = (f"march with {how}{AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted "
              f"error {m['march_error']:.0%}")
     fields = VolumeSettings.__dataclass_fields__
@@ -617,22 +632,24 @@ def ms_cache_fields(settings, choice) -> dict:
     return {"ms_octaves": 1, "ms_cache": True} if choice.ms_orders else {}
 
 
-def light_cache_choice(scene):
-    """light_cache.Choice for a resolved volume scene (its cost model; cell 0: none)."""
+def light_cache_choice(scene, device=None):
+    """light_cache.Choice for a resolved volume scene on `device` (None: a CPU; its cost
+    model; cell 0: none)."""
     from . import light_cache
     n_suns, n_points = counts(scene.lights)
     bricks, settings = scene.content.bricks, scene.content.settings
     return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
                               env_mode(scene.environment) > 0,
                               tau=optical_size(bricks, settings)["tau"],
-                              ms_orders=settings.ms_orders if settings.octaves > 1 else 0)
+                              ms_orders=settings.ms_orders if settings.octaves > 1 else 0,
+                              gpu=device is not None and is_gpu(device))
 
 
 def light_cache_of(scene, device, features, params, inputs):
     """(light_cache.LightCache or None, info): the scene's cache on `device`, baked on
     first use (light_cache.get), and what Image.info records of it."""
     from . import light_cache
-    choice = light_cache_choice(scene)
+    choice = light_cache_choice(scene, device)
     if not choice.cell:
         return None, {"light_cache": choice.note()}
     named = dict(inputs)
