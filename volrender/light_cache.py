@@ -215,7 +215,6 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     fine_ms = gpu_fine_ms(slots, tau, ms_orders) if gpu and ms_orders != 0 else None
     orders = 0 if ms_orders == 0 else orders_for(4, tau, ms_orders)   # at the cost model's cells
     channels = n_lights + (ENV_CH if env else 0) + (MS_CH if orders else 0)
-    per_node = n_lights + (ENV_DIRS if env else 0) + 2 * ENV_DIRS * orders
     per_sample = n_lights + (1 if env else 0)
 
     def off(why):
@@ -230,9 +229,19 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     samples = camera_samples(bricks, camera, step, settings.spp) * min(1.0, T_CUT_TAU / max(tau, 1e-30))
     chord = (slots * layout.BRICK ** 3) ** (1.0 / 3.0) / settings.shadow_step
 
+    ms_cells = MS_STEP_CELLS[tau > MS_DENSE_TAU]
+
     def cost(c):
+        # the sky's and the gathers' marches step ENV_STEP_CELLS and ms_cells node
+        # spacings (at least the shadow step), not the shadow step: their samples scale by
+        # that ratio (WDAS on PoCL, 2- and 1-voxel bakes against 4: x7 and x39 of CPU
+        # measured, x9.3 and x54 counted so, x4.6 and x27 counted at the shadow step)
+        def thin(cells):
+            return settings.shadow_step / max(settings.shadow_step, cells * c)
+        per = n_lights + (ENV_DIRS * thin(ENV_STEP_CELLS) if env else 0) \
+            + 2 * ENV_DIRS * orders * thin(ms_cells)
         near = samples * n_lights * min(chord, NEAR_CELLS * c / settings.shadow_step)
-        return slots * nodes_per_brick(c) * per_node * chord + near
+        return slots * nodes_per_brick(c) * per * chord + near
     exact = samples * per_sample * chord
     fits = [c for c in (8, *CELLS) if slots * nodes_per_brick(c) * channels * 4 <= MAX_BYTES]
     if cell or settings.light_cache_cell:
