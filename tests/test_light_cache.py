@@ -56,9 +56,9 @@ def tau_towards_sun(bricks, local, sigma, sun=SUN, ds=0.1):
     return sigma * tau * ds * world_per_voxel
 
 
-def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400):
+def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400, near=light_cache.NEAR_CELLS):
     """Relative RMS error of the sun's transmittance as the marcher reads it
-    (light_cache.h vr_cached_tau: exact over the first NEAR_CELLS node spacings, then
+    (light_cache.h vr_cached_tau: exact over the first `near` node spacings, then
     trilinear between nodes `cell` voxels apart, exact again where that point is in no
     occupied brick), at random points of the occupied bricks where the density is
     positive."""
@@ -67,7 +67,7 @@ def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400):
     pts = pts[bricks.sample_local(pts) > 0][:n]
     w2l = np.linalg.inv(bricks.local_to_world)[:3, :3]
     dl = w2l @ -np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
-    far = pts + light_cache.NEAR_CELLS * cell * bricks.voxel_size * dl
+    far = pts + near * cell * bricks.voxel_size * dl
     tau_p = tau_towards_sun(bricks, pts, sigma, sun)
     tau_q = tau_towards_sun(bricks, far, sigma, sun)
     q = far / cell                                   # nodes: local multiples of cell
@@ -120,7 +120,10 @@ def render_pair(dev, values, cell, size=32, spp=16):
 def test_cached_sun_matches_the_exact_march(cl_device, rng, name, values, cell):
     v = values()
     bricks, m, (ref, img) = render_pair(cl_device, v, cell)
-    eps = predicted_error(bricks, cell, SIGMA, rng)
+    # the exact near part where the medium is dense across a node spacing (near_cells)
+    sigma_voxel = volume.optical_size(bricks, VolumeSettings(density_scale=SIGMA))["sigma_voxel"]
+    near = light_cache.near_cells(cell, sigma_voxel)
+    eps = predicted_error(bricks, cell, SIGMA, rng, near=near)
     mean, rel, se = compare(ref, img)
     # eps is per point; an image averages points along each ray, so it bounds both
     assert abs(mean) <= eps + Z * se, (name, cell, mean, eps, se)
@@ -292,3 +295,23 @@ def test_cached_sky_through_a_thick_slab(cl_device, below):
     mean, rel, se = compare(ref, img)
     assert abs(mean) <= 0.15 + Z * se, (below, mean, se)
     assert rel <= 0.25, (below, rel)
+
+
+def test_thin_media_read_their_shadows_from_the_nodes_alone():
+    """The exact near part (NEAR_CELLS node spacings) only where the medium's typical
+    optical depth across a spacing is above NEAR_TAU (WDAS, 1.7 a voxel, keeps it; smoke,
+    dragon, 0190, 0.07-0.09 a voxel, drop it at 1-4 voxel spacings: docs/error_time.md);
+    the cost model counts the near part it keeps."""
+    b = lumpy_ball(24)
+    st = VolumeSettings(estimator="march", ms_octaves=1, light_cache="on", light_cache_cell=4)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=32)
+
+    def pick(sigma_voxel):
+        return light_cache.choose(b, st, cam, 1, False, sigma_voxel=sigma_voxel)
+    thin, dense, unknown = pick(0.08), pick(1.7), pick(None)
+    assert (thin.near_cells, dense.near_cells, unknown.near_cells) == (0.0, 2.0, 2.0)
+    edge = light_cache.NEAR_TAU / 4
+    assert pick(0.99 * edge).near_cells == 0.0 and pick(1.01 * edge).near_cells == 2.0
+    assert light_cache.near_length(b, thin) == 0.0
+    assert light_cache.near_length(b, dense) == pytest.approx(8 * float(b.voxel_size))
+    assert thin.cost < dense.cost

@@ -308,8 +308,9 @@ _NONZERO = {}        # id(bricks) -> (id(data), count, mean) of the non-zero vox
 
 def optical_size(bricks, settings: VolumeSettings) -> dict:
     """A typical optical depth of the medium: the mean sigma_t over its non-zero voxels
-    (largest channel) times the edge of a cube of their volume (world units), and the
-    chance that a photon scattered inside scatters again, albedo (1 - exp(-tau))."""
+    (largest channel) times the edge of a cube of their volume (world units), the chance
+    that a photon scattered inside scatters again, albedo (1 - exp(-tau)), and that mean
+    sigma_t times a voxel (sigma_voxel: the optical depth across one)."""
     key = id(bricks.data)
     if _NONZERO.get(id(bricks), (None,))[0] != key:
         own = np.asarray(bricks.data)[:, :-1, :-1, :-1]
@@ -318,12 +319,13 @@ def optical_size(bricks, settings: VolumeSettings) -> dict:
         weakref.finalize(bricks, _NONZERO.pop, id(bricks), None)
     _, count, mean = _NONZERO[id(bricks)]
     if count == 0:
-        return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo)}
+        return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo), "sigma_voxel": 0.0}
     sigma = settings.density_scale * max(settings.sigma_t_scale) * mean
     size = float(count) ** (1.0 / 3.0) * bricks.voxel_size
     tau = sigma * size
     alb = max(settings.albedo)
-    return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
+    return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb,
+            "sigma_voxel": sigma * bricks.voxel_size}
 
 
 def path_aim(march_error: float) -> float:
@@ -638,11 +640,12 @@ def light_cache_choice(scene, device=None):
     from . import light_cache
     n_suns, n_points = counts(scene.lights)
     bricks, settings = scene.content.bricks, scene.content.settings
+    o = optical_size(bricks, settings)
     return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
-                              env_mode(scene.environment) > 0,
-                              tau=optical_size(bricks, settings)["tau"],
+                              env_mode(scene.environment) > 0, tau=o["tau"],
                               ms_orders=settings.ms_orders if settings.octaves > 1 else 0,
-                              gpu=device is not None and is_gpu(device))
+                              gpu=device is not None and is_gpu(device),
+                              sigma_voxel=o["sigma_voxel"])
 
 
 def light_cache_of(scene, device, features, params, inputs):
@@ -657,7 +660,7 @@ def light_cache_of(scene, device, features, params, inputs):
     features = dataclasses.replace(features, **ms_cache_fields(scene.content.settings, choice))
     cache = light_cache.get(scene.content, device, features, params, named["lights"],
                             scene.environment, choice, ms_medium(scene.content.settings))
-    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice.cell)
+    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice)
     baked = light_cache.builds(scene.content) > before
     return cache, {"light_cache": choice.note(), "light_cache_baked": baked,
                    "light_cache_bake_ms": cache.bake_ms if baked else 0.0,
