@@ -225,8 +225,8 @@ def test_auto_weighs_error_per_second(monkeypatch):
     # light_cache.MS_DENSE_TAU): the march's predicted error x AUTO_FINE_ERROR, below the
     # path estimator's within its budget
     fine = volume.auto_model(dense, VolumeSettings(), big, gpu=True)
-    assert fine["fine_bake_ms"] is not None and fine["tau"] > light_cache.MS_DENSE_TAU
-    assert fine["march_error"] == pytest.approx(volume.AUTO_FINE_ERROR * m["march_error"])
+    assert fine["fine"][0] == 1 and fine["tau"] > light_cache.MS_DENSE_TAU
+    assert fine["march_error"] == pytest.approx(volume.AUTO_FINE_ERROR[1] * m["march_error"])
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
     assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
     assert "1-voxel nodes" in note
@@ -237,7 +237,7 @@ def test_auto_weighs_error_per_second(monkeypatch):
     assert aim == volume.path_aim(m["march_error"]) < volume.AUTO_TARGET
     want = math.ceil((volume.AUTO_PATH_NOISE / aim) ** 2)
     monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.0)
-    assert volume.auto_model(dense, VolumeSettings(), big, gpu=True)["fine_bake_ms"] is None
+    assert volume.auto_model(dense, VolumeSettings(), big, gpu=True)["fine"] is None
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
     assert (s.estimator, s.spp) == ("path", want), note
     assert note.startswith(f"estimator auto: path, {want} spp: predicted error "

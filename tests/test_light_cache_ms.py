@@ -147,12 +147,12 @@ def test_gathers_step_half_a_node_spacing_only_in_dense_media():
     assert light_cache.ms_step(b, dense, params) == pytest.approx(2 * float(b.voxel_size))
 
 
-def test_a_gpu_bakes_a_dense_medium_on_one_voxel_nodes_with_more_orders(monkeypatch):
-    """On a GPU a dense medium (typical optical depth above MS_DENSE_TAU) takes 1-voxel
-    nodes where their bake is predicted within GPU_BAKE_MS, and FINE_ORDERS orders unless
-    --ms-orders is given (WDAS on the H200: 22.7 -> 7.1 % covered, docs/error_time.md); a
-    CPU keeps the cost model's cheapest spacing and 3 orders, and so does a GPU for a thin
-    medium or a bake over the budget."""
+def test_a_gpu_bakes_a_dense_medium_on_fine_nodes_with_more_orders(monkeypatch):
+    """On a GPU a dense medium (typical optical depth above MS_DENSE_TAU) takes the finest
+    of 1- and 2-voxel nodes whose bake is predicted within GPU_BAKE_MS, and FINE_ORDERS
+    orders unless --ms-orders is given (WDAS on the H200: 22.7 -> 7.1 % covered at 1 voxel,
+    13.3 % at 2; docs/error_time.md); a CPU keeps the cost model's cheapest spacing and 3
+    orders, and so does a GPU for a thin medium or a bake over the budget."""
     b = media.lumpy_ball(24)
     st = VolumeSettings(estimator="march", ms_octaves=4, light_cache="on")
     slots = int(b.n_slots)
@@ -162,15 +162,21 @@ def test_a_gpu_bakes_a_dense_medium_on_one_voxel_nodes_with_more_orders(monkeypa
                                gpu=gpu)
         return c.cell, c.ms_orders
     cpu_cell = pick(123.0, False)[0]
-    assert cpu_cell > 1 and pick(123.0, False) == (cpu_cell, light_cache.MS_ORDERS)
+    assert cpu_cell > 2 and pick(123.0, False) == (cpu_cell, light_cache.MS_ORDERS)
     assert pick(123.0, True) == (1, light_cache.FINE_ORDERS)
     assert pick(123.0, True, orders=3) == (1, 3)                  # --ms-orders given
     assert pick(7.9, True) == (cpu_cell, light_cache.MS_ORDERS)   # thin: the cost model's
-    assert pick(123.0, True, light_cache_cell=2) == (2, light_cache.MS_ORDERS)
+    assert pick(123.0, True, light_cache_cell=2) == (2, light_cache.FINE_ORDERS)
+    assert pick(123.0, True, light_cache_cell=4) == (4, light_cache.MS_ORDERS)
     assert pick(123.0, False, light_cache_cell=1) == (1, light_cache.FINE_ORDERS)
     assert light_cache.choose(b, st, CAM, 1, True, tau=123.0, ms_orders=0, gpu=True).ms_orders == 0
     # the predicted bake: nodes x (orders + 2 passes) x GPU_NODE_PASS_MS, within the budget
-    want = slots * 9 ** 3 * (light_cache.FINE_ORDERS + 2) * light_cache.GPU_NODE_PASS_MS
-    assert light_cache.gpu_fine_ms(slots, 123.0) == pytest.approx(want)
-    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want)
+    want1, want2 = (slots * (8 // c + 1) ** 3 * (light_cache.FINE_ORDERS + 2)
+                    * light_cache.GPU_NODE_PASS_MS for c in (1, 2))
+    assert light_cache.gpu_fine(slots, 123.0) == (1, pytest.approx(want1))
+    assert light_cache.gpu_fine(slots, 7.9) is None
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want1)      # 1 voxel over it
+    assert light_cache.gpu_fine(slots, 123.0) == (2, pytest.approx(want2))
+    assert pick(123.0, True) == (2, light_cache.FINE_ORDERS)
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want2)      # both over it
     assert pick(123.0, True) == (cpu_cell, light_cache.MS_ORDERS)

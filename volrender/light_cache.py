@@ -74,18 +74,20 @@ MS_T_STOP = 0.03
 # is 0.2-0.9x the bands' (docs/error_time.md)
 MS_WORTH = 2.0
 # the orders propagated where --ms-orders is not given: MS_ORDERS, or FINE_ORDERS where the
-# nodes are one voxel apart in a dense medium (typical optical depth above MS_DENSE_TAU):
-# there the nodes resolve the light's peak at the lit surface and the explicit orders
-# carry it (WDAS on the H200 at 1080p, covered pixels: 1-voxel nodes 12.3 % with 3 orders,
-# 7.1 % with 6, 6.5 % with 10; the thinner files gain nothing or overshoot: dragon 5.2 ->
-# 6.8 %; docs/error_time.md)
+# nodes are at most 2 voxels apart in a dense medium (typical optical depth above
+# MS_DENSE_TAU): there the nodes resolve the light's peak at the lit surface and the
+# explicit orders carry it (WDAS on the H200 at 1080p, covered pixels: 1-voxel nodes 12.3 %
+# with 3 orders, 7.1 % with 6, 6.5 % with 10; 2-voxel 17.4 / 13.3 % with 3 / 6; the
+# thinner files gain nothing or overshoot: dragon at 1 voxel 5.2 -> 6.8 %;
+# docs/error_time.md)
 MS_ORDERS = 3
 FINE_ORDERS = 6
-# on a GPU a dense medium takes 1-voxel nodes where their bake is predicted within
+# on a GPU a dense medium takes the finest of FINE_CELLS whose bake is predicted within
 # GPU_BAKE_MS (the cost model's CPU choice, 4-voxel nodes there, leaves WDAS at 22.7 %):
 # predicted as nodes x (orders + 2 passes) x GPU_NODE_PASS_MS, the H200's slowest pass
-# measured (smoke's 1-voxel gathers: 23 ms for 2.3M nodes; WDAS's 6 orders took 28 ms for
-# 0.96M nodes, predicted 77)
+# measured (smoke's 1-voxel gathers: 23 ms for 2.3M nodes; WDAS's 6 orders at 1 voxel took
+# 28 ms for 0.96M nodes, predicted 77)
+FINE_CELLS = (1, 2)
 GPU_BAKE_MS = 100.0
 GPU_NODE_PASS_MS = 1e-5
 
@@ -199,19 +201,23 @@ def camera_samples(bricks, camera, step_world, spp) -> float:
 
 def orders_for(cell: int, tau: float, ms_orders) -> int:
     """The orders to propagate: ms_orders where given (0: none), else MS_ORDERS, or
-    FINE_ORDERS on 1-voxel nodes in a dense medium (tau above MS_DENSE_TAU)."""
+    FINE_ORDERS on nodes at most 2 voxels apart in a dense medium (tau above
+    MS_DENSE_TAU)."""
     if ms_orders is not None:
         return int(ms_orders)
-    return FINE_ORDERS if cell == 1 and tau > MS_DENSE_TAU else MS_ORDERS
+    return FINE_ORDERS if cell <= 2 and tau > MS_DENSE_TAU else MS_ORDERS
 
 
-def gpu_fine_ms(slots: int, tau: float, ms_orders=None) -> float | None:
-    """The predicted bake ms of 1-voxel nodes on a GPU where a dense medium (tau above
-    MS_DENSE_TAU) takes them (within GPU_BAKE_MS), else None."""
+def gpu_fine(slots: int, tau: float, ms_orders=None):
+    """(cell, predicted bake ms): the finest of FINE_CELLS a GPU bakes for a dense medium
+    (tau above MS_DENSE_TAU) within GPU_BAKE_MS, or None."""
     if tau <= MS_DENSE_TAU:
         return None
-    ms = slots * nodes_per_brick(1) * (orders_for(1, tau, ms_orders) + 2) * GPU_NODE_PASS_MS
-    return ms if ms <= GPU_BAKE_MS else None
+    for cell in FINE_CELLS:
+        ms = slots * nodes_per_brick(cell) * (orders_for(cell, tau, ms_orders) + 2) * GPU_NODE_PASS_MS
+        if ms <= GPU_BAKE_MS:
+            return cell, ms
+    return None
 
 
 def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
@@ -227,12 +233,12 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     not the march or nothing lights the medium. ms_orders: scattering orders to propagate
     over the nodes (each a march along the ENV_DIRS directions per node, counted twice: it
     reads the nodes at every step; None: orders_for's); auto then bakes up to MS_WORTH x
-    the exact march's count. On a GPU (gpu) a dense medium with orders takes 1-voxel nodes
-    where gpu_fine_ms says their bake is cheap there, whatever the count. sigma_voxel:
+    the exact march's count. On a GPU (gpu) a dense medium with orders takes the nodes
+    gpu_fine says its bake affords there, whatever the count. sigma_voxel:
     the medium's typical sigma_t x a voxel (near_cells; None: the near part everywhere)."""
     mode = settings.light_cache
     slots = int(bricks.n_slots)
-    fine_ms = gpu_fine_ms(slots, tau, ms_orders) if gpu and ms_orders != 0 else None
+    fine = gpu_fine(slots, tau, ms_orders) if gpu and ms_orders != 0 else None
     orders = 0 if ms_orders == 0 else orders_for(4, tau, ms_orders)   # at the cost model's cells
     channels = n_lights + (ENV_CH if env else 0) + (MS_CH if orders else 0)
     per_sample = n_lights + (1 if env else 0)
@@ -267,10 +273,10 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     if cell or settings.light_cache_cell:
         cell = cell or settings.light_cache_cell
         why = f"--light-cache-cell {cell}"
-    elif fine_ms is not None and 1 in fits:
-        cell = 1
-        why = (f"a dense medium (typical optical depth {tau:.3g}) on a GPU: 1-voxel nodes "
-               f"resolve its lit surface, their bake predicted ~{fine_ms:.0f} ms")
+    elif fine is not None and fine[0] in fits:
+        cell = fine[0]
+        why = (f"a dense medium (typical optical depth {tau:.3g}) on a GPU: {cell}-voxel "
+               f"nodes resolve its lit surface, their bake predicted ~{fine[1]:.0f} ms")
     else:
         cell = min([c for c in CELLS if c in fits] or [8], key=cost)
         why = f"{cell}-voxel nodes cost least"

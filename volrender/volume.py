@@ -56,10 +56,10 @@ AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
 # ... from this many pixels (auto runs before the camera exists, so before the cache's
 # cost model: at 640x480 it bakes for the four files, at 160x120 for 0190 alone)
 AUTO_ORDERS_PIXELS = 320 * 240
-# ... times this where a GPU bakes 1-voxel nodes for a dense medium (light_cache.gpu_fine_ms):
-# WDAS on the H200 at 1080p, 7.1 % (1-voxel nodes, 6 orders) against 22.7 % (4-voxel, 3),
-# the one dense file measured (docs/error_time.md)
-AUTO_FINE_ERROR = 0.31
+# ... times this where a GPU bakes 1- or 2-voxel nodes for a dense medium (light_cache.gpu_fine):
+# WDAS on the H200 at 1080p, 7.1 % (1-voxel nodes, 6 orders) and 13.3 % (2, 6) against
+# 22.7 % (4-voxel, 3), the one dense file measured (docs/error_time.md)
+AUTO_FINE_ERROR = {1: 0.31, 2: 0.59}
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -205,7 +205,7 @@ class VolumeSettings(CommonSettings):
                           "scattering orders 2 to N+1 propagated over the cache's nodes from "
                           "the baked light (the rest as a geometric tail; "
                           "volrender/light_cache.py) instead of the octave bands; 0: the octave "
-                          "bands; default: 3, or 6 on 1-voxel nodes in a dense medium",
+                          "bands; default: 3, or 6 on 1- or 2-voxel nodes in a dense medium",
                           check=lambda v: None if v is None or isinstance(v, int) and not
                           isinstance(v, bool) and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
                           "2 to 16 (one order's tail, from the phase-weighted first, overshoots)",
@@ -342,8 +342,8 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     n = -ln(1 - a):
     * the march's error (relative RMSE on covered pixels): with the light cache's
       scattering orders (--ms-orders not 0, --light-cache on, or auto from
-      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)), x AUTO_FINE_ERROR
-      where a GPU bakes 1-voxel nodes (light_cache.gpu_fine_ms); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)), x AUTO_FINE_ERROR[c]
+      where a GPU bakes c-voxel nodes for it (light_cache.gpu_fine; fine: (c, bake ms)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
       e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
@@ -359,10 +359,10 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
         c0, c1, c2 = AUTO_ORDERS_ERROR
         march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
         if gpu and settings.light_cache_cell is None:
-            from .light_cache import gpu_fine_ms
-            fine = gpu_fine_ms(int(bricks.n_slots), o["tau"], settings.ms_orders)
+            from .light_cache import gpu_fine
+            fine = gpu_fine(int(bricks.n_slots), o["tau"], settings.ms_orders)
             if fine is not None:
-                march_error *= AUTO_FINE_ERROR
+                march_error *= AUTO_FINE_ERROR[fine[0]]
     else:
         c0, c1, c2 = AUTO_MARCH_ERROR
         march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
@@ -374,7 +374,7 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
-    return {**o, "march_error": march_error, "march_orders": orders, "fine_bake_ms": fine,
+    return {**o, "march_error": march_error, "march_orders": orders, "fine": fine,
             "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
@@ -412,9 +412,9 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
     gain = octave_gain(settings, m["tau"])
     how = ("the light cache's scattering orders where baked, else "
            if m["march_orders"] else "")
-    if m["fine_bake_ms"] is not None:
-        how = (f"the light cache's scattering orders on 1-voxel nodes (a dense medium on a "
-               f"GPU: bake ~{m['fine_bake_ms']:.0f} ms) where baked, else ")
+    if m["fine"] is not None:
+        how = (f"the light cache's scattering orders on {m['fine'][0]}-voxel nodes (a dense "
+               f"medium on a GPU: bake ~{m['fine'][1]:.0f} ms) where baked, else ")
     march = (f"march with {how}{AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted "
              f"error {m['march_error']:.0%}")
     fields = VolumeSettings.__dataclass_fields__
