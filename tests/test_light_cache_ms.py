@@ -180,3 +180,35 @@ def test_a_gpu_bakes_a_dense_medium_on_fine_nodes_with_more_orders(monkeypatch):
     assert pick(123.0, True) == (2, light_cache.FINE_ORDERS)
     monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want2)      # both over it
     assert pick(123.0, True) == (cpu_cell, light_cache.MS_ORDERS)
+
+
+def test_shared_nodes_are_baked_once_with_the_same_values(cl_device, monkeypatch):
+    """A node on a face shared by neighbouring bricks is the same point: the bake computes
+    it once and copies it (light_cache.bake_nodes, cl/bake_light.cl copy_nodes); every
+    channel of every node is what baking each brick's nodes on their own gives."""
+    from volrender import layout
+    occ = np.array([[0, 0, 0, 0], [1, 0, 0, 1], [1, 1, 0, 2]], np.int32)   # an L of 3 bricks
+    todo, pairs = light_cache.bake_nodes(occ, 4)
+    n = layout.BRICK // 4 + 1
+    assert len(todo) + len(pairs) == 3 * n ** 3 and len(pairs) == 2 * n * n
+    assert len(np.unique(pairs[:, 0])) == len(pairs)          # each copy written once
+    assert not np.isin(pairs[:, 1], pairs[:, 0]).any()        # from a baked node
+    all_todo, none = light_cache.bake_nodes(occ, 4, shared=False)
+    assert len(all_todo) == 3 * n ** 3 and len(none) == 0
+
+    real = light_cache.bake_nodes
+
+    def nodes(flag):
+        monkeypatch.setattr(light_cache, "bake_nodes",
+                            lambda o, c, shared=True: real(o, c, flag))
+        st = VolumeSettings(density_scale=12.0, albedo=(0.9,), phase=(0.5,), env=ENV,
+                            estimator="march", ms_octaves=4, light_cache="on",
+                            light_cache_cell=2)
+        scene = Scene.of(replace(CAM, width=8, height=8), [SUN],
+                         VolumeContent(media.lumpy_ball(24), st))
+        render(scene, cl_device)
+        baked, occ_ = light_cache.read_back(scene.content, cl_device)
+        return baked[occ_[:, 3]]
+    once, each = nodes(True), nodes(False)
+    assert once.shape == each.shape and np.isfinite(each).all() and each.max() > 0
+    np.testing.assert_allclose(once, each, rtol=1e-6, atol=1e-9)
