@@ -60,6 +60,15 @@ AUTO_ORDERS_PIXELS = 320 * 240
 # WDAS on the H200 at 1080p, 7.1 % (1-voxel nodes, 6 orders) and 13.3 % (2, 6) against
 # 22.7 % (4-voxel, 3), the one dense file measured (docs/error_time.md)
 AUTO_FINE_ERROR = {1: 0.31, 2: 0.59}
+# on a CPU auto's march steps up to AUTO_STEP_MAX voxels in thin media: the step's typical
+# optical depth (optical_size's sigma_voxel x the step) at most AUTO_STEP_TAU (PoCL,
+# 320x240, 1 spp, the cache on, against the default step at 32 spp, covered pixels: smoke
+# step 0.5 / 1 / 2 voxels 0.32 / 0.33 / 0.61 % relative RMSE, kernel 446 / 201 / 93 ms;
+# dragon 0.12 / 0.13 / 0.19 %, 241 / 74 / 58 ms; docs/error_time.md); not where the volume
+# emits, nor with --step or --shadow-step given, nor on GPUs (their kernels are a few ms),
+# nor for single scattering (a thin medium's cheap march: kept as it was)
+AUTO_STEP_TAU = 0.16
+AUTO_STEP_MAX = 2.0
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -380,6 +389,19 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
 
 
+def auto_step(bricks, settings: VolumeSettings, gpu: bool) -> float:
+    """The step of auto's march with multiple scattering: the default, or on a CPU in a thin
+    medium that does not emit up to AUTO_STEP_MAX voxels, at AUTO_STEP_TAU typical optical depth a step; the
+    given step where --step or --shadow-step is not the default."""
+    fields = VolumeSettings.__dataclass_fields__
+    default = fields["step"].default
+    if gpu or bricks.emission is not None or (settings.step, settings.shadow_step) != (
+            default, fields["shadow_step"].default):
+        return settings.step
+    sv = optical_size(bricks, settings)["sigma_voxel"]
+    return min(AUTO_STEP_MAX, max(default, AUTO_STEP_TAU / max(sv, 1e-30)))
+
+
 def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, device=None):
     """(settings, note): --estimator auto resolved for this volume, `pixels` (default
     640x480) on `device` (None: a CPU). Single scattering (the march, one band) where a
@@ -409,6 +431,9 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
         return (replace(settings, estimator="march", ms_octaves=1),
                 f"estimator auto: single scattering (march; {why}, below "
                 f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
+    step = auto_step(bricks, settings, gpu)
+    stepped = (f"; march step {step:.2g} voxels (a thin medium on a CPU: --step "
+               f"{settings.step:g} for the default's)" if step != settings.step else "")
     gain = octave_gain(settings, m["tau"])
     how = ("the light cache's scattering orders where baked, else "
            if m["march_orders"] else "")
@@ -426,10 +451,10 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
                 f"estimator auto: path, {spp} spp: predicted error {m['path_error']:.0%} on "
                 f"covered pixels in ~{m['path_ms'] / 1e3:.2g} s of kernel on a {m['device']} "
                 f"({march}; {why})")
-    return (replace(settings, estimator="march", ms_octaves=AUTO_OCTAVES),
+    return (replace(settings, estimator="march", ms_octaves=AUTO_OCTAVES, step=step),
             f"estimator auto: multiple scattering ({march} on covered pixels; the path "
             f"estimator: {m['path_error']:.0%} in ~{m['path_ms'] / 1e3:.2g} s of kernel on a "
-            f"{m['device']}; {why}); --estimator path for the unbiased image")
+            f"{m['device']}; {why}){stepped}; --estimator path for the unbiased image")
 
 
 def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
