@@ -44,9 +44,9 @@ NEAR_CELLS = 2.0
 # ... only where the medium's typical optical depth across a node spacing (the mean sigma_t
 # of its non-zero voxels x the spacing) is above NEAR_TAU: in thinner media the nodes'
 # trilinear tau is near the exact one and the near march is most of the kernel (320x240,
-# 4 spp, PoCL, against the near part: smoke (0.31 a 4-voxel spacing) x3.5 faster, +1.5 %
-# relative RMSE on covered pixels, mean x0.997; dragon (0.34) x2, +0.5 %; 0190 (0.14 at
-# 2 voxels) x2, +2.9 %, x0.998); WDAS (6.9) keeps it (without: x0.89, 13.7 %)
+# 4 spp, PoCL, against the near part: smoke (0.31 a 4-voxel spacing) x2.5 faster, 1.5 %
+# relative RMSE on covered pixels, mean x0.997; dragon (0.34) x2.5, 0.5 %; 0190 (0.14 at
+# 2 voxels) x1.8, 0.7 %; docs/error_time.md); WDAS (6.9) keeps it (without: x0.89, 13.7 %)
 NEAR_TAU = 1.0
 T_CUT_TAU = math.log(1e5)      # camera rays stop below transmittance 1e-5 (render_volume.cl)
 MS_CH = 12                     # the propagated orders' channels (L1 harmonics, as the sky's)
