@@ -29,6 +29,11 @@
 #define VR_RELAX_MARGIN 0.95f /* times the factor that just keeps the balls overlapping on a
                                  plane: 0.85 and 1.0 took 2-16% more evaluations (PoCL) */
 #endif
+#ifndef VR_LIST_PREFETCH
+#define VR_LIST_PREFETCH 2    /* VR_GRID: a cell's list is walked with its loads issued
+                                 ahead (SDF_WALK_LIST): 0 none, 1 the next entry, 2 the next
+                                 entry's sphere and the entry after it */
+#endif
 #ifndef VR_STATS
 #define VR_STATS 0            /* count the field's work (diagnostics; glass.GlassSettings.stats) */
 #endif
@@ -151,6 +156,59 @@ inline float sdf_node_bound(const SdfScene* sc, int node, float3 x)
 #define SDF_COUNT_SPHERE
 #endif
 
+/* Walk a cell's list (VR_GRID) by ascending key up to the first key >= stop (re-read each
+   step: pass 1's running m), running BODY with the sphere s4 and its index idx. The loads
+   are chained (an entry, then its sphere), so with VR_LIST_PREFETCH they are issued ahead:
+   the next entry (1), or the next entry's sphere and the entry after that (2), while this
+   sphere is tested. Reads ahead are clamped to the list's last entry. */
+#if VR_LIST_PREFETCH == 2
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    {                                                                         \
+        int j_ = (list).x, end_ = (list).x + (list).y;                        \
+        if (j_ < end_) {                                                      \
+            int2 e_ = (sc)->entries[j_];                                      \
+            int2 en_ = (sc)->entries[min(j_ + 1, end_ - 1)];                  \
+            float4 s4 = (sc)->spheres[e_.x];                                  \
+            for (;;) {                                                        \
+                if (as_float(e_.y) >= (stop))                                 \
+                    break;                                                    \
+                float4 sn_ = (sc)->spheres[en_.x];                            \
+                int2 enn_ = (sc)->entries[min(j_ + 2, end_ - 1)];             \
+                int idx = e_.x;                                               \
+                BODY                                                          \
+                if (++j_ >= end_)                                             \
+                    break;                                                    \
+                e_ = en_; en_ = enn_; s4 = sn_;                               \
+            }                                                                 \
+        }                                                                     \
+    }
+#elif VR_LIST_PREFETCH == 1
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    {                                                                         \
+        int j_ = (list).x, end_ = (list).x + (list).y;                        \
+        int2 e_ = j_ < end_ ? (sc)->entries[j_] : (int2)(0);                  \
+        for (; j_ < end_; ++j_) {                                             \
+            int2 en_ = (sc)->entries[min(j_ + 1, end_ - 1)];                  \
+            if (as_float(e_.y) >= (stop))                                     \
+                break;                                                        \
+            float4 s4 = (sc)->spheres[e_.x];                                  \
+            int idx = e_.x;                                                   \
+            BODY                                                              \
+            e_ = en_;                                                         \
+        }                                                                     \
+    }
+#else
+#define SDF_WALK_LIST(sc, list, stop, BODY)                                   \
+    for (int j_ = (list).x; j_ < (list).x + (list).y; ++j_) {                 \
+        int2 e_ = (sc)->entries[j_];                                          \
+        if (as_float(e_.y) >= (stop))                                         \
+            break;                                                            \
+        float4 s4 = (sc)->spheres[e_.x];                                      \
+        int idx = e_.x;                                                       \
+        BODY                                                                  \
+    }
+#endif
+
 /* Pass 1: the nearest sphere, m = min_i d_i (returned) and its index *arg (-1: none).
    The traversal visits the nearer child first and prunes against the running m; with
    VR_GRID it walks the cell's list by key up to the first key >= m (within the core). */
@@ -173,12 +231,7 @@ inline float sdf_nearest(const SdfScene* sc, float3 x, int use_tile, int4 list, 
     }
 #endif
 #if VR_GRID
-    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m */
-        int2 e = sc->entries[j];
-        if (as_float(e.y) >= m)
-            break;
-        SDF_NEAREST(sc->spheres[e.x], e.x)
-    }
+    SDF_WALK_LIST(sc, list, m, SDF_NEAREST(s4, idx))     /* by key: stop at key >= m */
 #elif VR_TREE
     int stack[VR_TREE_STACK];
     float sb[VR_TREE_STACK];
@@ -256,12 +309,7 @@ inline SdfSums sdf_blend_sums(const SdfScene* sc, float3 x, float m, int use_til
 #endif
     {
 #if VR_GRID
-    for (int j = list.x; j < list.x + list.y; ++j) {     /* by key: stop at key >= m + k */
-        int2 e = sc->entries[j];
-        if (as_float(e.y) >= thr)
-            break;
-        SDF_ACCUMULATE(sc->spheres[e.x], e.x)
-    }
+    SDF_WALK_LIST(sc, list, thr, SDF_ACCUMULATE(s4, idx))     /* stop at key >= m + k */
 #elif VR_TREE
     int stack[VR_TREE_STACK];
     int sp = 0;

@@ -54,6 +54,24 @@ def test_field_matches_oracle(cl_device, rng, accel, k):
     np.testing.assert_allclose(f, ref, atol=atol)
 
 
+@pytest.mark.parametrize("cell,k", [(0.1, 0.02), (0.3, 0.05), (0.6, 0.15)])
+def test_field_with_cells_wider_than_the_blend(cl_device, rng, cell, k):
+    """Cells wider than the blend k: a list's key (a sphere's distance bound over the
+    whole cell) then orders spheres far from the point's own order, so a walk that
+    stopped or weighted by key instead of by the point's distances would be off (a one-pass
+    walk that kept spheres taken before the minimum fell was off by 0.03-0.24 here). Field
+    and gradient stay brute force's."""
+    cloud = generators.blob(300, seed=3)
+    x = _samples(rng, cloud, 1000)
+    s = glass.GlassSettings(blend=k, accel="grid", cell_skip=False, cell_size=cell)
+    f, g, scene = field(cl_device, cloud, s, x)
+    assert scene.accel == "grid"
+    ref = reference.smooth_union(x, cloud.centers, cloud.radii, k)
+    np.testing.assert_allclose(f, ref, atol=ATOL_FIELD)
+    _, g_ref, _ = field(cl_device, cloud, glass.GlassSettings(blend=k, accel="none"), x)
+    np.testing.assert_allclose(g, g_ref, atol=1e-4)
+
+
 def test_two_sphere_blend_is_c1_and_compact():
     """Two spheres: F equals the plain union where |a - b| >= k, lies below it inside,
     by (k/2) ln 2 on the seam, and its slope along a-b is 1/2 from both sides there."""
@@ -240,6 +258,31 @@ def test_accelerations_give_the_brute_force_image(cl_device, leaf_size, bounces,
     grid = render(accel="grid")
     np.testing.assert_array_equal(grid[..., 3], none[..., 3])
     assert _differ(grid, none) <= _differ(none, render(accel="none", epsilon=base.epsilon / 2))
+
+
+@pytest.mark.parametrize("colors", [False, True])
+def test_list_prefetch_gives_the_plain_walk_image(cl_device, monkeypatch, colors):
+    """Walking a cell's list with its loads issued ahead (VR_LIST_PREFETCH 1 and 2,
+    cl/sdf.h SDF_WALK_LIST) tests the same spheres in the same order as the plain walk:
+    the image is the plain walk's bit for bit, per-point colours included (cells smaller
+    than the spheres, so rays read many lists, some short)."""
+    cloud = generators.blob(250, seed=5)
+    if colors:
+        rgb = np.random.default_rng(1).uniform(0, 1, (250, 3)).astype(np.float32)
+        cloud = PointCloud(cloud.centers, cloud.radii, rgb)
+    s = glass.GlassSettings(blend=0.15, accel="grid", bounces=3, cell_size=0.03)
+    lights = [Sun((-0.5, -1.0, -0.3), 3.0)]
+    images = []
+    for level in ("0", "1", "2"):
+        monkeypatch.setenv("VOLRENDER_CL_OPTIONS", f"-DVR_LIST_PREFETCH={level}")
+        images.append(_render(cl_device, cloud, s, lights=lights))
+    assert images[0][..., 3].mean() > 0.2
+    np.testing.assert_array_equal(images[0], images[1])
+    np.testing.assert_array_equal(images[0], images[2])
+    # and the options do reach the kernel (the device's kernel cache keys them): a
+    # smaller relaxation margin moves hit points within the hit band
+    monkeypatch.setenv("VOLRENDER_CL_OPTIONS", "-DVR_RELAX_MARGIN=0.5f")
+    assert not np.array_equal(images[0], _render(cl_device, cloud, s, lights=lights))
 
 
 # ------------------------------------------------------------------ single sphere, optics

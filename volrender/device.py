@@ -189,7 +189,8 @@ class Device:
 
     def kernel(self, entry: str, flags: dict[str, int], name: str | None = None, options=()):
         """A kernel object of cl/<entry>.cl, kept for repeated launches."""
-        key = ("kernel", entry, tuple(sorted(flags.items())), name, tuple(options))
+        key = ("kernel", entry, tuple(sorted(flags.items())), name, tuple(options),
+               os.environ.get(ENV_OPTIONS, ""))     # as build() reads it
         if key not in self._programs:
             self._programs[key] = _cl().Kernel(self.program(entry, flags, options),
                                                name or entry)
