@@ -315,3 +315,26 @@ def test_thin_media_read_their_shadows_from_the_nodes_alone():
     assert light_cache.near_length(b, thin) == 0.0
     assert light_cache.near_length(b, dense) == pytest.approx(8 * float(b.voxel_size))
     assert thin.cost < dense.cost
+
+
+def test_the_cost_model_counts_each_march_at_its_own_step():
+    """The bake's count (light_cache.choose): per baked node, each light's march at the
+    shadow step, the sky's 14 at ENV_STEP_CELLS node spacings and each order's 2 x 14 at
+    MS_STEP_CELLS spacings (at least the shadow step), over the chord; on CPUs the shared
+    nodes count once (baked_per_brick: the interior (8 / c)^3 x SHARED_SURFACE), on GPUs
+    and at 1-voxel nodes all of them."""
+    b = lumpy_ball(24)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=32)
+    assert light_cache.baked_per_brick(4, False) == pytest.approx(8 * light_cache.SHARED_SURFACE)
+    assert light_cache.baked_per_brick(2, False) == pytest.approx(64 * light_cache.SHARED_SURFACE)
+    assert light_cache.baked_per_brick(4, True) == 27 and light_cache.baked_per_brick(1, False) == 729
+    chord = (int(b.n_slots) * 512) ** (1 / 3)                    # shadow step 1 voxel
+    for cell, gpu in ((4, False), (2, False), (4, True), (1, False)):
+        st = VolumeSettings(estimator="march", ms_octaves=4, light_cache="on",
+                            light_cache_cell=cell, shadow_step=1.0)
+        c = light_cache.choose(b, st, cam, 1, True, tau=7.9, ms_orders=3, gpu=gpu,
+                               sigma_voxel=0.01)                 # thin: no near part
+        env = 14 / max(1.0, light_cache.ENV_STEP_CELLS * cell)
+        orders = 2 * 14 * 3 / max(1.0, light_cache.MS_STEP_CELLS[0] * cell)
+        want = int(b.n_slots) * light_cache.baked_per_brick(cell, gpu) * (1 + env + orders) * chord
+        assert c.near_cells == 0 and c.cost == pytest.approx(want, rel=1e-9), (cell, gpu)

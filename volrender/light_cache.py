@@ -92,6 +92,20 @@ GPU_BAKE_MS = 100.0
 GPU_NODE_PASS_MS = 1e-5
 
 
+# distinct nodes per occupied brick where shared nodes are baked once (bake_nodes): its
+# (BRICK / c)^3 interior ones times this for the faces on the medium's surface (4-voxel
+# nodes: smoke 1.15, WDAS 1.22, dragon 1.31, 0190 1.53; 2-voxel: 1.08-1.25)
+SHARED_SURFACE = 1.25
+
+
+def baked_per_brick(cell: int, gpu: bool) -> float:
+    """Nodes the bake computes per occupied brick: every one on GPUs and at 1-voxel nodes,
+    the distinct ones otherwise (bake_nodes)."""
+    if gpu or cell == 1:
+        return float(nodes_per_brick(cell))
+    return min(float(nodes_per_brick(cell)), SHARED_SURFACE * (layout.BRICK // cell) ** 3)
+
+
 def near_length(bricks, choice) -> float:
     """World length of the exact part of a cached shadow ray (choice.near_cells node
     spacings)."""
@@ -224,7 +238,7 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
            tau: float = 0.0, ms_orders: int | None = 0, gpu: bool = False,
            sigma_voxel: float | None = None) -> Choice:
     """The cache for this scene, from a cost model counted in shadow-march samples:
-    a bake costs nodes(c) x (marches per node) x the chord, the cached render's exact near
+    a bake costs the nodes it computes (baked_per_brick) x (marches per node) x the chord, the cached render's exact near
     parts (camera samples) x lights x 2c / shadow step, the exact march (camera samples) x
     (marches per sample) x the chord, the chord being the edge of a cube of the occupied
     bricks' volume over the shadow step. The node spacing c minimises bake + near parts
@@ -267,7 +281,7 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
         per = n_lights + (ENV_DIRS * thin(ENV_STEP_CELLS) if env else 0) \
             + 2 * ENV_DIRS * orders * thin(ms_cells)
         near = samples * n_lights * min(chord, near_cells(c, sigma_voxel) * c / settings.shadow_step)
-        return slots * nodes_per_brick(c) * per * chord + near
+        return slots * baked_per_brick(c, gpu) * per * chord + near
     exact = samples * per_sample * chord
     fits = [c for c in (8, *CELLS) if slots * nodes_per_brick(c) * channels * 4 <= MAX_BYTES]
     if cell or settings.light_cache_cell:
