@@ -253,7 +253,7 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     mode = settings.light_cache
     slots = int(bricks.n_slots)
     fine = gpu_fine(slots, tau, ms_orders) if gpu and ms_orders != 0 else None
-    orders = 0 if ms_orders == 0 else orders_for(4, tau, ms_orders)   # at the cost model's cells
+    orders = 0 if ms_orders == 0 else orders_for(4, tau, ms_orders)   # (channels: any > 0)
     channels = n_lights + (ENV_CH if env else 0) + (MS_CH if orders else 0)
     per_sample = n_lights + (1 if env else 0)
 
@@ -278,8 +278,9 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
         # measured, x9.3 and x54 counted so, x4.6 and x27 counted at the shadow step)
         def thin(cells):
             return settings.shadow_step / max(settings.shadow_step, cells * c)
+        k = 0 if ms_orders == 0 else orders_for(c, tau, ms_orders)   # the orders at c
         per = n_lights + (ENV_DIRS * thin(ENV_STEP_CELLS) if env else 0) \
-            + 2 * ENV_DIRS * orders * thin(ms_cells)
+            + 2 * ENV_DIRS * k * thin(ms_cells)
         near = samples * n_lights * min(chord, near_cells(c, sigma_voxel) * c / settings.shadow_step)
         return slots * baked_per_brick(c, gpu) * per * chord + near
     exact = samples * per_sample * chord
