@@ -10,7 +10,7 @@
      its most visible sample (largest T x opacity), scaled by min(1, 2 (1 - T)), so thin
      wisps fade to 0, OIDN's "nothing here".
    The march is render_volume.cl's (the same jitter and empty-brick skipping), grey (the
-   channels' mean extinction), without lights, its step VR_GUIDE_STEP x the render's and
+   channels' mean extinction), without lights, its step VR_GUIDE_STEP x the render's (1) and
    stopped where T < VR_GUIDE_T_STOP (what is behind then moves the albedo by less than
    that: guides.py sets both, bench/guides_spp.py measures them). Inputs are the render
    kernel's, by name. Reads VR_SKIP_EMPTY, VR_SKIP_RUNS, VR_CHROMATIC, VR_ENV

@@ -24,16 +24,17 @@ import numpy as np
 from .dispatch import Dispatch, Plan, is_gpu, run_rows, upload
 
 # Rays a pixel. Volumes: 1 ray gave the same denoised error as 4 (smoke 320x240: relative
-# RMSE 0.340 % both, guides 1.22 -> 0.20 s on PoCL), and twice the render's step the same
-# again (0.13 s; 4 x: +4 %). Glass on CPUs: 1 ray, then EDGE_SPP where it has an edge
-# (edges; the guides anti-alias the silhouette OIDN keeps); on GPUs, where 4 rays cost a
-# few ms and edges' host pass more, GPU_GLASS_SPP everywhere.
+# RMSE 0.340 % both, guides 1.22 -> 0.20 s on PoCL); since auto's march steps up to 2
+# voxels on CPUs, the guide keeps the render's own step (VOLUME_STEP 1): smoke 0.49 %
+# denoised at 1x, 0.65 % at 2x, 1.1 % at 4x (the noisy image 0.59 %). Glass on CPUs: 1 ray,
+# then EDGE_SPP where it has an edge (edges; the guides anti-alias the silhouette OIDN
+# keeps); on GPUs, where 4 rays cost a few ms and edges' host pass more, GPU_GLASS_SPP.
 SPP = {"volume": 1, "glass": 1}
 EDGE_SPP = {"glass": 4}       # rays a pixel again where the one-ray guide has an edge (edges)
 GPU_GLASS_SPP = 4
 EDGE_COS = 0.9                # a normal turning by more than ~26 degrees to a neighbour's
 EDGE_ALBEDO = 0.1             # an albedo channel moving by more than this to a neighbour's
-VOLUME_STEP = 2.0             # the volume guide's march step, x the render's
+VOLUME_STEP = 1.0             # the volume guide's march step, x the render's
 T_STOP = 1e-4                 # the volume guide stops marching below this transmittance
 
 ARGS = {"volume": ("cam", "vp", "table", "data", "env"),
