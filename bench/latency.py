@@ -75,15 +75,20 @@ def wall(argv, root: Path, cpu=None, out=False) -> tuple[float, str]:
 
 
 def import_times(root: Path, out: Path, scene: Path = SCENE, command=None) -> dict:
-    """{top-level package: cumulative import ms} of one render command (-X importtime)."""
+    """{top-level package: cumulative import ms} of one render command (-X importtime),
+    and under "volrender_self" each of volrender's modules' own import ms (what a lazy
+    import of a module the command does not use would save)."""
     _, err = wall([sys.executable, "-X", "importtime", "-m", "volrender", "render", str(scene),
                    *(command or COMMAND), "-o", str(out)], root)
-    found = {}
+    found, own = {}, {}
     for line in err.splitlines():
-        m = re.match(r"import time:\s+\d+ \|\s+(\d+) \| \s*(\S+)$", line)
-        if m and "." not in m.group(2):             # a package's own line: imported once
-            found.setdefault(m.group(2), int(m.group(1)) / 1e3)
-    return {p: found.get(p) for p in PACKAGES}
+        m = re.match(r"import time:\s+(\d+) \|\s+(\d+) \| \s*(\S+)$", line)
+        if m and "." not in m.group(3):             # a package's own line: imported once
+            found.setdefault(m.group(3), int(m.group(2)) / 1e3)
+        if m and m.group(3).startswith("volrender."):
+            own[m.group(3)[10:]] = int(m.group(1)) / 1e3
+    return {**{p: found.get(p) for p in PACKAGES},
+            "volrender_self": dict(sorted(own.items(), key=lambda kv: -kv[1]))}
 
 
 def command_run(root: Path, out: Path, scene=None, command=None) -> dict:
@@ -170,9 +175,50 @@ def png_levels(rgba: np.ndarray, repeat: int) -> dict:
             t = time.perf_counter()
             image.write_image(Path(d) / "f.png", rgba)
             whole.append(time.perf_counter() - t)
+        parts = write_parts(rgba, Path(d), repeat)
     return {"size": list(rgba.shape[1::-1]), "tone_map_s": statistics.median(tone),
             "tone_runs_s": tone, "levels": rows, "variants": variants, "volrender_level": 1,
-            "write_image_s": statistics.median(whole), "write_runs_s": whole}
+            "write_image_s": statistics.median(whole), "write_runs_s": whole,
+            "write_parts_s": parts}
+
+
+def write_parts(rgba: np.ndarray, folder: Path, repeat: int) -> dict:
+    """write_image's PNG at volrender's level in its steps (medians): tone mapping,
+    Pillow's encoding (with the sRGB chunk) into memory, the bytes written plainly, and
+    atomically (volrender/atomic.py: a temporary file, fsync, rename, the folder's
+    fsync); and, in a fresh interpreter, the first import of Pillow's PNG writer (a
+    command pays it at its write)."""
+    from PIL import Image as PILImage, PngImagePlugin
+    from volrender import atomic, image
+    steps = {"tone": [], "encode": [], "plain_write": [], "atomic_write": []}
+    for i in range(repeat):
+        t0 = time.perf_counter()
+        px = image.png_pixels(rgba, alpha="opaque")
+        t1 = time.perf_counter()
+        info = PngImagePlugin.PngInfo()
+        info.add(b"sRGB", b"\x00")
+        buf = io.BytesIO()
+        PILImage.fromarray(px, "RGBA").save(buf, format="PNG", pnginfo=info, compress_level=1)
+        t2 = time.perf_counter()
+        (folder / f"plain{i}.png").write_bytes(buf.getvalue())
+        t3 = time.perf_counter()
+        atomic.write_bytes(folder / f"atomic{i}.png", buf.getvalue())
+        t4 = time.perf_counter()
+        for k, a, b in (("tone", t0, t1), ("encode", t1, t2), ("plain_write", t2, t3),
+                        ("atomic_write", t3, t4)):
+            steps[k].append(b - a)
+    out = {k: statistics.median(v) for k, v in steps.items()}
+    probe = ("import time; t = time.perf_counter(); from PIL import Image, PngImagePlugin; "
+             "print(time.perf_counter() - t)")
+    try:
+        out["pil_import_first"] = float(subprocess.run([sys.executable, "-c", probe],
+                                                       capture_output=True, text=True,
+                                                       timeout=60).stdout)
+    except (ValueError, subprocess.SubprocessError, OSError):
+        out["pil_import_first"] = None
+    print("PNG write parts: " + ", ".join(f"{k} {v:.3f} s" for k, v in out.items()
+                                          if v is not None), flush=True)
+    return out
 
 
 TONE_VIEWS = ("filmic", "clamp", "standard", "aces")
@@ -306,6 +352,21 @@ def plot(payload, path):
 PARTS = ("start", "command", "png", "tone", "framing")
 
 
+def bytecode(root: Path) -> dict:
+    """Whether the checkout's modules have compiled bytecode beside them (a pip install
+    compiles it; with PYTHONDONTWRITEBYTECODE set and none there, every command compiles
+    volrender's sources again) and whether pyopencl's has."""
+    import importlib.util
+    mods = sorted((root / "volrender").glob("*.py"))
+    have = sum(Path(importlib.util.cache_from_source(str(m))).is_file() for m in mods)
+    spec = importlib.util.find_spec("pyopencl")
+    cl = None
+    if spec is not None and spec.origin:
+        cl = Path(importlib.util.cache_from_source(spec.origin)).is_file()
+    return {"volrender_modules": len(mods), "with_bytecode": have, "pyopencl_bytecode": cl,
+            "PYTHONDONTWRITEBYTECODE": os.environ.get("PYTHONDONTWRITEBYTECODE")}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="volrender bench latency", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -332,14 +393,17 @@ def main(argv=None):
     roots = {"this": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
     tmp = Path(tempfile.mkdtemp())
     payload = {"benchmark": "latency", "device": device_info(dev), "load_start": os.getloadavg(),
-               "command_argv": [str(scene), *command], "parts": sorted(parts)}
+               "command_argv": [str(scene), *command], "parts": sorted(parts),
+               "bytecode": {k: bytecode(r) for k, r in roots.items()}}
+    print("bytecode", payload["bytecode"], flush=True)
     if "start" in parts:
         payload["start"] = {k: startup(r, args.repeat, scene) for k, r in roots.items()}
         payload["imports_ms"] = {k: import_times(r, tmp / "i.png", scene, command)
                                  for k, r in roots.items()}
         for k in roots:
             print(k, {n: round(v, 3) for n, v in payload["start"][k].items()},
-                  {n: v and round(v) for n, v in payload["imports_ms"][k].items()}, flush=True)
+                  {n: v and round(v) for n, v in payload["imports_ms"][k].items()
+                   if not isinstance(v, dict)}, flush=True)
     if "command" in parts:
         runs = {k: [] for k in roots}
         # warm: programs built, files cached (its row: a first launch, on a fresh machine

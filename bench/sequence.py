@@ -59,12 +59,15 @@ def make_point_frames(n_points: int, n: int, folder: Path) -> Path:
     return folder / "frame_####.npy"
 
 
-def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True, split=True):
+def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True, split=True,
+               writer="process"):
     """The sequence in this process (workers=0): no Dask, one device; as the pipeline
     render_sequence runs (volrender/pipeline.py), or (piped=False) one frame after another
     as before it (sequence.render_chunk per frame, the same camera); split=False: the
     pipeline with each frame's set-up (build, uploads) in the launching thread, as before
-    render.prepare (only the load and the write overlap)."""
+    render.prepare (only the load and the write overlap); writer="thread": the pipeline
+    writing in its write thread, as before frame_writer.py (the GIL shared by all three
+    stages)."""
     import importlib
     import os
     from unittest import mock
@@ -88,12 +91,15 @@ def run_serial(pattern, n_frames, out, size, opts, dev_spec, fmt, piped=True, sp
         return res
     def inline(scene, dev, builder=None):           # everything left to finish()
         return render_mod.Prepared(scene, dev)
-    with mock.patch.object(render_mod, "prepare", render_mod.prepare if split else inline):
+    from volrender import frame_writer
+    with mock.patch.object(render_mod, "prepare", render_mod.prepare if split else inline), \
+            mock.patch.dict(os.environ, {frame_writer.MODE_ENV: writer}):
         r = sequence.render_sequence(str(pattern), str(out / f"f_####.{fmt}"), f"1-{n_frames}",
                                      workers=0, size=size, **opts)
     res = summarise(r.records, r.wall_s)
-    res.update(workers=0 if split else "0, set-up in the launching thread", cluster_start_s=0.0,
-               gpus=[], chunk=None)
+    res.update(workers=0 if split and writer == "process" else
+               "0, set-up in the launching thread" if not split else "0, writes in a thread",
+               cluster_start_s=0.0, gpus=[], chunk=None)
     unpiped = sorted(out.glob(f"u_*.{fmt}"))
     if unpiped:                 # the one-by-one run's files, where it ran first: same bytes?
         res["same_bytes_as_one_by_one"] = all(
@@ -175,7 +181,8 @@ def main(argv=None):
     ap.add_argument("--unpiped", action="store_true",
                     help="with --workers 0: first render the frames one after another as "
                          "before the pipeline (issue 35), then as the pipeline before "
-                         "render.prepare (set-up in the launching thread), for their frames/s "
+                         "render.prepare (set-up in the launching thread), then with its "
+                         "writes in a thread (before frame_writer.py), for their frames/s "
                          "and bytes")
     ap.add_argument("--tag", default=None, help="added to the results' name: sequence_<device>-<tag>.json")
     args = ap.parse_args(argv)
@@ -206,13 +213,14 @@ def main(argv=None):
         what = f"{args.points}-sphere clouds" if args.points else src.name
         print(f"made {args.frames} frames of {what} in {time.perf_counter() - t0:.1f} s", flush=True)
         if args.unpiped and 0 in counts:
-            counts = ["unpiped", "inline"] + counts
+            counts = ["unpiped", "inline", "thread"] + counts
         for n in counts:
-            out = folder / f"out{0 if n in ('unpiped', 'inline') else n}"
+            out = folder / f"out{0 if n in ('unpiped', 'inline', 'thread') else n}"
             out.mkdir(exist_ok=True)
-            if n in (0, "unpiped", "inline"):
+            if n in (0, "unpiped", "inline", "thread"):
                 row = run_serial(pattern, args.frames, out, (width, height), opts, args.device,
-                                 args.format, piped=n != "unpiped", split=n != "inline")
+                                 args.format, piped=n != "unpiped", split=n != "inline",
+                                 writer="thread" if n in ("inline", "thread") else "process")
             else:
                 row = run(pattern, args.frames, out, n, (width, height), opts, args.chunk,
                           args.device, args.format)

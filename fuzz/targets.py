@@ -280,7 +280,7 @@ def pattern(data):
     finds the token and splits the path, fileseq reads its padding; Pattern.path, the glob
     regex): a frame's path holds its number, padded; a glob's regex compiles."""
     import re
-    from volrender import sequence
+    from volrender import sequence, sequence_pattern
     if not data:
         return
     output, text = bool(data[0] & 1), _text(data[1:])
@@ -289,7 +289,7 @@ def pattern(data):
     if p.glob:
         if output:
             raise Finding("a glob accepted as an output pattern")
-        re.compile(sequence._glob_regex(Path(p.text).name))
+        re.compile(sequence_pattern._glob_regex(Path(p.text).name))
     else:
         for frame in (0, 1, -7, 10 ** 6):
             path = p.path(frame)

@@ -57,11 +57,11 @@ def test_saved_findings_are_fixed(name, path):
 
 # a few findings written out, with what the user sees now
 def test_glob_sets_that_are_not_regex_sets():
-    from volrender import sequence
+    from volrender import sequence, sequence_pattern
     for text in ("a[v-9_]z.vdb", "0[]-9].vdb", "x[[a&&b].vdb", "f[!x]?.vdb"):
         p = sequence.parse_pattern(text)
         assert p.glob
-        re.compile(sequence._glob_regex(p.text))
+        re.compile(sequence_pattern._glob_regex(p.text))
 
 
 def test_frame_lists_are_bounded_in_total():

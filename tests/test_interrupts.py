@@ -263,15 +263,19 @@ def _stopped_sequence(tmp_path, workers, signum, group):
     """A sequence of 8 frames, stopped by `signum` once its first frame is on disk: sent
     to its process group as a terminal's Ctrl-C is (its Dask workers get it too), through
     the `volrender` command; or to the main process alone as `kill` sends SIGTERM, through
-    `python -m volrender`."""
-    out = tmp_path / f"out{workers}{signum}"
+    `python -m volrender`. workers "0 writer": in this process, its frames written by the
+    pipeline's writer process (frame_writer.py, which gets the group's Ctrl-C too)."""
+    env = ENV
+    if workers == "0 writer":
+        workers, env = "0", {**ENV, "VOLRENDER_FRAME_WRITER": "process"}
+    out = tmp_path / f"out{workers}{signum}{len(env)}"
     out.mkdir()
     (tmp_path / "volrender").write_text(CONSOLE_SCRIPT)
     entry = [str(tmp_path / "volrender")] if group else ["-m", "volrender"]
     p = subprocess.Popen([PY, *entry, "render", "c_####.npz", "-o",
                           f"{out.name}/f_####.png", "--frames", "1-8", "--workers", workers,
                           "--size", "200x150", "--spp", "16", "--no-progress", *CAMERA],
-                         cwd=tmp_path, env=ENV, stderr=subprocess.PIPE, text=True,
+                         cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True,
                          start_new_session=True)
     t0 = time.time()
     while not list(out.glob("f_*.png")) and p.poll() is None and time.time() - t0 < 240:
@@ -281,7 +285,7 @@ def _stopped_sequence(tmp_path, workers, signum, group):
     return p.returncode, err, out
 
 
-@pytest.mark.parametrize("workers", ["0", "1"])
+@pytest.mark.parametrize("workers", ["0", "0 writer", "1"])
 def test_a_stopped_sequence_says_which_frames_were_written_and_records_them(tmp_path, workers):
     """Ctrl-C (SIGINT to the group) and SIGTERM (to the main process), serial and on Dask:
     one line naming the frames written and those not, as the files on disk are; status
@@ -441,16 +445,16 @@ def test_dask_workers_keep_sigint_blocked_and_take_sigterm():
     pytest.importorskip("distributed")
     script = (
         "import signal\n"
-        "from volrender.sequence import _start_client, _stop_client\n"
+        "from volrender.sequence_frames import start_client, stop_client\n"
         "def blocked():\n"
         "    s = open('/proc/self/status').read()\n"
         "    return int(s.split('SigBlk:')[1].split()[0], 16)\n"
         "before = signal.pthread_sigmask(signal.SIG_BLOCK, [])\n"
-        "client, cluster = _start_client(2, None, None)\n"
+        "client, cluster = start_client(2, None, None)\n"
         "try:\n"
         "    masks = list(client.run(blocked).values())\n"
         "finally:\n"
-        "    _stop_client(client, cluster)\n"
+        "    stop_client(client, cluster)\n"
         "after = signal.pthread_sigmask(signal.SIG_BLOCK, [])\n"
         "print(len(masks), all(m >> 1 & 1 for m in masks), any(m >> 14 & 1 for m in masks),"
         " before == after)\n")

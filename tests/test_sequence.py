@@ -129,11 +129,13 @@ def test_skip_existing_renders_only_the_missing_frames(frames, serial, tmp_path)
 
 @pytest.mark.parametrize("suffix", [".png", ".exr"])
 def test_a_pipelined_sequence_writes_the_bytes_of_one_frame_after_another(frames, tmp_path,
-                                                                         suffix):
-    """pipeline.run_frames (the serial path's) against render_chunk frame by frame, with a
-    frame that fails (a damaged file) among them: the same files, byte for byte, and the
-    same records but for the timings."""
-    from volrender import pipeline
+                                                                         suffix, monkeypatch):
+    """pipeline.run_frames (the serial path's, its frames written by the writer process,
+    frame_writer.py) against render_chunk frame by frame, with a frame that fails (a
+    damaged file) among them: the same files, byte for byte, and the same records but
+    for the timings."""
+    from volrender import frame_writer, pipeline
+    monkeypatch.setenv(frame_writer.MODE_ENV, "process")
     (frames.parent / "broken").mkdir(exist_ok=True)
     broken = frames.parent / "broken" / "cloud_0004.npz"
     broken.write_bytes((frames / "cloud_0004.npz").read_bytes()[:300])

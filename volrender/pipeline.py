@@ -2,10 +2,15 @@
 up (render.prepare: the acceleration's build, the program, the uploads, on a second queue
 of the device, Device.side()) in one thread and frame n-1 written in another while frame
 n's launches and read-back run in the calling thread, on the device's own queue. Each
-frame goes through the same steps as one after another (sequence._render_frame:
+frame goes through the same steps as one after another (sequence_frames._render_frame:
 load_scene, render, Image.save), so it writes the same bytes; its record's load, build,
 set-up, render (the launches and read-back) and write seconds are its own stages', and
 `seconds` runs from its load's start to its write's end (they overlap other frames').
+
+The writes of frames of a quarter of a megapixel and more go to a process of their own
+(volrender/frame_writer.py): encoding a frame in this interpreter holds the GIL the other
+two stages need. The write thread sends the frame and waits; while the process starts,
+and where it cannot start or dies, the frames are written in that thread.
 
 Stopped by a signal (KeyboardInterrupt in the calling thread): the frame being written is
 finished and recorded, the next frame's load is dropped, and the exception goes on.
@@ -16,7 +21,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from . import device as device_mod
+from . import device as device_mod, frame_writer
 from .errors import UserError
 from .frame_record import FrameRecord, FrameStatus
 from .process import hold_in_this_thread
@@ -58,12 +63,31 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
     def write(rec, img, t0, load_s, render_s):
         t = time.perf_counter()
         try:
-            img.save(rec.output, **save_kw)
+            save(img, rec.output)
             rec.set(**frame_times(img, load_s, render_s, time.perf_counter() - t))
         except (UserError, MemoryError) as exc:
             rec.set(status=FrameStatus.FAILED, error=_failure(exc))
         rec.seconds = time.perf_counter() - t0
         return rec
+
+    proc = None
+    if frame_writer.wanted(overrides.get("size")):
+        try:
+            proc = frame_writer.FrameWriter()
+        except frame_writer.WriterDied:
+            proc = None
+    always = os.environ.get(frame_writer.MODE_ENV) == "process"
+
+    def save(img, output):
+        nonlocal proc
+        if proc is not None and (always or proc.ready()):      # here while it starts
+            try:
+                return proc.save(img, output, save_kw)
+            except frame_writer.NotSent:
+                pass                            # this frame: here
+            except frame_writer.WriterDied:
+                proc = None                     # this frame and the next ones: here
+        return img.save(output, **save_kw)
 
     # the loader keeps the signals: the OpenVDB reader process it may start takes them
     loader = ThreadPoolExecutor(1, "volrender-load")
@@ -109,4 +133,6 @@ def run_frames(jobs, overrides, save_kw, records, done=lambda: None, worker="loc
             except BaseException:               # noqa: BLE001 - the stop goes on regardless
                 pass
         writer.shutdown(wait=True)
+        if proc is not None:
+            proc.close()
     return records
