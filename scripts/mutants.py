@@ -126,7 +126,7 @@ MUTANTS = [
       (f"{OPTICS} -k opaque",)),
     M("point lights fall off as 1/r", "cl/shade_glass.h",
       "e /= fmax(r2, 1e-12f * gp->scale * gp->scale);",
-      "e /= fmax(dist, 1e-12f * gp->scale * gp->scale);", (f"{OPTICS} -k closed_form",)),
+      "e /= fmax(*dist, 1e-12f * gp->scale * gp->scale);", (f"{OPTICS} -k closed_form",)),
     M("hard shadows let half the light through", "cl/shade_glass.h",
       "                              gp->relax, gp->shadow_cone, &vis, &t, &s))\n        return 0.0f;",
       "                              gp->relax, gp->shadow_cone, &vis, &t, &s))\n        return 0.5f;",
