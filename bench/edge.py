@@ -31,6 +31,7 @@ from volrender.scene import GlassContent, Scene  # noqa: E402
 
 SUN = Sun((-0.6, -1.0, -0.5), 6.0)
 SCANS = {"bunny": ("bun_zipper.ply", {"radius": 0.002, "blend": 0.004}),
+         "bunny-default": ("bun_zipper.ply", {}),          # radius and blend from the scan
          "frag": ("frag_115.ply", {})}
 
 

@@ -7,13 +7,15 @@ default image box-filtered down to it; the reference's noise removed).
 
     python bench/volume_default.py prepare DIR [--size 1920x1080]   # where OpenVDB is
     python bench/volume_default.py run DIR [--device nvidia] [--ref-size 960x540]
-        [--ref-spp 128] [--out FOLDER] [--tag TAG]
+        [--ref-spp 128] [--out FOLDER] [--tag TAG] [--variant NAME:KEY=VALUE,...]
 
 `prepare` writes DIR/<stem>.npz (the bricks) and DIR/<stem>.pkl (camera, lights,
 environment, settings with estimator auto unresolved: the fire's grids, exposure and sky
 come from the .vdb's metadata, which an .npz alone does not carry). `run` writes
 volume_default_<device>[-TAG].json (bench/results, or --out); with --images the PNGs
-and the references (float16 .npy) beside it.
+and the references (float16 .npy) beside it. --variant (repeatable) adds a variant of
+settings to every file, timed and compared like the default (e.g. the light cache's node
+spacing and orders: `--variant c1:estimator=march,ms_octaves=4,light_cache=on,light_cache_cell=1`).
 """
 from __future__ import annotations
 
@@ -109,6 +111,21 @@ VARIANTS = {"default": {},
             "march": {"estimator": "march", "ms_octaves": 4, "light_cache": "on"}}
 
 
+def variant(text):
+    """NAME:KEY=VALUE,... -> (name, {key: value}), values as int, float or text."""
+    name, _, rest = text.partition(":")
+    over = {}
+    for item in filter(None, rest.split(",")):
+        key, _, val = item.partition("=")
+        for cast in (int, float, str):
+            try:
+                over[key.strip()] = cast(val)
+                break
+            except ValueError:
+                continue
+    return name.strip(), over
+
+
 def timed(spec, stem, dev, overrides, repeat, png):
     """The command's work in this process, `repeat` times (the fastest counts): load the
     bricks, plan (auto, the bake), render, write the PNG."""
@@ -149,12 +166,13 @@ def run_one(spec, stem, dev, args, out_dir):
     tiny, _ = scene_of(spec, stem)
     cam = dataclasses.replace(tiny.camera, width=16, height=12)
     t0 = time.perf_counter()
-    for over in VARIANTS.values():             # builds the programs (not the command's cost)
+    variants = {**VARIANTS, **dict(args.variant)}
+    for over in variants.values():             # builds the programs (not the command's cost)
         render(_with(tiny, cam, dataclasses.replace(tiny.content.settings, **over)), dev)
     row["first_tiny_s"] = time.perf_counter() - t0
     imgs = {}
-    for name, over in VARIANTS.items():
-        if name != "default" and row["variants"]["default"]["estimator"] == "march":
+    for name, over in variants.items():
+        if name == "march" and row["variants"]["default"]["estimator"] == "march":
             continue                           # the default is the march already
         img, row["variants"][name] = timed(spec, stem, dev, over, args.repeat,
                                            out_dir / f"{name}_{stem}.png" if args.images
@@ -187,6 +205,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=2, help="whole-command runs (the fastest)")
     ap.add_argument("--out", default=None, help="result folder (default: bench/results)")
     ap.add_argument("--tag", default=None, help="added to the result's name")
+    ap.add_argument("--variant", type=variant, action="append", default=[],
+                    help="NAME:KEY=VALUE,... settings of an extra variant (repeatable)")
     ap.add_argument("--images", action="store_true",
                     help="also write the PNGs and the references (.npy) beside the JSON (the "
                          "device tool brings back 8 files: the JSON alone by default)")

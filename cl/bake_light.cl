@@ -13,18 +13,39 @@
 #include "march.h"
 #include "light_cache.h"
 
+/* Each kernel runs over the nodes to bake, todo[gid] = (index into bricks, node): a node
+   on a face shared by neighbouring bricks is baked once, in the first brick holding it,
+   and copied to the others (copy_nodes; light_cache.bake_nodes), the same value either
+   way. */
+#define VR_BAKE_NODE(bricks, todo, n)                                                 \
+    int gid = get_global_id(0);                                                     \
+    if (gid >= (n))                                                                 \
+        return;                                                                     \
+    int2 td = (todo)[gid];                                                          \
+    int4 b = (bricks)[td.x];                                                        \
+    int node = td.y;
+
+/* buf's nch floats per node: the node dst's are the node src's, (dst, src) = pairs[i]
+   (node indices, slot * VR_CACHE_NODES + node). */
+__kernel void copy_nodes(__global float* buf, __global const int2* pairs, int n, int nch)
+{
+    int i = get_global_id(0);
+    if (i >= n * nch)
+        return;
+    int2 pr = pairs[i / nch];
+    int c = i % nch;
+    buf[pr.x * nch + c] = buf[pr.y * nch + c];
+}
+
 /* bricks: (bx, by, bz, slot) of each occupied brick; cache: its nodes' channels; envq:
    the environment's directions and cell integrals (light_cache.env_quadrature). */
 __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
                          __global const int* table, __global const float* data,
                          __global const float4* envq, __global const int4* bricks,
-                         __global float* cache, int n_bricks, float env_step)
+                         __global const int2* todo, __global float* cache, int n,
+                         float env_step)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_bricks * VR_CACHE_NODES)
-        return;
-    int4 b = bricks[gid / VR_CACHE_NODES];
-    int node = gid % VR_CACHE_NODES;
+    VR_BAKE_NODE(bricks, todo, n)
     int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
                       node % VR_CACHE_N);
     float3 p = convert_float3(b.xyz * VR_BRICK + ijk * VR_LIGHT_CACHE);
@@ -102,14 +123,10 @@ __kernel void bake_light(__constant VolumeParams* vp, __constant Light* lights,
 #define VR_MS_T_STOP 0.03f
 #endif
 __kernel void ms_source(__constant VolumeParams* vp, __constant Light* lights,
-                        __global const int4* bricks, __global const float* cache,
-                        __global float* src, int n_bricks)
+                        __global const int4* bricks, __global const int2* todo,
+                        __global const float* cache, __global float* src, int n)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_bricks * VR_CACHE_NODES)
-        return;
-    int4 b = bricks[gid / VR_CACHE_NODES];
-    int node = gid % VR_CACHE_NODES;
+    VR_BAKE_NODE(bricks, todo, n)
     int at = b.w * VR_CACHE_NODES + node;
     __global const float* in = cache + at * VR_CACHE_CH;
     float3 s = (float3)(0.0f);
@@ -170,14 +187,11 @@ inline float3 vr_once_at_node(__constant VolumeParams* vp, __constant Light* lig
    same where the sky's L1 light is positive at the eight nodes (with point lights their
    phase and falloff are taken at the nodes). */
 __kernel void ms_once(__constant VolumeParams* vp, __constant Light* lights,
-                      __global const int4* bricks, __global const float* cache,
-                      __global const float4* dirs, __global float* once, int n_bricks)
+                      __global const int4* bricks, __global const int2* todo,
+                      __global const float* cache, __global const float4* dirs,
+                      __global float* once, int n)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_bricks * VR_CACHE_NODES)
-        return;
-    int4 b = bricks[gid / VR_CACHE_NODES];
-    int node = gid % VR_CACHE_NODES;
+    VR_BAKE_NODE(bricks, todo, n)
     int at = b.w * VR_CACHE_NODES + node;
     int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
                       node % VR_CACHE_N);
@@ -195,15 +209,12 @@ __kernel void ms_once(__constant VolumeParams* vp, __constant Light* lights,
    (w). */
 __kernel void ms_gather(__constant VolumeParams* vp, __global const int* table,
                         __global const float* data, __global const float4* dirs,
-                        __global const int4* bricks, __global const float* src,
-                        __global float* dst, __global float* total, __global float* total1,
-                        int n_bricks, float4 alb, float4 ext, float dt, int first)
+                        __global const int4* bricks, __global const int2* todo,
+                        __global const float* src, __global float* dst,
+                        __global float* total, __global float* total1,
+                        int n, float4 alb, float4 ext, float dt, int first)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_bricks * VR_CACHE_NODES)
-        return;
-    int4 b = bricks[gid / VR_CACHE_NODES];
-    int node = gid % VR_CACHE_NODES;
+    VR_BAKE_NODE(bricks, todo, n)
     int at = b.w * VR_CACHE_NODES + node;
     int3 ijk = (int3)(node / (VR_CACHE_N * VR_CACHE_N), (node / VR_CACHE_N) % VR_CACHE_N,
                       node % VR_CACHE_N);
@@ -276,21 +287,20 @@ __kernel void ms_gather(__constant VolumeParams* vp, __global const int* table,
    S_K r / (1 - r) per channel, r the smaller of the last two orders' ratios
    (S_K / S_{K-1}, S_{K-1} / S_{K-2}; the ratio grows with the order where the light's
    shape is still settling, so the smaller is the safer), at most r_max. */
-__kernel void ms_finish(__global const int4* bricks, __global const float* total,
+__kernel void ms_finish(__global const int4* bricks, __global const int2* todo,
+                        __global const float* total,
                         __global const float* total1, __global const float* s2, __global const float* s1,
-                        __global const float* s0, __global float* cache, int n_bricks,
+                        __global const float* s0, __global float* cache, int n,
                         float4 r_max)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_bricks * VR_CACHE_NODES)
-        return;
-    int at = 3 * (bricks[gid / VR_CACHE_NODES].w * VR_CACHE_NODES + gid % VR_CACHE_NODES);
-    float3 a = (float3)(s0[at], s0[at + 1], s0[at + 2]);        /* S_K */
-    float3 b = (float3)(s1[at], s1[at + 1], s1[at + 2]);        /* S_{K-1} */
-    float3 c = (float3)(s2[at], s2[at + 1], s2[at + 2]);        /* S_{K-2} */
-    float3 r = fmin(a / fmax(b, 1e-30f), b / fmax(c, 1e-30f));
+    VR_BAKE_NODE(bricks, todo, n)
+    int at = 3 * (b.w * VR_CACHE_NODES + node);
+    float3 sk = (float3)(s0[at], s0[at + 1], s0[at + 2]);       /* S_K */
+    float3 sk1 = (float3)(s1[at], s1[at + 1], s1[at + 2]);      /* S_{K-1} */
+    float3 sk2 = (float3)(s2[at], s2[at + 1], s2[at + 2]);      /* S_{K-2} */
+    float3 r = fmin(sk / fmax(sk1, 1e-30f), sk1 / fmax(sk2, 1e-30f));
     r = clamp(r, 0.0f, r_max.xyz);
-    float3 tot = (float3)(total[at], total[at + 1], total[at + 2]) + a * r / (1.0f - r);
+    float3 tot = (float3)(total[at], total[at + 1], total[at + 2]) + sk * r / (1.0f - r);
     __global float* out = cache + (at / 3) * VR_CACHE_CH + VR_CACHE_MS;
     float v[12] = { tot.x, tot.y, tot.z };
     for (int i = 0; i < 9; ++i)

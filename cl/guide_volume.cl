@@ -1,6 +1,6 @@
 /* Denoising guides of a volume (volrender/guides.py, docs/guide.md "Denoising"): per
-   pixel, averaged over the camera's spp jittered sub-pixel rays (guides.GUIDE_SPP, so the
-   guides come out anti-aliased and noise-free: OIDN's clean_aux):
+   pixel, averaged over the camera's spp jittered sub-pixel rays (guides.SPP, so the
+   guides come out noise-free: OIDN's clean_aux):
    - albedo: the medium's single-scattering albedo weighted by the ray's opacity, over
      what lies behind clamped to [0, 1]: (1 - T) albedo + T min(behind, 1), T the ray's
      transmittance through the box (a uniform opaque medium gives its albedo exactly);
@@ -9,15 +9,25 @@
      the transmittance first falls to one half; a ray that never gets there takes it at
      its most visible sample (largest T x opacity), scaled by min(1, 2 (1 - T)), so thin
      wisps fade to 0, OIDN's "nothing here".
-   The march is render_volume.cl's (the same step, jitter and empty-brick skipping), grey
-   (the channels' mean extinction), without lights. Inputs are the render kernel's, by name.
-   Reads VR_SKIP_EMPTY, VR_SKIP_RUNS, VR_CHROMATIC, VR_ENV (features.VolumeFeatures). */
+   The march is render_volume.cl's (the same jitter and empty-brick skipping), grey (the
+   channels' mean extinction), without lights, its step VR_GUIDE_STEP x the render's (1) and
+   stopped where T < VR_GUIDE_T_STOP (what is behind then moves the albedo by less than
+   that: guides.py sets both, bench/guides_spp.py measures them). Inputs are the render
+   kernel's, by name. Reads VR_SKIP_EMPTY, VR_SKIP_RUNS, VR_CHROMATIC, VR_ENV
+   (features.VolumeFeatures). */
 #include "common.h"
 #include "structs.h"
 #include "camera.h"
 #include "volume.h"
 #include "env.h"
 #include "guide.h"
+
+#ifndef VR_GUIDE_STEP
+#define VR_GUIDE_STEP 1.0f
+#endif
+#ifndef VR_GUIDE_T_STOP
+#define VR_GUIDE_T_STOP 1e-4f
+#endif
 
 inline float3 vr_guide_gradient(const VrGrid* g, float3 p)
 {
@@ -39,7 +49,7 @@ __kernel void guide_volume(__constant Camera* cam, __constant VolumeParams* vp,
     uint pixel = (uint)(y * cam->width + x);
     VrGrid g = { vp->dims, table, data };
     float3 o = cam->origin.xyz;
-    float dt = vp->step;
+    float dt = vp->step * VR_GUIDE_STEP;
     float ext = vr_spec_mean(VR_EXTINCTION(vp));
     float3 alb = vp->albedo_rgb.xyz;
     float4 a_sum = s0 > 0 ? albedo_out[pixel] : (float4)(0.0f);
@@ -57,7 +67,7 @@ __kernel void guide_volume(__constant Camera* cam, __constant VolumeParams* vp,
         int found = 0, crossed = 0;
         for (int k = 0; t0 < t1 && k < VR_MAX_RAY_SAMPLES; ++k) {
             float t = t0 + ((float)k + u) * dt;
-            if (t >= t1 || T < 1e-4f)
+            if (t >= t1 || T < VR_GUIDE_T_STOP)
                 break;
             float3 p = o + t * d;
             float3 cf = floor(p);

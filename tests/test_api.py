@@ -184,15 +184,22 @@ def test_up_axis_z_on_a_z_up_grid_is_the_y_up_image(cl_device):
     turn[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
     y_up = Bricks.from_dense(values, m)
     z_up = Bricks.from_dense(values, turn @ m)
-    a = volrender.render(_scene(y_up, "y"), cl_device).rgba
-    b = volrender.render(_scene(z_up, "z"), cl_device).rgba
+    a = volrender.render(_scene(y_up, "y", "off"), cl_device).rgba
+    b = volrender.render(_scene(z_up, "z", "off"), cl_device).rgba
     assert a[..., 3].max() > 0.3
     np.testing.assert_allclose(a, b, atol=2e-5)
-    c = volrender.render(_scene(z_up, "y"), cl_device).rgba           # the wrong axis differs
+    c = volrender.render(_scene(z_up, "y", "off"), cl_device).rgba    # the wrong axis differs
     assert np.abs(a - c).max() > 0.05
+    # the light cache's bake (the default since its CPU cost model counts shared nodes once)
+    # is not bit-stable under the turn: 1.9e-4 here, the same under a black sky (so in the
+    # sun's baked shadows; cause not pinned: the coarse bake march's roundoff suspected),
+    # within the cache's own error and far below the wrong axis's 0.05
+    a = volrender.render(_scene(y_up, "y", "on"), cl_device).rgba
+    b = volrender.render(_scene(z_up, "z", "on"), cl_device).rgba
+    np.testing.assert_allclose(a, b, atol=1e-3)
 
 
-def _scene(bricks, axis):
+def _scene(bricks, axis, light_cache="auto"):
     from volrender.camera import View
     from volrender.scene import Scene, VolumeContent
     from volrender.volume import VolumeSettings
@@ -203,8 +210,8 @@ def _scene(bricks, axis):
     sun = Sun(tuple(d if frame is None else frame @ d), 6.0)
     cam = View(size=(32, 24), up_axis=axis).camera(*bricks.world_bounds())
     # ms_octaves: the march (deterministic; auto would pick the path estimator at 32x24)
-    return Scene(cam, (sun,), VolumeContent(bricks, VolumeSettings(density_scale=8.0,
-                                                                   ms_octaves=4)))
+    return Scene(cam, (sun,), VolumeContent(bricks, VolumeSettings(density_scale=8.0, ms_octaves=4,
+                                                                   light_cache=light_cache)))
 
 
 def test_blender_caches_default_to_z_up(shared_data):

@@ -493,3 +493,21 @@ def test_cpu_rule_counts_the_full_models_work(shared_data):
     fast = dataclasses.replace(s, glass_model="fast")
     assert cells_mod.choose_edge(packed.spheres, packed.blend, packed.box_lo, base,
                                  samples * spheres.sample_work(fast)) is not None
+
+
+@pytest.mark.parametrize("blend", [0.0, 0.08])
+def test_host_scans_build_the_device_scans_cells(cl_device, blend):
+    """The builder's prefix sums and compactions in numpy (CPUs' default) and in pyopencl's
+    scans (GPUs') give the same bricks, cells, lists, runs and walk entries, bit for bit, on
+    a cloud whose boxes are classified over several levels."""
+    cloud = generators.blob(400, seed=3)
+    p = packed(cl_device, cloud, blend=blend, cell_size=0.03)
+    tau = p.cells.tau
+    got = [cells.build(p.spheres, p.nodes, p.first_leaf, p.blend, p.box_lo, p.box_hi, 0.03, tau,
+                       cl_device, host_scans=host) for host in (True, False)]
+    a, b = got
+    assert a.n_lists > 100 and a.n_runs > a.n_lists and (a.bricks[:, 0] >= 0).sum() > 4
+    assert (a.n_lists, a.n_runs, a.n_entries, a.n_cell_rows) == (b.n_lists, b.n_runs, b.n_entries,
+                                                                 b.n_cell_rows)
+    for name in ("bricks", "cells", "lists", "runs", "walk", "entries"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)

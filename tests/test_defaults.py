@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from volrender import scene as scene_mod, volume
+from volrender import light_cache, scene as scene_mod, volume
 from volrender.camera import Camera
 from volrender.render import render
 from volrender.scene import Scene, VolumeContent
@@ -211,9 +211,10 @@ class _FakeGPU:
 
 def test_auto_weighs_error_per_second(monkeypatch):
     """auto's model (volume.auto_model): thin smoke gets single scattering everywhere; a
-    dense bright cloud gets the march's octave bands on a CPU at 640x480 (the path
-    estimator would be noisier in the time budget) but the path estimator on a GPU and on a
-    small image, at the samples that reach AUTO_TARGET; the note gives the prediction."""
+    dense bright cloud gets the march (the cache's orders) on a CPU at 640x480 (the path
+    estimator would be noisier in the time budget) and on a GPU that bakes it 1-voxel
+    nodes, but the path estimator on a GPU that cannot and on a small image, at the samples
+    that reach AUTO_TARGET; the note gives the prediction."""
     thin, dense = uniform_ball(0.05), uniform_ball(20.0)
     big = 640 * 480
     for dev in (None, _FakeGPU()):
@@ -225,12 +226,24 @@ def test_auto_weighs_error_per_second(monkeypatch):
     m = volume.auto_model(dense, VolumeSettings(), big)
     assert m["march_orders"]          # the light cache's orders at 640x480 (AUTO_ORDERS_PIXELS)
     assert m["path_error"] >= m["march_error"] and m["path_ms"] <= volume.AUTO_BUDGET_MS
+    # a GPU bakes 1-voxel nodes for a medium this dense (typical optical depth above
+    # light_cache.MS_DENSE_TAU): the march's predicted error x AUTO_FINE_ERROR, below the
+    # path estimator's within its budget
+    fine = volume.auto_model(dense, VolumeSettings(), big, gpu=True)
+    assert fine["fine"][0] == 1 and fine["tau"] > light_cache.MS_DENSE_TAU
+    assert fine["march_error"] == pytest.approx(volume.AUTO_FINE_ERROR[1] * m["march_error"])
     s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
-    # the path estimator aims at AUTO_TARGET, or half the march's predicted error where
+    assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
+    assert "1-voxel nodes" in note
+    # where that bake is not affordable the path estimator: it aims at AUTO_TARGET, or half
+    # the march's predicted error where
     # lower (not below AUTO_TARGET / 2)
     aim = max(volume.AUTO_TARGET / 2, min(volume.AUTO_TARGET, volume.AUTO_PATH_GAIN * m["march_error"]))
     assert aim == volume.path_aim(m["march_error"]) < volume.AUTO_TARGET
     want = math.ceil((volume.AUTO_PATH_NOISE / aim) ** 2)
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.0)
+    assert volume.auto_model(dense, VolumeSettings(), big, gpu=True)["fine"] is None
+    s, note = volume.auto_estimator(dense, VolumeSettings(), big, _FakeGPU())
     assert (s.estimator, s.spp) == ("path", want), note
     assert note.startswith(f"estimator auto: path, {want} spp: predicted error "
                            f"{volume.AUTO_PATH_NOISE / math.sqrt(want):.0%}") and "GPU" in note
@@ -251,3 +264,42 @@ def test_auto_weighs_error_per_second(monkeypatch):
     assert m1["path_error"] == pytest.approx(volume.AUTO_PATH_NOISE / math.sqrt(m1["path_spp"]))
     assert volume.auto_model(dense, VolumeSettings(), 1000, gpu=True)["path_sample_ms"] < \
         m1["path_sample_ms"] / 10
+
+
+def test_auto_steps_further_in_thin_media_on_cpus(monkeypatch):
+    """On a CPU auto's march with multiple scattering takes a step of AUTO_STEP_TAU typical
+    optical depth in a thin medium (sigma_voxel: mean sigma_t x a voxel), between the
+    default and AUTO_STEP_MAX
+    voxels (smoke: 0.32 -> 0.61 % at 2 voxels for a 4.8x faster kernel,
+    docs/error_time.md); the default step in dense media, on GPUs, where the volume emits
+    and where --step or --shadow-step is given; the note says so."""
+    monkeypatch.setattr(volume, "is_gpu", lambda d: d is not None)
+    default = VolumeSettings().step
+    # the ball is 2.1 world units across: sigma_voxel = density x 0.1 (the voxel), and
+    # multiple scattering (a photon scatters again with probability >= 0.2) from density 1.2
+    for density, want in ((20.0, default), (1.6, 1.0), (1.4, 0.16 / 0.14), (1.2, 0.16 / 0.12)):
+        b = uniform_ball(density)
+        sv = volume.optical_size(b, VolumeSettings())["sigma_voxel"]
+        assert sv == pytest.approx(density * 0.1, rel=1e-5)
+        s, note = volume.auto_estimator(b, VolumeSettings(), 640 * 480, None)
+        assert (s.estimator, s.ms_octaves) == ("march", volume.AUTO_OCTAVES), note
+        assert s.step == pytest.approx(want), note
+        assert ("march step" in note) == (want != default)
+    tiny = uniform_ball(0.05)                        # single scattering: the step as it was
+    s, _ = volume.auto_estimator(tiny, VolumeSettings(), 640 * 480, None)
+    assert s.ms_octaves == 1 and s.step == default
+    monkeypatch.setattr(volume, "AUTO_STEP_MAX", 1.1)
+    assert volume.auto_estimator(uniform_ball(1.2), VolumeSettings(), 640 * 480,
+                                 None)[0].step == pytest.approx(1.1)
+    thin = uniform_ball(1.2)
+    assert volume.auto_estimator(thin, VolumeSettings(), 640 * 480, _FakeGPU())[0].step == default
+    for given in (dict(step=0.25), dict(shadow_step=2.0)):
+        s, _ = volume.auto_estimator(thin, VolumeSettings(**given), 640 * 480, None)
+        assert s.step == given.get("step", default)
+    n = 24
+    i = np.indices((n, n, n)) - (n - 1) / 2
+    v = (np.sqrt((i ** 2).sum(0)) < n / 2 - 1.5).astype(np.float32)
+    m = np.eye(4)
+    m[:3, :3] *= 0.1
+    glowing = Bricks.from_dense(v * 1.2, m, emission=v)
+    assert volume.auto_estimator(glowing, VolumeSettings(), 640 * 480, None)[0].step == default

@@ -56,9 +56,9 @@ def tau_towards_sun(bricks, local, sigma, sun=SUN, ds=0.1):
     return sigma * tau * ds * world_per_voxel
 
 
-def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400):
+def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400, near=light_cache.NEAR_CELLS):
     """Relative RMS error of the sun's transmittance as the marcher reads it
-    (light_cache.h vr_cached_tau: exact over the first NEAR_CELLS node spacings, then
+    (light_cache.h vr_cached_tau: exact over the first `near` node spacings, then
     trilinear between nodes `cell` voxels apart, exact again where that point is in no
     occupied brick), at random points of the occupied bricks where the density is
     positive."""
@@ -67,7 +67,7 @@ def predicted_error(bricks, cell, sigma, rng, sun=SUN, n=400):
     pts = pts[bricks.sample_local(pts) > 0][:n]
     w2l = np.linalg.inv(bricks.local_to_world)[:3, :3]
     dl = w2l @ -np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
-    far = pts + light_cache.NEAR_CELLS * cell * bricks.voxel_size * dl
+    far = pts + near * cell * bricks.voxel_size * dl
     tau_p = tau_towards_sun(bricks, pts, sigma, sun)
     tau_q = tau_towards_sun(bricks, far, sigma, sun)
     q = far / cell                                   # nodes: local multiples of cell
@@ -120,7 +120,10 @@ def render_pair(dev, values, cell, size=32, spp=16):
 def test_cached_sun_matches_the_exact_march(cl_device, rng, name, values, cell):
     v = values()
     bricks, m, (ref, img) = render_pair(cl_device, v, cell)
-    eps = predicted_error(bricks, cell, SIGMA, rng)
+    # the exact near part where the medium is dense across a node spacing (near_cells)
+    sigma_voxel = volume.optical_size(bricks, VolumeSettings(density_scale=SIGMA))["sigma_voxel"]
+    near = light_cache.near_cells(cell, sigma_voxel)
+    eps = predicted_error(bricks, cell, SIGMA, rng, near=near)
     mean, rel, se = compare(ref, img)
     # eps is per point; an image averages points along each ray, so it bounds both
     assert abs(mean) <= eps + Z * se, (name, cell, mean, eps, se)
@@ -292,3 +295,46 @@ def test_cached_sky_through_a_thick_slab(cl_device, below):
     mean, rel, se = compare(ref, img)
     assert abs(mean) <= 0.15 + Z * se, (below, mean, se)
     assert rel <= 0.25, (below, rel)
+
+
+def test_thin_media_read_their_shadows_from_the_nodes_alone():
+    """The exact near part (NEAR_CELLS node spacings) only where the medium's typical
+    optical depth across a spacing is above NEAR_TAU (WDAS, 1.7 a voxel, keeps it; smoke,
+    dragon, 0190, 0.07-0.09 a voxel, drop it at 1-4 voxel spacings: docs/error_time.md);
+    the cost model counts the near part it keeps."""
+    b = lumpy_ball(24)
+    st = VolumeSettings(estimator="march", ms_octaves=1, light_cache="on", light_cache_cell=4)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=32)
+
+    def pick(sigma_voxel):
+        return light_cache.choose(b, st, cam, 1, False, sigma_voxel=sigma_voxel)
+    thin, dense, unknown = pick(0.08), pick(1.7), pick(None)
+    assert (thin.near_cells, dense.near_cells, unknown.near_cells) == (0.0, 2.0, 2.0)
+    edge = light_cache.NEAR_TAU / 4
+    assert pick(0.99 * edge).near_cells == 0.0 and pick(1.01 * edge).near_cells == 2.0
+    assert light_cache.near_length(b, thin) == 0.0
+    assert light_cache.near_length(b, dense) == pytest.approx(8 * float(b.voxel_size))
+    assert thin.cost < dense.cost
+
+
+def test_the_cost_model_counts_each_march_at_its_own_step():
+    """The bake's count (light_cache.choose): per baked node, each light's march at the
+    shadow step, the sky's 14 at ENV_STEP_CELLS node spacings and each order's 2 x 14 at
+    MS_STEP_CELLS spacings (at least the shadow step), over the chord; on CPUs the shared
+    nodes count once (baked_per_brick: the interior (8 / c)^3 x SHARED_SURFACE), on GPUs
+    and at 1-voxel nodes all of them."""
+    b = lumpy_ball(24)
+    cam = look_at((30.0, 40.0, 110.0), fov=22.0, n=32)
+    assert light_cache.baked_per_brick(4, False) == pytest.approx(8 * light_cache.SHARED_SURFACE)
+    assert light_cache.baked_per_brick(2, False) == pytest.approx(64 * light_cache.SHARED_SURFACE)
+    assert light_cache.baked_per_brick(4, True) == 27 and light_cache.baked_per_brick(1, False) == 729
+    chord = (int(b.n_slots) * 512) ** (1 / 3)                    # shadow step 1 voxel
+    for cell, gpu in ((4, False), (2, False), (4, True), (1, False)):
+        st = VolumeSettings(estimator="march", ms_octaves=4, light_cache="on",
+                            light_cache_cell=cell, shadow_step=1.0)
+        c = light_cache.choose(b, st, cam, 1, True, tau=7.9, ms_orders=3, gpu=gpu,
+                               sigma_voxel=0.01)                 # thin: no near part
+        env = 14 / max(1.0, light_cache.ENV_STEP_CELLS * cell)
+        orders = 2 * 14 * 3 / max(1.0, light_cache.MS_STEP_CELLS[0] * cell)
+        want = int(b.n_slots) * light_cache.baked_per_brick(cell, gpu) * (1 + env + orders) * chord
+        assert c.near_cells == 0 and c.cost == pytest.approx(want, rel=1e-9), (cell, gpu)

@@ -145,3 +145,70 @@ def test_gathers_step_half_a_node_spacing_only_in_dense_media():
     params = {"shadow_step": np.array([0.01])}
     assert light_cache.ms_step(b, thin, params) == pytest.approx(4 * float(b.voxel_size))
     assert light_cache.ms_step(b, dense, params) == pytest.approx(2 * float(b.voxel_size))
+
+
+def test_a_gpu_bakes_a_dense_medium_on_fine_nodes_with_more_orders(monkeypatch):
+    """On a GPU a dense medium (typical optical depth above MS_DENSE_TAU) takes the finest
+    of 1- and 2-voxel nodes whose bake is predicted within GPU_BAKE_MS, and FINE_ORDERS
+    orders unless --ms-orders is given (WDAS on the H200: 22.7 -> 7.1 % covered at 1 voxel,
+    13.3 % at 2; docs/error_time.md); a CPU keeps the cost model's cheapest spacing and 3
+    orders, and so does a GPU for a thin medium or a bake over the budget."""
+    b = media.lumpy_ball(24)
+    st = VolumeSettings(estimator="march", ms_octaves=4, light_cache="on")
+    slots = int(b.n_slots)
+
+    def pick(tau, gpu, orders=None, **kw):
+        c = light_cache.choose(b, replace(st, **kw), CAM, 1, True, tau=tau, ms_orders=orders,
+                               gpu=gpu)
+        return c.cell, c.ms_orders
+    cpu_cell = pick(123.0, False)[0]
+    assert cpu_cell > 2 and pick(123.0, False) == (cpu_cell, light_cache.MS_ORDERS)
+    assert pick(123.0, True) == (1, light_cache.FINE_ORDERS)
+    assert pick(123.0, True, orders=3) == (1, 3)                  # --ms-orders given
+    assert pick(7.9, True) == (cpu_cell, light_cache.MS_ORDERS)   # thin: the cost model's
+    assert pick(123.0, True, light_cache_cell=2) == (2, light_cache.FINE_ORDERS)
+    assert pick(123.0, True, light_cache_cell=4) == (4, light_cache.MS_ORDERS)
+    assert pick(123.0, False, light_cache_cell=1) == (1, light_cache.FINE_ORDERS)
+    assert light_cache.choose(b, st, CAM, 1, True, tau=123.0, ms_orders=0, gpu=True).ms_orders == 0
+    # the predicted bake: nodes x (orders + 2 passes) x GPU_NODE_PASS_MS, within the budget
+    want1, want2 = (slots * (8 // c + 1) ** 3 * (light_cache.FINE_ORDERS + 2)
+                    * light_cache.GPU_NODE_PASS_MS for c in (1, 2))
+    assert light_cache.gpu_fine(slots, 123.0) == (1, pytest.approx(want1))
+    assert light_cache.gpu_fine(slots, 7.9) is None
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want1)      # 1 voxel over it
+    assert light_cache.gpu_fine(slots, 123.0) == (2, pytest.approx(want2))
+    assert pick(123.0, True) == (2, light_cache.FINE_ORDERS)
+    monkeypatch.setattr(light_cache, "GPU_BAKE_MS", 0.99 * want2)      # both over it
+    assert pick(123.0, True) == (cpu_cell, light_cache.MS_ORDERS)
+
+
+def test_shared_nodes_are_baked_once_with_the_same_values(cl_device, monkeypatch):
+    """A node on a face shared by neighbouring bricks is the same point: the bake computes
+    it once and copies it (light_cache.bake_nodes, cl/bake_light.cl copy_nodes); every
+    channel of every node is what baking each brick's nodes on their own gives."""
+    from volrender import layout
+    occ = np.array([[0, 0, 0, 0], [1, 0, 0, 1], [1, 1, 0, 2]], np.int32)   # an L of 3 bricks
+    todo, pairs = light_cache.bake_nodes(occ, 4)
+    n = layout.BRICK // 4 + 1
+    assert len(todo) + len(pairs) == 3 * n ** 3 and len(pairs) == 2 * n * n
+    assert len(np.unique(pairs[:, 0])) == len(pairs)          # each copy written once
+    assert not np.isin(pairs[:, 1], pairs[:, 0]).any()        # from a baked node
+    all_todo, none = light_cache.bake_nodes(occ, 4, shared=False)
+    assert len(all_todo) == 3 * n ** 3 and len(none) == 0
+
+    real = light_cache.bake_nodes
+
+    def nodes(flag):
+        monkeypatch.setattr(light_cache, "bake_nodes",
+                            lambda o, c, shared=True: real(o, c, flag))
+        st = VolumeSettings(density_scale=12.0, albedo=(0.9,), phase=(0.5,), env=ENV,
+                            estimator="march", ms_octaves=4, light_cache="on",
+                            light_cache_cell=2)
+        scene = Scene.of(replace(CAM, width=8, height=8), [SUN],
+                         VolumeContent(media.lumpy_ball(24), st))
+        render(scene, cl_device)
+        baked, occ_ = light_cache.read_back(scene.content, cl_device)
+        return baked[occ_[:, 3]]
+    once, each = nodes(True), nodes(False)
+    assert once.shape == each.shape and np.isfinite(each).all() and each.max() > 0
+    np.testing.assert_allclose(once, each, rtol=1e-6, atol=1e-9)

@@ -525,3 +525,24 @@ def test_demo_cloud_is_a_small_fog_volume():
     b = V.load_volume(f)
     assert 0.5 < b.value_range[1] <= 1.0 and b.voxel_size == pytest.approx(0.05)
     assert 60 <= (b.dims * 8).max() <= 96
+
+
+@needs_openvdb
+def test_a_reader_started_early_is_the_one_that_reads(tmp_path, monkeypatch):
+    """vdb.start_reader starts the OpenVDB reader process ahead of the first load (its
+    start-up then overlaps the caller's); the load uses that process, and a second start
+    while it runs starts none. With $VOLRENDER_VDB_READER=0 (read in this process) it
+    starts nothing."""
+    v = np.ones((9, 9, 9), np.float32)
+    f = write_grid(tmp_path / "g.vdb", v)
+    monkeypatch.delenv(V.READER_ENV, raising=False)
+    V._READER.stop()
+    assert V.start_reader() is True
+    proc = V._READER.proc
+    assert V.start_reader() is False and V._READER.proc is proc
+    b = V.load_bricks(f)
+    assert V._READER.proc is proc and proc.poll() is None
+    assert b.active_voxels == v.size
+    monkeypatch.setenv(V.READER_ENV, "0")
+    V._READER.stop()
+    assert V.start_reader() is False and V._READER.proc is None

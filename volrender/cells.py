@@ -13,8 +13,9 @@ banner and docs/DESIGN.md; tests/reference.py's `oracle` is the same constructio
 The build runs on the render device (cl/build_cells.cl), walking the partition tree
 (volrender/tree.py) for boxes of up to 16 bricks, then classifying the octants of the boxes
 left unclassified from their parent's list, down to cells; each level's lists are counted,
-prefix-summed here and written by a second pass. tests/reference.py's `host_lists` is the
-numpy alternative (vectorised tree queries; x10 slower per cell, measured in docs/DESIGN.md).
+prefix-summed here (numpy on CPUs, pyopencl scans on GPUs) and written by a second pass.
+tests/reference.py's `host_lists` is the numpy alternative (vectorised tree queries; x10
+slower per cell, measured in docs/DESIGN.md).
 
 Long file: one idea, the device builder (_Builder's named steps) with the Cells record and
 the edge heuristics that size it; the numpy oracles live in tests/reference.py.
@@ -275,7 +276,7 @@ def _round_up(n, m=64):
 
 
 def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
-          classify=True, max_cells=None, max_runs=None) -> Cells:
+          classify=True, max_cells=None, max_runs=None, host_scans=None) -> Cells:
     """Support cells over [box_lo, box_hi] (render frame) for float32 `spheres` (N, 4, tree
     order) and their TreeNode records, on `device` (a volrender.device.Device).
     classify=False lists every cell (tests). max_runs: most list runs (default MAX_ITEMS,
@@ -283,7 +284,9 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     max_cells: when the bricks the surface passes through hold more cells than this, the
     cell edge grows by (cells / max_cells)^0.5, the brick pass redone, until they fit.
     Everything between the levels stays on the device (_Builder): a level reads back its
-    count of unclassified boxes and its total of list runs, nothing else."""
+    count of unclassified boxes and its total of list runs, nothing else. host_scans: the
+    prefix sums and compactions in numpy (default: on CPUs, where the device's memory is
+    the host's and pyopencl's scan kernels cost ~0.4 s to make in every process)."""
     t0 = time.perf_counter()
     lo = np.asarray(box_lo, np.float32)
     extent = float(np.abs(np.concatenate([np.asarray(box_lo, np.float64),
@@ -295,7 +298,10 @@ def build(spheres, nodes, first_leaf, blend, box_lo, box_hi, cell, tau, device,
     crowd = int(_occupancy(np.asarray(spheres[:, :3]) - lo, B * cell).max())
     if crowd > MAX_BRICK_SPHERES:
         raise TooLarge(f"{crowd} sphere centres in one brick")
-    b = _Builder(device, spheres, nodes, first_leaf, max_runs)
+    if host_scans is None:
+        from .dispatch import is_gpu
+        host_scans = not is_gpu(device)
+    b = _Builder(device, spheres, nodes, first_leaf, max_runs, host_scans)
     while True:
         cell, dims, bdims = grid_shape(box_lo, box_hi, cell)
         params = layout.record("CellBuild", grid_lo=[*lo, cell], blend=blend, pad=pad,
@@ -340,7 +346,7 @@ class _Builder:
     """The device side of build: the kernels of cl/build_cells.cl and pyopencl scans for
     the prefix sums (list offsets) and compaction (the unclassified boxes)."""
 
-    def __init__(self, device, spheres, nodes, first_leaf, max_runs):
+    def __init__(self, device, spheres, nodes, first_leaf, max_runs, host_scans=False):
         import pyopencl as cl
         import pyopencl.array as cla
         self.cl, self.cla, self.padded = cl, cla, padded
@@ -351,7 +357,8 @@ class _Builder:
             "build_classify", "build_classify_sub", "build_fill", "build_expand",
             "build_paint_bricks", "build_mark_mixed", "build_paint_cells",
             "build_mark_listed", "build_walk_count", "build_walk_fill")}
-        self.scans = _scans(device.context)
+        self.host = host_scans
+        self.scans = None if host_scans else _scans(device.context)
         mf = cl.mem_flags
         self.sp = cl.Buffer(device.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
                             hostbuf=np.ascontiguousarray(spheres if len(spheres) else
@@ -399,6 +406,17 @@ class _Builder:
     def _keep(self, lv, inside):
         """Compact the unclassified boxes (inside the grid, at brick levels)."""
         cla = self.cla
+        if self.host:
+            out = lv.out.get()[:lv.n]
+            keep = out["s0"] == 0
+            if inside and lv.n:
+                org = lv.origins.get()[:lv.n]
+                for f, v in zip(("s0", "s1", "s2"), self.bdims):
+                    keep &= org[f] // B < v
+            sel = np.flatnonzero(keep).astype(np.int32)
+            lv.kept = len(sel)
+            lv.sel = cla.to_device(self.q, sel if len(sel) else np.zeros(1, np.int32))
+            return
         lv.sel = cla.empty(self.q, max(lv.n, 1), np.int32)
         count = cla.zeros(self.q, 1, np.int32)
         if lv.n:
@@ -410,19 +428,33 @@ class _Builder:
 
     def _fill(self, lv, parent=None):
         cla, cl = self.cla, self.cl
-        lv.lists = cla.empty(self.q, max(lv.kept, 1), cl.cltypes.int4)
-        total = cla.zeros(self.q, 1, np.int64)
-        if lv.kept:
-            self.scans["lists"](lv.out, lv.sel, np.int32(lv.kept), lv.lists, total,
-                                size=self.padded(lv.kept, self.device), queue=self.q)
-        lv.total = int(total.get()[0])
-        if lv.total > self.max_runs:
-            raise TooLarge(f"over {self.max_runs} list runs")
-        if lv.size == B and lv.kept:
+        if self.host:
+            o = lv.out.get()[lv.sel.get()[:lv.kept]] if lv.kept else np.zeros(0, cl.cltypes.int4)
+            n, nc = o["s1"].astype(np.int64), o["s2"].astype(np.int64)
+            ends = np.cumsum(n + nc)
+            lv.total = int(ends[-1]) if len(ends) else 0
+            if lv.total > self.max_runs:
+                raise TooLarge(f"over {self.max_runs} list runs")
+            start = ends - n - nc
+            lists = np.zeros(max(lv.kept, 1), cl.cltypes.int4)
+            lists["s0"][:lv.kept], lists["s1"][:lv.kept] = start, n
+            lists["s2"][:lv.kept], lists["s3"][:lv.kept] = start + n, nc
+            lv.lists = cla.to_device(self.q, lists)
+            longest = int(n.max()) if lv.size == B and lv.kept else 0
+        else:
+            lv.lists = cla.empty(self.q, max(lv.kept, 1), cl.cltypes.int4)
+            total = cla.zeros(self.q, 1, np.int64)
+            if lv.kept:
+                self.scans["lists"](lv.out, lv.sel, np.int32(lv.kept), lv.lists, total,
+                                    size=self.padded(lv.kept, self.device), queue=self.q)
+            lv.total = int(total.get()[0])
+            if lv.total > self.max_runs:
+                raise TooLarge(f"over {self.max_runs} list runs")
             longest = int(self.scans["longest"](lv.out, lv.sel, range=slice(lv.kept),
-                                                queue=self.q).get())
-            if longest > MAX_LIST:
-                raise TooLarge(f"a brick's list holds {longest} runs")
+                                                queue=self.q).get()) \
+                if lv.size == B and lv.kept else 0
+        if longest > MAX_LIST:
+            raise TooLarge(f"a brick's list holds {longest} runs")
         lv.runs = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, 8 * max(lv.total, 1))
         if parent is None:
             self._run("build_fill", lv.kept, self.prm[lv.size], self.sp, self.nodes,
@@ -496,13 +528,22 @@ class _Builder:
         cla, cl = self.cla, self.cl
         n = lv.kept
         counts = cla.empty(self.q, max(n, 1), cl.cltypes.int2)
-        walk = cla.empty(self.q, max(n, 1), cl.cltypes.int4)
-        total = cla.zeros(self.q, 1, np.int64)
         self._run("build_walk_count", n, lv.lists.data, lv.runs, np.int32(n), counts.data)
-        if n:
-            self.scans["walk"](counts, np.int32(n), walk, total,
-                               size=self.padded(n, self.device), queue=self.q)
-        n_entries = int(total.get()[0])
+        if self.host:
+            c = counts.get()[:n]
+            ends = np.cumsum(c["s0"].astype(np.int64))
+            n_entries = int(ends[-1]) if n else 0
+            start = ends - c["s0"]
+            w = np.zeros(max(n, 1), cl.cltypes.int4)
+            w["s0"][:n], w["s1"][:n], w["s2"][:n], w["s3"][:n] = start, c["s0"], start, c["s1"]
+            walk = cla.to_device(self.q, w)
+        else:
+            walk = cla.empty(self.q, max(n, 1), cl.cltypes.int4)
+            total = cla.zeros(self.q, 1, np.int64)
+            if n:
+                self.scans["walk"](counts, np.int32(n), walk, total,
+                                   size=self.padded(n, self.device), queue=self.q)
+            n_entries = int(total.get()[0])
         if n_entries > self.max_runs:
             raise TooLarge(f"over {self.max_runs} list entries (the list runs' budget)")
         entries = cl.Buffer(self.device.context, cl.mem_flags.READ_WRITE, 8 * max(n_entries, 1))

@@ -7,15 +7,13 @@ Python, render(..., denoise="on") denoises; "auto" is off there, since no output
 
 OIDN's RT filter takes the HDR colour and two guides the kernels write (cl/guide_volume.cl,
 cl/guide_glass.cl): albedo in [0, 1] and normals in [-1, 1] (0 where nothing was hit),
-both averaged over GUIDE_SPP jittered sub-pixel rays, i.e. prefiltered and anti-aliased
-(clean_aux: OIDN filters them no further). Alpha is not denoised: it is the render's own.
+both noiseless (guides.SPP rays a pixel: clean_aux, OIDN filters them no further). Alpha is not denoised: it is the render's own.
 """
 from __future__ import annotations
 
 import numpy as np
 
 MODES = ("auto", "on", "off")
-GUIDE_SPP = 4                  # jittered sub-pixel rays per pixel of the guides
 AUTO_SUFFIXES = (".png",)      # what auto denoises: 8-bit (or 16-bit) display images
 
 _missing = None                # why pyoidn does not import (None: not tried or fine)
@@ -58,10 +56,11 @@ def decide(mode: str, suffix: str | None) -> tuple[bool, str | None]:
     return True, None
 
 
-def denoise(rgba, albedo=None, normal=None) -> np.ndarray:
-    """The RGBA image with its colour denoised by OIDN (RT filter, HDR, high quality; the
-    guides, H x W x 3, clean: see the module docstring); alpha unchanged. Negative and
-    non-finite colour values read as 0 (OIDN takes non-negative HDR colour)."""
+def denoise(rgba, albedo=None, normal=None, quality: str = "high") -> np.ndarray:
+    """The RGBA image with its colour denoised by OIDN (RT filter, HDR, `quality`: high,
+    balanced or fast; the guides, H x W x 3, clean: see the module docstring); alpha
+    unchanged. Negative and non-finite colour values read as 0 (OIDN takes non-negative
+    HDR colour)."""
     import pyoidn
     rgba = np.asarray(rgba, np.float32)
     colour = np.nan_to_num(rgba[..., :3], nan=0.0, posinf=0.0, neginf=0.0)
@@ -73,5 +72,5 @@ def denoise(rgba, albedo=None, normal=None) -> np.ndarray:
             kw["normal"] = np.ascontiguousarray(np.clip(normal, -1.0, 1.0), np.float32)
         kw["clean_aux"] = True
     out = rgba.copy()
-    out[..., :3] = pyoidn.denoise(colour, hdr=True, quality="high", **kw)
+    out[..., :3] = pyoidn.denoise(colour, hdr=True, quality=quality, **kw)
     return out

@@ -26,20 +26,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import layout
-from .dispatch import upload
-from .environment import env_mode, uniform
+from .dispatch import is_gpu, upload
+from .light_dirs import ENV_DIRS, env_quadrature, ms_dirs
 
 MODES = ("auto", "on", "off")
 # node spacings the cost model picks from; 8 (brick corners) is valid when asked for, but
 # the sky term, which has no exact near part, is off by +3 % there on WDAS (docs/error_time.md)
 CELLS = (1, 2, 4)
-ENV_DIRS = 14                  # cl/light_cache.h's fixed environment directions
 ENV_CH = 12
 MAX_BYTES = 512 << 20          # the cache is coarsened until it fits
 # a light's shadow is marched exactly over this many node spacings from the sample, and
 # read from the cache beyond (cl/light_cache.h vr_cached_tau): dense media shade within a
 # voxel of their lit surface, sharper than trilinear nodes can hold
 NEAR_CELLS = 2.0
+# ... only where the medium's typical optical depth across a node spacing (the mean sigma_t
+# of its non-zero voxels x the spacing) is above NEAR_TAU: in thinner media the nodes'
+# trilinear tau is near the exact one and the near march is most of the kernel (320x240,
+# 4 spp, PoCL, against the near part: smoke (0.31 a 4-voxel spacing) x2.5 faster, 1.5 %
+# relative RMSE on covered pixels, mean x0.997; dragon (0.34) x2.5, 0.5 %; 0190 (0.14 at
+# 2 voxels) x1.8, 0.7 %; docs/error_time.md); WDAS (6.9) keeps it (without: x0.89, 13.7 %)
+NEAR_TAU = 1.0
 T_CUT_TAU = math.log(1e5)      # camera rays stop below transmittance 1e-5 (render_volume.cl)
 MS_CH = 12                     # the propagated orders' channels (L1 harmonics, as the sky's)
 # the geometric tail after the last propagated order (cl/bake_light.cl ms_finish): its
@@ -65,11 +71,50 @@ MS_T_STOP = 0.03
 # march (which takes the octave bands): on the real files the orders' covered-pixel error
 # is 0.2-0.9x the bands' (docs/error_time.md)
 MS_WORTH = 2.0
+# the orders propagated where --ms-orders is not given: MS_ORDERS, or FINE_ORDERS where the
+# nodes are at most 2 voxels apart in a dense medium (typical optical depth above
+# MS_DENSE_TAU): there the nodes resolve the light's peak at the lit surface and the
+# explicit orders carry it (WDAS on the H200 at 1080p, covered pixels: 1-voxel nodes 12.3 %
+# with 3 orders, 7.1 % with 6, 6.5 % with 10; 2-voxel 17.4 / 13.3 % with 3 / 6; the
+# thinner files gain nothing or overshoot: dragon at 1 voxel 5.2 -> 6.8 %;
+# docs/error_time.md)
+MS_ORDERS = 3
+FINE_ORDERS = 6
+# on a GPU a dense medium takes the finest of FINE_CELLS whose bake is predicted within
+# GPU_BAKE_MS (the cost model's CPU choice, 4-voxel nodes there, leaves WDAS at 22.7 %):
+# predicted as nodes x (orders + 2 passes) x GPU_NODE_PASS_MS, the H200's slowest pass
+# measured (smoke's 1-voxel gathers: 23 ms for 2.3M nodes; WDAS's 6 orders at 1 voxel took
+# 28 ms for 0.96M nodes, predicted 77)
+FINE_CELLS = (1, 2)
+GPU_BAKE_MS = 100.0
+GPU_NODE_PASS_MS = 1e-5
 
 
-def near_length(bricks, cell: int) -> float:
-    """World length of the exact part of a cached shadow ray."""
-    return float(NEAR_CELLS * cell * bricks.voxel_size)
+# distinct nodes per occupied brick where shared nodes are baked once (bake_nodes): its
+# (BRICK / c)^3 interior ones times this for the faces on the medium's surface (4-voxel
+# nodes: smoke 1.15, WDAS 1.22, dragon 1.31, 0190 1.53; 2-voxel: 1.08-1.25)
+SHARED_SURFACE = 1.25
+
+
+def baked_per_brick(cell: int, gpu: bool) -> float:
+    """Nodes the bake computes per occupied brick: every one on GPUs and at 1-voxel nodes,
+    the distinct ones otherwise (bake_nodes)."""
+    if gpu or cell == 1:
+        return float(nodes_per_brick(cell))
+    return min(float(nodes_per_brick(cell)), SHARED_SURFACE * (layout.BRICK // cell) ** 3)
+
+
+def near_length(bricks, choice) -> float:
+    """World length of the exact part of a cached shadow ray (choice.near_cells node
+    spacings)."""
+    return float(choice.near_cells * choice.cell * bricks.voxel_size)
+
+
+def near_cells(cell: int, sigma_voxel) -> float:
+    """The node spacings marched exactly: NEAR_CELLS where the optical depth across one
+    (sigma_voxel: the medium's typical sigma_t x a voxel, world; None: unknown) is above
+    NEAR_TAU, else 0."""
+    return NEAR_CELLS if sigma_voxel is None or sigma_voxel * cell > NEAR_TAU else 0.0
 
 
 @dataclass(frozen=True)
@@ -82,6 +127,7 @@ class Choice:
     reason: str
     ms_orders: int = 0         # scattering orders propagated over the nodes (0: none)
     ms_step_cells: float = MS_STEP_CELLS[0]   # their gather's longest step, node spacings
+    near_cells: float = NEAR_CELLS             # the shadows' exact part, node spacings
 
     @property
     def nbytes(self) -> int:
@@ -92,54 +138,13 @@ class Choice:
             return f"light cache off ({self.reason})"
         ms = (f", scattering orders 2-{self.ms_orders + 1} propagated over them"
               if self.ms_orders else "")
+        if not self.near_cells:
+            ms += ", shadows read from them alone (the medium is thin across a spacing)"
         return (f"light cache: nodes every {self.cell} voxel{'s' if self.cell > 1 else ''}{ms} "
                 f"({self.nodes / 1e3:.0f}k nodes x {self.channels} channels, "
                 f"{self.nbytes / 2**20:.1f} MB): bake and near marches ~{self.cost / 1e6:.3g}M "
                 f"shadow samples against ~{self.exact / 1e6:.3g}M for the exact march "
                 f"({self.reason}); --light-cache off for the exact march")
-
-
-def env_dirs() -> np.ndarray:
-    """The ENV_DIRS fixed world directions (cl/bake_light.cl marches along them): the 6
-    axes and the 8 cube diagonals."""
-    axes = np.vstack([np.eye(3), -np.eye(3)])
-    diag = np.array([(x, y, z) for x in (1, -1) for y in (1, -1) for z in (1, -1)]) / math.sqrt(3)
-    return np.vstack([axes, diag])
-
-
-def env_quadrature(environment, res=(128, 256)) -> np.ndarray:
-    """(ENV_DIRS * 5, 4) float32 for cl/bake_light.cl: per direction its world vector,
-    then over its cell of the sphere (the directions nearer to it than to any other) the
-    environment's integral / 4 pi (rgb) and its first moments / 4 pi (x, y, z: rgb each),
-    summed over the map's texels (or a res grid for a uniform environment). With every
-    transmittance 1 the bake then gives the map's own L1 projection exactly; a sun disk in
-    the map is integrated, never missed between directions."""
-    mode = env_mode(environment)
-    out = np.zeros((ENV_DIRS, 5, 4), np.float64)
-    dirs = env_dirs()
-    out[:, 0, :3] = dirs
-    if mode == 0:
-        return out.reshape(-1, 4).astype(np.float32)
-    if mode == 1:
-        h, w = res
-        rad = np.broadcast_to(np.asarray(environment.uniform, np.float64), (h, w, 3))
-    else:
-        rad = np.asarray(environment.texels, np.float64)
-        h, w = rad.shape[:2]
-    theta = (np.arange(h) + 0.5) / h * math.pi
-    phi = ((np.arange(w) + 0.5) / w - 0.5) * 2 * math.pi
-    st = np.sin(theta)[:, None]
-    d = np.stack([st * np.sin(phi)[None], np.broadcast_to(np.cos(theta)[:, None], (h, w)),
-                  -st * np.cos(phi)[None]], -1).reshape(-1, 3)     # cl/env.h vr_env_dir
-    da = (np.broadcast_to(st, (h, w)) * (math.pi / h) * (2 * math.pi / w)).reshape(-1)
-    cell = np.argmax(d @ dirs.T, axis=1)
-    lw = rad.reshape(-1, 3) * (da / (4 * math.pi))[:, None]
-    for j in range(ENV_DIRS):
-        sel = cell == j
-        out[j, 1, :3] = lw[sel].sum(0)
-        for a in range(3):
-            out[j, 2 + a, :3] = (lw[sel] * d[sel, a:a + 1]).sum(0)
-    return out.reshape(-1, 4).astype(np.float32)
 
 
 def nodes_per_brick(cell: int) -> int:
@@ -163,10 +168,32 @@ def camera_samples(bricks, camera, step_world, spp) -> float:
     return float(np.sum(vox_vol * layout.BRICK ** 3 / (area * step_world))) * spp
 
 
+def orders_for(cell: int, tau: float, ms_orders) -> int:
+    """The orders to propagate: ms_orders where given (0: none), else MS_ORDERS, or
+    FINE_ORDERS on nodes at most 2 voxels apart in a dense medium (tau above
+    MS_DENSE_TAU)."""
+    if ms_orders is not None:
+        return int(ms_orders)
+    return FINE_ORDERS if cell <= 2 and tau > MS_DENSE_TAU else MS_ORDERS
+
+
+def gpu_fine(slots: int, tau: float, ms_orders=None):
+    """(cell, predicted bake ms): the finest of FINE_CELLS a GPU bakes for a dense medium
+    (tau above MS_DENSE_TAU) within GPU_BAKE_MS, or None."""
+    if tau <= MS_DENSE_TAU:
+        return None
+    for cell in FINE_CELLS:
+        ms = slots * nodes_per_brick(cell) * (orders_for(cell, tau, ms_orders) + 2) * GPU_NODE_PASS_MS
+        if ms <= GPU_BAKE_MS:
+            return cell, ms
+    return None
+
+
 def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
-           tau: float = 0.0, ms_orders: int = 0) -> Choice:
+           tau: float = 0.0, ms_orders: int | None = 0, gpu: bool = False,
+           sigma_voxel: float | None = None) -> Choice:
     """The cache for this scene, from a cost model counted in shadow-march samples:
-    a bake costs nodes(c) x (marches per node) x the chord, the cached render's exact near
+    a bake costs the nodes it computes (baked_per_brick) x (marches per node) x the chord, the cached render's exact near
     parts (camera samples) x lights x 2c / shadow step, the exact march (camera samples) x
     (marches per sample) x the chord, the chord being the edge of a cube of the occupied
     bricks' volume over the shadow step. The node spacing c minimises bake + near parts
@@ -174,13 +201,16 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     that is below the exact march's count. Cell 0 where the mode is off, the estimator is
     not the march or nothing lights the medium. ms_orders: scattering orders to propagate
     over the nodes (each a march along the ENV_DIRS directions per node, counted twice: it
-    reads the nodes at every step); auto then bakes up to MS_WORTH x the exact march's
-    count."""
+    reads the nodes at every step; None: orders_for's); auto then bakes up to MS_WORTH x
+    the exact march's count. On a GPU (gpu) a dense medium with orders takes the nodes
+    gpu_fine says its bake affords there, whatever the count. sigma_voxel:
+    the medium's typical sigma_t x a voxel (near_cells; None: the near part everywhere)."""
     mode = settings.light_cache
-    channels = n_lights + (ENV_CH if env else 0) + (MS_CH if ms_orders else 0)
-    per_node = n_lights + (ENV_DIRS if env else 0) + 2 * ENV_DIRS * ms_orders
-    per_sample = n_lights + (1 if env else 0)
     slots = int(bricks.n_slots)
+    fine = gpu_fine(slots, tau, ms_orders) if gpu and ms_orders != 0 else None
+    orders = 0 if ms_orders == 0 else orders_for(4, tau, ms_orders)   # (channels: any > 0)
+    channels = n_lights + (ENV_CH if env else 0) + (MS_CH if orders else 0)
+    per_sample = n_lights + (1 if env else 0)
 
     def off(why):
         return Choice(0, 0, channels, 0.0, 0.0, why, 0)
@@ -194,25 +224,41 @@ def choose(bricks, settings, camera, n_lights: int, env: bool, cell=None,
     samples = camera_samples(bricks, camera, step, settings.spp) * min(1.0, T_CUT_TAU / max(tau, 1e-30))
     chord = (slots * layout.BRICK ** 3) ** (1.0 / 3.0) / settings.shadow_step
 
+    ms_cells = MS_STEP_CELLS[tau > MS_DENSE_TAU]
+
     def cost(c):
-        near = samples * n_lights * min(chord, NEAR_CELLS * c / settings.shadow_step)
-        return slots * nodes_per_brick(c) * per_node * chord + near
+        # the sky's and the gathers' marches step ENV_STEP_CELLS and ms_cells node
+        # spacings (at least the shadow step), not the shadow step: their samples scale by
+        # that ratio (WDAS on PoCL, 2- and 1-voxel bakes against 4: x7 and x39 of CPU
+        # measured, x9.3 and x54 counted so, x4.6 and x27 counted at the shadow step)
+        def thin(cells):
+            return settings.shadow_step / max(settings.shadow_step, cells * c)
+        k = 0 if ms_orders == 0 else orders_for(c, tau, ms_orders)   # the orders at c
+        per = n_lights + (ENV_DIRS * thin(ENV_STEP_CELLS) if env else 0) \
+            + 2 * ENV_DIRS * k * thin(ms_cells)
+        near = samples * n_lights * min(chord, near_cells(c, sigma_voxel) * c / settings.shadow_step)
+        return slots * baked_per_brick(c, gpu) * per * chord + near
     exact = samples * per_sample * chord
     fits = [c for c in (8, *CELLS) if slots * nodes_per_brick(c) * channels * 4 <= MAX_BYTES]
     if cell or settings.light_cache_cell:
         cell = cell or settings.light_cache_cell
         why = f"--light-cache-cell {cell}"
+    elif fine is not None and fine[0] in fits:
+        cell = fine[0]
+        why = (f"a dense medium (typical optical depth {tau:.3g}) on a GPU: {cell}-voxel "
+               f"nodes resolve its lit surface, their bake predicted ~{fine[1]:.0f} ms")
     else:
         cell = min([c for c in CELLS if c in fits] or [8], key=cost)
         why = f"{cell}-voxel nodes cost least"
-        worth = MS_WORTH if ms_orders else 1.0
+        worth = MS_WORTH if orders else 1.0
         if mode == "auto" and cost(cell) >= worth * exact:
             return Choice(0, 0, channels, cost(cell), exact,
                           f"auto: its bake and near marches, ~{cost(cell) / 1e6:.3g}M samples, "
                           f"would cost more than {'%g x ' % worth if worth != 1 else ''}the "
                           f"exact march's ~{exact / 1e6:.3g}M")
+    orders = 0 if ms_orders == 0 else orders_for(cell, tau, ms_orders)
     return Choice(cell, slots * nodes_per_brick(cell), channels, cost(cell), exact, why,
-                  ms_orders, MS_STEP_CELLS[tau > MS_DENSE_TAU])
+                  orders, MS_STEP_CELLS[tau > MS_DENSE_TAU], near_cells(cell, sigma_voxel))
 
 
 def occupied_slots(bricks) -> np.ndarray:
@@ -266,16 +312,6 @@ def get(content, device, features, params, lights_packed, environment,
     return cache
 
 
-def ms_dirs() -> np.ndarray:
-    """(ENV_DIRS, 4) float32: the fixed directions and their cells' solid angles / 4 pi
-    (env_quadrature of a unit sky), for cl/bake_light.cl's ms_gather."""
-    q = env_quadrature(uniform((1.0, 1.0, 1.0))).reshape(ENV_DIRS, 5, 4)
-    out = np.zeros((ENV_DIRS, 4), np.float32)
-    out[:, :3] = env_dirs()
-    out[:, 3] = q[:, 1, 0] / q[:, 1, 0].sum()
-    return out
-
-
 def env_step(bricks, choice, params) -> float:
     """World step of the bake's sky marches (cl/bake_light.cl): ENV_STEP_CELLS node
     spacings, at least the shadow step."""
@@ -291,6 +327,38 @@ def ms_step(bricks, choice, params) -> float:
                choice.ms_step_cells * choice.cell * float(bricks.voxel_size))
 
 
+def bake_nodes(occ, cell: int, shared: bool = True):
+    """(todo, pairs) for cl/bake_light.cl over the occupied bricks occ (occupied_slots):
+    todo (m, 2) int32, (index into occ, node) of each distinct node (a node on a face shared
+    by neighbouring bricks is the same point: baked once, in the first brick holding it);
+    pairs (k, 2) int32, (node index, the index it copies), node index = slot x
+    nodes_per_brick + node, for each of the others. shared False: every node of every
+    brick baked, no pairs (on GPUs, and at 1-voxel nodes, finding the shared ones costs more
+    host time than they save: smoke's 2.3M 1-voxel nodes take ~0.5 s of numpy for 1.4x
+    fewer; at 4 voxels 13 ms for 2.9x fewer, 87k -> 30k)."""
+    n = layout.BRICK // cell + 1
+    nodes = nodes_per_brick(cell)
+    if not shared or len(occ) == 0:
+        todo = np.stack([np.repeat(np.arange(len(occ)), nodes),
+                         np.tile(np.arange(nodes), len(occ))], axis=1).astype(np.int32)
+        return todo, np.zeros((0, 2), np.int32)
+    ijk = np.stack(np.unravel_index(np.arange(nodes), (n, n, n)), axis=1) * cell
+    pos = (occ[:, None, :3].astype(np.int64) * layout.BRICK + ijk[None]).reshape(-1, 3)
+    pos -= pos.min(axis=0)
+    span = pos.max(axis=0) + 1
+    key = (pos[:, 0] * span[1] + pos[:, 1]) * span[2] + pos[:, 2]
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    k = np.repeat(np.arange(len(occ)), nodes)
+    node = np.tile(np.arange(nodes), len(occ))
+    once = np.sort(first)                  # each point's first entry, in brick order
+    todo = np.stack([k[once], node[once]], axis=1).astype(np.int32)
+    at = occ[k, 3].astype(np.int64) * nodes + node
+    src = at[first[inverse.ravel()]]
+    dup = src != at
+    pairs = np.stack([at[dup], src[dup]], axis=1).astype(np.int32)
+    return todo, pairs
+
+
 def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
          similar=None) -> LightCache:
     """Run cl/bake_light.cl over every node of every occupied brick (then, with
@@ -298,7 +366,8 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
     import pyopencl as cl
     ctx, q = device.context, device.queue
     occ = occupied_slots(bricks)
-    n = len(occ) * nodes_per_brick(choice.cell)
+    todo, pairs = bake_nodes(occ, choice.cell, shared=choice.cell > 1 and not is_gpu(device))
+    n = len(todo)
     out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, max(4, 4 * int(bricks.n_slots) *
                                                       nodes_per_brick(choice.cell) * choice.channels))
     kernel = device.kernel("bake_light", flags)
@@ -314,9 +383,16 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
         t[:] = now, now_cpu
     glob = (-(-n // local) * local,)
     lights_buf, params_buf, occ_buf = upload(ctx, lights_packed), upload(ctx, params), upload(ctx, occ)
+    todo_buf, pairs_buf = upload(ctx, todo), upload(ctx, pairs)
+    copy = device.kernel("bake_light", flags, "copy_nodes")
+
+    def copied(buf, nch):                          # the shared nodes' other copies
+        if len(pairs):
+            copy(q, (-(-len(pairs) * nch // local) * local,), (local,), buf, pairs_buf,
+                 np.int32(len(pairs)), np.int32(nch))
     kernel(q, glob, (local,), params_buf, lights_buf,
-           table, data, upload(ctx, np.asarray(env, np.float32)), occ_buf, out,
-           np.int32(len(occ)), np.float32(env_step(bricks, choice, params)))
+           table, data, upload(ctx, np.asarray(env, np.float32)), occ_buf, todo_buf, out,
+           np.int32(n), np.float32(env_step(bricks, choice, params)))
     done("bake_light")
     if choice.ms_orders:
         nbytes = max(4, 4 * 3 * int(bricks.n_slots) * nodes_per_brick(choice.cell))
@@ -324,7 +400,8 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
         total = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, nbytes)
         total1 = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 3 * nbytes)
         device.kernel("bake_light", flags, "ms_source")(
-            q, glob, (local,), params_buf, lights_buf, occ_buf, out, orders[0], np.int32(len(occ)))
+            q, glob, (local,), params_buf, lights_buf, occ_buf, todo_buf, out, orders[0],
+            np.int32(n))
         done("ms_source")
         alb, ext = (cl.cltypes.make_float4(*map(float, v), 0.0) for v in similar)
         gather = device.kernel("bake_light", flags, "ms_gather",
@@ -334,21 +411,26 @@ def bake(bricks, device, flags, params, lights_packed, env, choice, table, data,
         # source (3 floats per direction per node; freed after the bake)
         once = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, ENV_DIRS * nbytes)
         device.kernel("bake_light", flags, "ms_once")(
-            q, glob, (local,), params_buf, lights_buf, occ_buf, out, dirs, once,
-            np.int32(len(occ)))
+            q, glob, (local,), params_buf, lights_buf, occ_buf, todo_buf, out, dirs, once,
+            np.int32(n))
+        copied(once, 3 * ENV_DIRS)                 # the gathers read their sources trilinearly
         done("ms_once")
-        n = choice.ms_orders
-        for k in range(n):
-            gather(q, glob, (local,), params_buf, table, data, dirs, occ_buf,
+        k_orders = choice.ms_orders
+        for k in range(k_orders):
+            gather(q, glob, (local,), params_buf, table, data, dirs, occ_buf, todo_buf,
                    once if k == 0 else orders[k % 3],
-                   orders[(k + 1) % 3], total, total1, np.int32(len(occ)), alb, ext,
+                   orders[(k + 1) % 3], total, total1, np.int32(n), alb, ext,
                    np.float32(ms_step(bricks, choice, params)), np.int32(k == 0))
+            copied(orders[(k + 1) % 3], 3)
             done(f"ms_gather{k + 1}")
         r_max = np.minimum(np.asarray(similar[0], np.float64), MS_TAIL)
+        kn = k_orders
         device.kernel("bake_light", flags, "ms_finish")(
-            q, glob, (local,), occ_buf, total, total1, orders[max(n - 2, 0) % 3], orders[(n - 1) % 3],
-            orders[n % 3], out, np.int32(len(occ)), cl.cltypes.make_float4(*map(float, r_max), 0.0))
+            q, glob, (local,), occ_buf, todo_buf, total, total1, orders[max(kn - 2, 0) % 3],
+            orders[(kn - 1) % 3], orders[kn % 3], out, np.int32(n),
+            cl.cltypes.make_float4(*map(float, r_max), 0.0))
         done("ms_finish")
+    copied(out, choice.channels)
     q.finish()
     return LightCache(out, choice, 1e3 * (time.perf_counter() - t0), passes, cpu)
 

@@ -56,6 +56,19 @@ AUTO_ORDERS_ERROR = (-3.837, 0.394, 0.132)
 # ... from this many pixels (auto runs before the camera exists, so before the cache's
 # cost model: at 640x480 it bakes for the four files, at 160x120 for 0190 alone)
 AUTO_ORDERS_PIXELS = 320 * 240
+# ... times this where a GPU bakes 1- or 2-voxel nodes for a dense medium (light_cache.gpu_fine):
+# WDAS on the H200 at 1080p, 7.1 % (1-voxel nodes, 6 orders) and 13.3 % (2, 6) against
+# 22.7 % (4-voxel, 3), the one dense file measured (docs/error_time.md)
+AUTO_FINE_ERROR = {1: 0.31, 2: 0.59}
+# on a CPU auto's march steps up to AUTO_STEP_MAX voxels in thin media: the step's typical
+# optical depth (optical_size's sigma_voxel x the step) at most AUTO_STEP_TAU (PoCL,
+# 320x240, 1 spp, the cache on, against the default step at 32 spp, covered pixels: smoke
+# step 0.5 / 1 / 2 voxels 0.32 / 0.33 / 0.61 % relative RMSE, kernel 446 / 201 / 93 ms;
+# dragon 0.12 / 0.13 / 0.19 %, 241 / 74 / 58 ms; docs/error_time.md); not where the volume
+# emits, nor with --step or --shadow-step given, nor on GPUs (their kernels are a few ms),
+# nor for single scattering (a thin medium's cheap march: kept as it was)
+AUTO_STEP_TAU = 0.16
+AUTO_STEP_MAX = 2.0
 AUTO_PATH_MS = {"cpu": 2.04e-4, "gpu": 1.16e-6}   # ms per pixel-sample at tau 0
 AUTO_CPU_UNITS = 2                  # the compute units AUTO_PATH_MS["cpu"] was measured on
 AUTO_PATH_SLOPE = 0.512
@@ -197,14 +210,15 @@ class VolumeSettings(CommonSettings):
                                         check=lambda v: None if v in (None, 1, 2, 4, 8)
                                         else "must be 1, 2, 4 or 8", toml=("volume",
                                         "light_cache_cell"), kind=int, show_default=False)
-    ms_orders: int = knob(3, "march with the light cache and multiple scattering: scattering "
-                          "orders 2 to N+1 propagated over the cache's nodes from the baked "
-                          "light (the rest as a geometric tail; volrender/light_cache.py) "
-                          "instead of the octave bands; 0: the octave bands",
-                          check=lambda v: None if isinstance(v, int) and not isinstance(v, bool)
-                          and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
+    ms_orders: int | None = knob(None, "march with the light cache and multiple scattering: "
+                          "scattering orders 2 to N+1 propagated over the cache's nodes from "
+                          "the baked light (the rest as a geometric tail; "
+                          "volrender/light_cache.py) instead of the octave bands; 0: the octave "
+                          "bands; default: 3, or 6 on 1- or 2-voxel nodes in a dense medium",
+                          check=lambda v: None if v is None or isinstance(v, int) and not
+                          isinstance(v, bool) and (v == 0 or 2 <= v <= 16) else "must be 0 (the octave bands) or "
                           "2 to 16 (one order's tail, from the phase-weighted first, overshoots)",
-                          toml=("volume", "ms_orders"))
+                          toml=("volume", "ms_orders"), kind=int, show_default=False)
     hide_env: bool = knob(False, "the camera does not see --env behind the volume (it still "
                           "lights it; --background is seen instead)", check=boolean,
                           toml=("volume", "hide_env"))
@@ -303,8 +317,9 @@ _NONZERO = {}        # id(bricks) -> (id(data), count, mean) of the non-zero vox
 
 def optical_size(bricks, settings: VolumeSettings) -> dict:
     """A typical optical depth of the medium: the mean sigma_t over its non-zero voxels
-    (largest channel) times the edge of a cube of their volume (world units), and the
-    chance that a photon scattered inside scatters again, albedo (1 - exp(-tau))."""
+    (largest channel) times the edge of a cube of their volume (world units), the chance
+    that a photon scattered inside scatters again, albedo (1 - exp(-tau)), and that mean
+    sigma_t times a voxel (sigma_voxel: the optical depth across one)."""
     key = id(bricks.data)
     if _NONZERO.get(id(bricks), (None,))[0] != key:
         own = np.asarray(bricks.data)[:, :-1, :-1, :-1]
@@ -313,12 +328,13 @@ def optical_size(bricks, settings: VolumeSettings) -> dict:
         weakref.finalize(bricks, _NONZERO.pop, id(bricks), None)
     _, count, mean = _NONZERO[id(bricks)]
     if count == 0:
-        return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo)}
+        return {"tau": 0.0, "probability": 0.0, "albedo": max(settings.albedo), "sigma_voxel": 0.0}
     sigma = settings.density_scale * max(settings.sigma_t_scale) * mean
     size = float(count) ** (1.0 / 3.0) * bricks.voxel_size
     tau = sigma * size
     alb = max(settings.albedo)
-    return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb}
+    return {"tau": tau, "probability": alb * -math.expm1(-tau), "albedo": alb,
+            "sigma_voxel": sigma * bricks.voxel_size}
 
 
 def path_aim(march_error: float) -> float:
@@ -334,8 +350,9 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     typical optical depth tau and albedo a (optical_size), with L = ln(1 + tau),
     n = -ln(1 - a):
     * the march's error (relative RMSE on covered pixels): with the light cache's
-      scattering orders (--ms-orders > 0, --light-cache on, or auto from
-      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
+      scattering orders (--ms-orders not 0, --light-cache on, or auto from
+      AUTO_ORDERS_PIXELS pixels) exp(AUTO_ORDERS_ERROR . (1, L, n)), x AUTO_FINE_ERROR[c]
+      where a GPU bakes c-voxel nodes for it (light_cache.gpu_fine; fine: (c, bake ms)); with the octave bands e^AUTO_MARCH_ERROR[0] L^AUTO_MARCH_ERROR[1]
       e^(AUTO_MARCH_ERROR[2] n);
     * the path estimator's: AUTO_PATH_NOISE / sqrt(spp) (it is unbiased);
     * a path sample's kernel time: pixels x AUTO_PATH_MS[device] (1 + tau)^AUTO_PATH_SLOPE
@@ -344,11 +361,17 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     where it is above 1 (a count the user chose is kept)."""
     o = optical_size(bricks, settings)
     big_l, n = math.log1p(o["tau"]), -math.log1p(-min(o["albedo"], 0.999))
-    orders = settings.ms_orders > 0 and settings.light_cache != "off" and \
+    orders = settings.ms_orders != 0 and settings.light_cache != "off" and \
         (pixels >= AUTO_ORDERS_PIXELS or settings.light_cache == "on")
+    fine = None
     if orders:
         c0, c1, c2 = AUTO_ORDERS_ERROR
         march_error = min(1.0, math.exp(c0 + c1 * big_l + c2 * n))
+        if gpu and settings.light_cache_cell is None:
+            from .light_cache import gpu_fine
+            fine = gpu_fine(int(bricks.n_slots), o["tau"], settings.ms_orders)
+            if fine is not None:
+                march_error *= AUTO_FINE_ERROR[fine[0]]
     else:
         c0, c1, c2 = AUTO_MARCH_ERROR
         march_error = min(1.0, math.exp(c0) * max(big_l, 1e-6) ** c1 * math.exp(c2 * n))
@@ -360,10 +383,23 @@ def auto_model(bricks, settings: VolumeSettings, pixels: int, gpu: bool = False,
     spp = max(1, min(want, int(AUTO_BUDGET_MS / max(sample_ms, 1e-9))))
     if settings.spp > 1 and not adaptive(settings):   # --spp given: weighed at that count
         spp = settings.spp
-    return {**o, "march_error": march_error, "march_orders": orders,
+    return {**o, "march_error": march_error, "march_orders": orders, "fine": fine,
             "path_sample_ms": sample_ms, "path_spp": spp,
             "path_error": AUTO_PATH_NOISE / math.sqrt(spp), "path_ms": spp * sample_ms,
             "device": "GPU" if gpu else "CPU", "pixels": pixels}
+
+
+def auto_step(bricks, settings: VolumeSettings, gpu: bool) -> float:
+    """The step of auto's march with multiple scattering: the default, or on a CPU in a thin
+    medium that does not emit up to AUTO_STEP_MAX voxels, at AUTO_STEP_TAU typical optical depth a step; the
+    given step where --step or --shadow-step is not the default."""
+    fields = VolumeSettings.__dataclass_fields__
+    default = fields["step"].default
+    if gpu or bricks.emission is not None or (settings.step, settings.shadow_step) != (
+            default, fields["shadow_step"].default):
+        return settings.step
+    sv = optical_size(bricks, settings)["sigma_voxel"]
+    return min(AUTO_STEP_MAX, max(default, AUTO_STEP_TAU / max(sv, 1e-30)))
 
 
 def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, device=None):
@@ -395,9 +431,15 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
         return (replace(settings, estimator="march", ms_octaves=1),
                 f"estimator auto: single scattering (march; {why}, below "
                 f"{AUTO_MS_PROBABILITY:g}); --ms-octaves {AUTO_OCTAVES} adds multiple scattering")
+    step = auto_step(bricks, settings, gpu)
+    stepped = (f"; march step {step:.2g} voxels (a thin medium on a CPU: --step "
+               f"{settings.step:g} for the default's)" if step != settings.step else "")
     gain = octave_gain(settings, m["tau"])
     how = ("the light cache's scattering orders where baked, else "
            if m["march_orders"] else "")
+    if m["fine"] is not None:
+        how = (f"the light cache's scattering orders on {m['fine'][0]}-voxel nodes (a dense "
+               f"medium on a GPU: bake ~{m['fine'][1]:.0f} ms) where baked, else ")
     march = (f"march with {how}{AUTO_OCTAVES} octave bands (gain G {gain:.2f}): predicted "
              f"error {m['march_error']:.0%}")
     fields = VolumeSettings.__dataclass_fields__
@@ -409,10 +451,10 @@ def auto_estimator(bricks, settings: VolumeSettings, pixels: int | None = None, 
                 f"estimator auto: path, {spp} spp: predicted error {m['path_error']:.0%} on "
                 f"covered pixels in ~{m['path_ms'] / 1e3:.2g} s of kernel on a {m['device']} "
                 f"({march}; {why})")
-    return (replace(settings, estimator="march", ms_octaves=AUTO_OCTAVES),
+    return (replace(settings, estimator="march", ms_octaves=AUTO_OCTAVES, step=step),
             f"estimator auto: multiple scattering ({march} on covered pixels; the path "
             f"estimator: {m['path_error']:.0%} in ~{m['path_ms'] / 1e3:.2g} s of kernel on a "
-            f"{m['device']}; {why}); --estimator path for the unbiased image")
+            f"{m['device']}; {why}){stepped}; --estimator path for the unbiased image")
 
 
 def track_majorants(bricks, settings: VolumeSettings) -> np.ndarray:
@@ -617,22 +659,25 @@ def ms_cache_fields(settings, choice) -> dict:
     return {"ms_octaves": 1, "ms_cache": True} if choice.ms_orders else {}
 
 
-def light_cache_choice(scene):
-    """light_cache.Choice for a resolved volume scene (its cost model; cell 0: none)."""
+def light_cache_choice(scene, device=None):
+    """light_cache.Choice for a resolved volume scene on `device` (None: a CPU; its cost
+    model; cell 0: none)."""
     from . import light_cache
     n_suns, n_points = counts(scene.lights)
     bricks, settings = scene.content.bricks, scene.content.settings
+    o = optical_size(bricks, settings)
     return light_cache.choose(bricks, settings, scene.camera, n_suns + n_points,
-                              env_mode(scene.environment) > 0,
-                              tau=optical_size(bricks, settings)["tau"],
-                              ms_orders=settings.ms_orders if settings.octaves > 1 else 0)
+                              env_mode(scene.environment) > 0, tau=o["tau"],
+                              ms_orders=settings.ms_orders if settings.octaves > 1 else 0,
+                              gpu=device is not None and is_gpu(device),
+                              sigma_voxel=o["sigma_voxel"])
 
 
 def light_cache_of(scene, device, features, params, inputs):
     """(light_cache.LightCache or None, info): the scene's cache on `device`, baked on
     first use (light_cache.get), and what Image.info records of it."""
     from . import light_cache
-    choice = light_cache_choice(scene)
+    choice = light_cache_choice(scene, device)
     if not choice.cell:
         return None, {"light_cache": choice.note()}
     named = dict(inputs)
@@ -640,7 +685,7 @@ def light_cache_of(scene, device, features, params, inputs):
     features = dataclasses.replace(features, **ms_cache_fields(scene.content.settings, choice))
     cache = light_cache.get(scene.content, device, features, params, named["lights"],
                             scene.environment, choice, ms_medium(scene.content.settings))
-    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice.cell)
+    params["cache_near"] = light_cache.near_length(scene.content.bricks, choice)
     baked = light_cache.builds(scene.content) > before
     return cache, {"light_cache": choice.note(), "light_cache_baked": baked,
                    "light_cache_bake_ms": cache.bake_ms if baked else 0.0,
