@@ -36,8 +36,8 @@ def test_white_furnace_every_octave_count(cl_device, density):
     the tracker's single scattering lose light, and auto (multiple scattering here) is
     exact too (ms_orders 0: the bands even where the light cache is baked; the cache's
     propagated orders have their furnace in test_light_cache_ms.py), and so are the
-    march's own bands with the cache off. The path
-    estimator's furnace is tests/test_path.py's."""
+    march's own bands with the cache off. The path estimator's furnace is
+    tests/test_path.py's."""
     for n in (2, 3, 4, 8, 16):
         r, _ = furnace(cl_device, density, estimator="march", ms_octaves=n, spp=4, ms_orders=0)
         assert np.all(np.abs(r - 1) < 0.02), (n, r.min(), r.max())
