@@ -1,6 +1,6 @@
 """Mutation check: does the test suite notice deliberate bugs in the physics?
 
-    .venv/bin/python scripts/mutants.py [-k SUBSTRING] [--from N] [--list] [--write]
+    .venv/bin/python scripts/mutants.py [-k SUBSTRING ...] [--from N] [--list] [--write]
                                          [--no-baseline] [--timeout SECONDS]
 
 Each mutant is (file, an exact snippet of it, its replacement, the tests to run). The
@@ -19,9 +19,10 @@ The working tree itself is never touched. Results:
 
 Before the mutants, the named tests run once on the unmutated copy (a baseline): a test
 that fails there would "kill" every mutant, so the run stops (--no-baseline skips it).
---write puts the table into docs/testing.md between its mutants markers; after a partial run
-(-k, --from) the rows of the mutants not run are kept from the table there. Not part of CI:
-a full run takes about 20 minutes on 2 cores (each mutant recompiles its kernels).
+-k is repeatable (a mutant whose name contains any of them runs). --write puts the table
+into docs/testing.md between its mutants markers; after a partial run (-k, --from) the rows
+of the mutants not run are kept from the table there. Not part of CI: a full run takes
+about 20 minutes on 2 cores (each mutant recompiles its kernels).
 """
 from __future__ import annotations
 
@@ -80,50 +81,52 @@ MUTANTS = [
       "return d - 2.0f * dot(d, n) * n;", "return d - dot(d, n) * n;",
       (f"{OPTICS} -k closed_form or trapped",)),
     # ------------------------------------------------------------ glass shading (shade_glass.h)
-    M("TIR keeps half its throughput", "cl/shade_glass.h",
-      "#endif\n                        d = refl;\n                        o = p_out;",
-      "#endif\n                        thr *= 0.5f;\n                        d = refl;\n"
-      "                        o = p_out;",
-      (f"{OPTICS} -k trapped", "tests/test_extreme.py -k total_internal")),
+    M("full model: TIR keeps half its throughput", "cl/shade_glass.h",
+      "/* ior < 1 outside: F = 1 */\n                d = e.refl;",
+      "/* ior < 1 outside: F = 1 */\n                thr *= 0.5f;\n                d = e.refl;",
+      (f"{OPTICS} -k trapped or total_reflection", "tests/test_extreme.py -k total_internal")),
+    M("fast model: TIR keeps half its throughput", "cl/shade_glass.h",
+      "/* ior < 1: F = 1, counted above */\n            d = e.refl;",
+      "/* ior < 1: F = 1, counted above */\n            thr *= 0.5f;\n            d = e.refl;",
+      (f"{OPTICS} -k trapped or two_spheres", "tests/test_extreme.py -k total_internal")),
     M("opaque diffuse: Lambert's 1/pi dropped", "cl/shade_glass.h",
-      "diffuse += e * fmax(dot(n, l), 0.0f) * (1.0f / VR_PI);",
-      "diffuse += e * fmax(dot(n, l), 0.0f);",
+      "diffuse += li * fmax(dot(e->n, l), 0.0f) * (1.0f / VR_PI);",
+      "diffuse += li * fmax(dot(e->n, l), 0.0f);",
       (f"{OPTICS} -k opaque",)),
     M("opaque diffuse: the environment along the mirror direction, not the normal",
-      "cl/shade_glass.h", "float3 diffuse = glass_env(gp, env, n);",
-      "float3 diffuse = glass_env(gp, env, refl);", (f"{OPTICS} -k opaque",)),
+      "cl/shade_glass.h", "float3 diffuse = glass_env(gp, env, e->n);",
+      "float3 diffuse = glass_env(gp, env, e->refl);", (f"{OPTICS} -k opaque",)),
     M("opaque: the tint not weighted by 1 - F", "cl/shade_glass.h",
-      "rgb += thr * (1.0f - fr) * col * diffuse;", "rgb += thr * col * diffuse;",
+      "return (1.0f - e->fr) * e->col * diffuse;", "return e->col * diffuse;",
       (f"{OPTICS} -k opaque",)),
     M("Beer-Lambert at half strength", "cl/shade_glass.h",
       "thr *= exp(-tau);", "thr *= exp(-0.5f * tau);", (f"{OPTICS} -k ior_one",)),
     M("glow: emitted light not attenuated inside the glass", "cl/shade_glass.h",
       "float3 w = select(-expm1(-tau) / tau, (float3)(1.0f),\n"
-      "                                          isless(tau, (float3)(1e-6f)));",
+      "                                  isless(tau, (float3)(1e-6f)));",
       "float3 w = (float3)(1.0f);", (f"{OPTICS} -k ior_one",)),
     M("glow without absorption: half the chord", "cl/shade_glass.h",
-      "#elif VR_GLOW\n                if (VR_ON(VR_BIT_GLOW))\n                    rgb += thr * gp->glow * tint * t;",
-      "#elif VR_GLOW\n                if (VR_ON(VR_BIT_GLOW))\n                    rgb += thr * gp->glow * tint * 0.5f * t;",
+      "*rgb += *thr * gp->glow * tint * *t;", "*rgb += *thr * gp->glow * tint * 0.5f * *t;",
       (f"{OPTICS} -k ior_one",)),
     M("Blinn-Phong normalisation (s + 2) / (2 pi)", "cl/shade_glass.h",
       "float norm = (gp->shininess + 8.0f) * (1.0f / (8.0f * VR_PI));",
       "float norm = (gp->shininess + 2.0f) * (1.0f / (2.0f * VR_PI));",
       (f"{OPTICS} -k opaque",)),
     M("highlights without n.l", "cl/shade_glass.h",
-      "sum += e * ndl * norm * pow(ndh, gp->shininess);",
-      "sum += e * norm * pow(ndh, gp->shininess);", (f"{OPTICS} -k opaque",)),
-    M("refraction keeps the reflected share (thr *= 1 - F dropped)", "cl/shade_glass.h",
-      "thr *= 1.0f - fr;", "thr *= 1.0f;",
+      "float3 c = w * e * ndl * norm * pow(ndh, gp->shininess);",
+      "float3 c = w * e * norm * pow(ndh, gp->shininess);", (f"{OPTICS} -k opaque",)),
+    M("fast model: refraction keeps the reflected share (thr *= 1 - F dropped)",
+      "cl/shade_glass.h", "thr *= 1.0f - e.fr;", "thr *= 1.0f;",
       ("tests/test_extreme.py -k extreme_ior", f"{OPTICS} -k trapped")),
     M("mirror reflection not weighted by F", "cl/shade_glass.h",
-      "rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);",
-      "rgb += thr * gp->reflectivity * glass_env(gp, env, refl);", (f"{OPTICS} -k opaque",)),
+      "rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);",
+      "rgb += thr * gp->reflectivity * glass_env(gp, env, e.refl);", (f"{OPTICS} -k opaque",)),
     M("highlights not weighted by F", "cl/shade_glass.h",
-      "rgb += thr * fr * glass_highlights(", "rgb += thr * glass_highlights(",
+      "base, thr * e.fr, seed,", "base, thr, seed,",
       (f"{OPTICS} -k opaque",)),
     M("point lights fall off as 1/r", "cl/shade_glass.h",
       "e /= fmax(r2, 1e-12f * gp->scale * gp->scale);",
-      "e /= fmax(dist, 1e-12f * gp->scale * gp->scale);", (f"{OPTICS} -k closed_form",)),
+      "e /= fmax(*dist, 1e-12f * gp->scale * gp->scale);", (f"{OPTICS} -k closed_form",)),
     M("hard shadows let half the light through", "cl/shade_glass.h",
       "                              gp->relax, gp->shadow_cone, &vis, &t, &s))\n        return 0.0f;",
       "                              gp->relax, gp->shadow_cone, &vis, &t, &s))\n        return 0.5f;",
@@ -140,14 +143,14 @@ MUTANTS = [
       (f"{OPTICS} -k trapped or opaque",)),
     # ------------------------------------------------------------ glass paths (issue 21)
     M("full model: the exit's internal reflection dropped", "cl/shade_glass.h",
-      "rb.thr = thr * (fr * gp->reflectivity);",
-      "rb.thr = thr * (fr * gp->reflectivity) * (inside ? 0.0f : 1.0f);",
+      "rb.thr = thr * (e.fr * gp->reflectivity);",
+      "rb.thr = thr * (e.fr * gp->reflectivity) * (inside ? 0.0f : 1.0f);",
       ("tests/test_glass_paths.py", "tests/test_extreme.py -k furnace or grazing")),
     M("full model: roulette survivors keep their weight (biased dark)", "cl/shade_glass.h",
       "other.thr *= rr / w;", "other.thr *= 1.0f;",
       ("tests/test_glass_paths.py -k vanishes or mitsuba", "tests/test_extreme.py -k furnace")),
     M("full model: the split branch is never traced", "cl/shade_glass.h",
-      "                            stack[sp++] = other;", "                            (void)other;",
+      "                    stack[sp++] = other;", "                    (void)other;",
       ("tests/test_glass_paths.py", "tests/test_extreme.py -k furnace")),
     M("full model: a merged branch's weight lost", "cl/shade_glass.h",
       "go.thr += other.thr;                 /* past the budget: merged */",
@@ -336,6 +339,9 @@ MUTANTS = [
       "VrSpec gain = (light ? vp->ms.x : 1.0f) * VR_ALBEDO(vp);",
       "VrSpec gain = (light ? vp->ms.x : 1.0f) * VR_ALBEDO(vp) * 1.1f;",
       ("tests/test_defaults.py -k furnace", "tests/test_octaves.py")),
+    M("baked environment bands gain 10% per band (energy not conserved)", "cl/march.h",
+      "VrSpec gain = VR_ALBEDO(vp);", "VrSpec gain = VR_ALBEDO(vp) * 1.1f;",
+      ("tests/test_defaults.py -k furnace", "tests/test_octaves.py")),
     M("env in-scattering: phase / pdf not divided (uniform env)", "cl/march.h",
       "    f = f / p0;                 /* phase sampling: p / pdf = 1 for octave 0 */",
       "    f = f;", ("tests/test_env.py", "tests/test_path.py -k depth_one")),
@@ -454,23 +460,23 @@ MUTANTS = [
     M("sRGB: offset 0.05 for 0.055", "volrender/image.py", "1.0 / 2.4) - 0.055)",
       "1.0 / 2.4) - 0.05)", (f"{GEN} -k srgb",)),
     M("full model: an internal reflection not weighted by reflectivity", "cl/shade_glass.h",
-      "rb.thr = thr * (fr * gp->reflectivity);",
-      "rb.thr = thr * (inside ? fr : fr * gp->reflectivity);", (f"{GEN} -k axis",)),
+      "rb.thr = thr * (e.fr * gp->reflectivity);",
+      "rb.thr = thr * (inside ? e.fr : e.fr * gp->reflectivity);", (f"{GEN} -k axis",)),
     M("full model: reflections not weighted by reflectivity", "cl/shade_glass.h",
-      "rb.thr = thr * (fr * gp->reflectivity);", "rb.thr = thr * fr;", (f"{GEN} -k axis",)),
+      "rb.thr = thr * (e.fr * gp->reflectivity);", "rb.thr = thr * e.fr;", (f"{GEN} -k axis",)),
     M("full model: the refracted share 1 - F reflectivity", "cl/shade_glass.h",
-      "tb.thr = thr * (1.0f - fr);", "tb.thr = thr * (1.0f - fr * gp->reflectivity);",
+      "tb.thr = thr * (1.0f - e.fr);", "tb.thr = thr * (1.0f - e.fr * gp->reflectivity);",
       (f"{GEN} -k axis",)),
     M("full model: the exit's internal reflection dropped (checked directly)", "cl/shade_glass.h",
-      "rb.thr = thr * (fr * gp->reflectivity);",
-      "rb.thr = inside ? (float3)(0.0f) : thr * (fr * gp->reflectivity);", (f"{GEN} -k axis",)),
+      "rb.thr = thr * (e.fr * gp->reflectivity);",
+      "rb.thr = inside ? (float3)(0.0f) : thr * (e.fr * gp->reflectivity);", (f"{GEN} -k axis",)),
     M("fast model: the exit reflection kept", "cl/shade_glass.h",
-      "                if (!inside)\n                    rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);",
-      "                rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);",
+      "        if (!inside)\n            rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);",
+      "        rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);",
       (f"{GEN} -k axis",)),
     M("fast model: the outer reflection not weighted by reflectivity", "cl/shade_glass.h",
-      "rgb += thr * (fr * gp->reflectivity) * glass_env(gp, env, refl);",
-      "rgb += thr * fr * glass_env(gp, env, refl);", (f"{GEN} -k axis",)),
+      "rgb += thr * (e.fr * gp->reflectivity) * glass_env(gp, env, e.refl);",
+      "rgb += thr * e.fr * glass_env(gp, env, e.refl);", (f"{GEN} -k axis",)),
     M("octaves: a band's phase at its end, not its middle", "cl/march.h",
       "float ck = pow(vp->ms.y, u - 0.5f * du);", "float ck = pow(vp->ms.y, u);",
       (f"{GEN} -k octave_bands",)),
@@ -478,11 +484,12 @@ MUTANTS = [
       "float ck = pow(vp->ms.y, u - 0.5f * du);", "float ck = pow(vp->ms.y, u - du);",
       (f"{GEN} -k octave_bands",)),
     M("octaves: A_k with (k + 1) / (N - 1)", "cl/march.h",
-      "VrSpec tk = vr_spec_transmit(exp(u * ln_a) * ext_tau);",
-      "VrSpec tk = vr_spec_transmit(exp((u + du) * ln_a) * ext_tau);",
+      "exp((float)k * (1.0f / (float)(VR_MS_OCTAVES - 1)) * ln_a)",
+      "exp((float)(k + 1) * (1.0f / (float)(VR_MS_OCTAVES - 1)) * ln_a)",
       (f"{GEN} -k octave_bands",)),
     M("octaves: band spacing 1 / N (the last band short of A_inf)", "cl/march.h",
-      "float du = 1.0f / (float)(VR_MS_OCTAVES - 1);", "float du = 1.0f / (float)VR_MS_OCTAVES;",
+      "exp((float)k * (1.0f / (float)(VR_MS_OCTAVES - 1)) * ln_a)",
+      "exp((float)k * (1.0f / (float)VR_MS_OCTAVES) * ln_a)",
       (f"{GEN} -k octave_bands",)),
     M("octaves: light bands without the albedo", "cl/march.h",
       "VrSpec gain = (light ? vp->ms.x : 1.0f) * VR_ALBEDO(vp);",
@@ -682,7 +689,8 @@ def write_doc(text: str):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("-k", dest="match", help="only mutants whose name contains this")
+    ap.add_argument("-k", dest="match", action="append", default=[],
+                    help="only mutants whose name contains this (repeat: any of them)")
     ap.add_argument("--from", dest="start", type=int, default=1, metavar="N",
                     help="only mutants N, N+1, ... of the list (1-based), e.g. the newest")
     ap.add_argument("--list", action="store_true", help="list the mutants and whether each "
@@ -692,7 +700,7 @@ def main(argv=None):
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per pytest run")
     args = ap.parse_args(argv)
     mutants = [m for m in MUTANTS[max(args.start, 1) - 1:]
-               if not args.match or args.match.lower() in m.name.lower()]
+               if not args.match or any(k.lower() in m.name.lower() for k in args.match)]
     if args.list:
         for i, m in enumerate(mutants, 1):
             n = (ROOT / m.file).read_text().count(m.old)

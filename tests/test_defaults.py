@@ -35,11 +35,16 @@ def test_white_furnace_every_octave_count(cl_device, density):
     every count (exactly, up to float: they telescope), single scattering (1 octave) and
     the tracker's single scattering lose light, and auto (multiple scattering here) is
     exact too (ms_orders 0: the bands even where the light cache is baked; the cache's
-    propagated orders have their furnace in test_light_cache_ms.py). The path
-    estimator's furnace is tests/test_path.py's."""
+    propagated orders have their furnace in test_light_cache_ms.py), and so are the
+    march's own bands with the cache off. The path estimator's furnace is
+    tests/test_path.py's."""
     for n in (2, 3, 4, 8, 16):
         r, _ = furnace(cl_device, density, estimator="march", ms_octaves=n, spp=4, ms_orders=0)
         assert np.all(np.abs(r - 1) < 0.02), (n, r.min(), r.max())
+    for n in (2, 16):           # no light cache: the march's own bands (cl/march.h vr_octaves)
+        r, _ = furnace(cl_device, density, estimator="march", ms_octaves=n, spp=4,
+                       light_cache="off")
+        assert np.all(np.abs(r - 1) < 0.02), ("cache off", n, r.min(), r.max())
     ss, _ = furnace(cl_device, density, estimator="march", ms_octaves=1, spp=16)
     assert ss.mean() < 0.97
     tr, _ = furnace(cl_device, density, estimator="track", spp=256)
