@@ -23,13 +23,13 @@ import os
 import pickle
 import select
 import signal
-import struct
 import sys
 import tempfile
 import warnings
 from pathlib import Path
 
 from . import atomic, process
+from .pipe_messages import receive, send
 
 MODE_ENV = "VOLRENDER_FRAME_WRITER"       # "thread": write in this process; "process": always
 PIPE_BYTES = 1 << 20                       # the pipe's buffer (Linux: at most pipe-max-size)
@@ -83,7 +83,7 @@ class FrameWriter:
             return self.started and self.proc is not None
         try:
             if select.select([self.proc.stdout], [], [], wait)[0]:
-                self.started = _receive(self.proc.stdout) == READY
+                self.started = receive(self.proc.stdout) == READY
                 if not self.started:
                     self.proc = None
         except (EOFError, OSError, ValueError):
@@ -107,13 +107,13 @@ class FrameWriter:
         except OSError:
             cwd, output = None, os.path.abspath(output)
         try:
-            _send(proc.stdin, pickle.dumps((cwd, str(output), save_kw,
-                                            [r.nbytes for r in raws])))
-            _send(proc.stdin, head)
+            send(proc.stdin, pickle.dumps((cwd, str(output), save_kw,
+                                           [r.nbytes for r in raws])), flush=False)
+            send(proc.stdin, head, flush=False)
             for r in raws:
                 proc.stdin.write(r)
             proc.stdin.flush()
-            kind, value, shown = pickle.loads(_receive(proc.stdout))
+            kind, value, shown = pickle.loads(receive(proc.stdout))
         except (EOFError, OSError, pickle.UnpicklingError) as exc:
             self.proc = None
             code = proc.poll()
@@ -160,22 +160,6 @@ def _grow_pipe(f):
         pass
 
 
-def _send(f, data: bytes):
-    f.write(struct.pack("<Q", len(data)))
-    f.write(data)
-
-
-def _receive(f) -> bytes:
-    head = f.read(8)
-    if len(head) != 8:
-        raise EOFError
-    n = struct.unpack("<Q", head)[0]
-    data = f.read(n)
-    if len(data) != n:
-        raise EOFError
-    return data
-
-
 def _read_into(f, n: int) -> bytearray:
     b = bytearray(n)
     view, got = memoryview(b), 0
@@ -197,12 +181,11 @@ def serve():
     os.dup2(2, 1)                                    # stray prints go to stderr
     inp = sys.stdin.buffer
     _grow_pipe(out)
-    _send(out, READY)
-    out.flush()
+    send(out, READY)
     while True:
         try:
-            cwd, output, save_kw, sizes = pickle.loads(_receive(inp))
-            head = _receive(inp)
+            cwd, output, save_kw, sizes = pickle.loads(receive(inp))
+            head = receive(inp)
             buffers = [_read_into(inp, n) for n in sizes]
         except EOFError:
             return
@@ -226,5 +209,4 @@ def serve():
         except Exception:                            # noqa: BLE001
             blob = pickle.dumps(("error", RuntimeError(f"{type(reply[1]).__name__}: "
                                                        f"{reply[1]}"), shown))
-        _send(out, blob)
-        out.flush()
+        send(out, blob)

@@ -24,7 +24,6 @@ import importlib.util
 import os
 import pickle
 import signal
-import struct
 import sys
 import tempfile
 import threading
@@ -39,6 +38,7 @@ from .bricks import (MAX_BRICKS, MAX_ORIGIN, ZIP_ERRORS, Bricks, brick_box, buil
 from .errors import UserError
 from .files import check_memory
 from .layout import APRON, BRICK  # shared with the kernels (cl/structs.h)
+from .pipe_messages import receive, send
 from .vdb_header import GridInfo, parse_vdb, up_axis_hint
 
 _NODE = 128                   # edge of OpenVDB's lowest internal node (5_4_3 trees)
@@ -59,8 +59,6 @@ def import_openvdb():
                         "or use a .npz brick cache converted elsewhere")
 
 
-
-
 def list_grids(path) -> list[GridInfo]:
     """Every grid in a .vdb file, in file order (works where readAllGridMetadata fails)."""
     p = check_volume_file(path)
@@ -76,14 +74,8 @@ def list_grids(path) -> list[GridInfo]:
                         fix="re-save it with a current OpenVDB") from None
 
 
-
-
-
-
 def _listing(grids) -> str:
     return "available grids: " + ", ".join(g.describe() for g in grids)
-
-
 
 
 def _pick(path, grids, name, default=False) -> GridInfo:
@@ -199,10 +191,6 @@ def _vdb_source(grid, box):
         return True
 
     return read, is_zero
-
-
-
-
 
 
 # --------------------------------------------------------------------------- loading
@@ -367,9 +355,9 @@ class _ReaderProcess:
                     cwd = os.getcwd()           # relative paths mean the same there
                 except OSError:
                     cwd, args = None, (Path(os.path.abspath(args[0])), *args[1:])
-                _send(proc.stdin, pickle.dumps((cwd, args, kwargs)))
+                send(proc.stdin, pickle.dumps((cwd, args, kwargs)))
                 while True:
-                    kind, value = pickle.loads(_receive(proc.stdout))
+                    kind, value = pickle.loads(receive(proc.stdout))
                     if kind == "progress":
                         if progress is not None:
                             progress(value)
@@ -381,7 +369,7 @@ class _ReaderProcess:
                         raise value
                     else:
                         sizes = value
-                        head = _receive(proc.stdout)
+                        head = receive(proc.stdout)
                         buffers = []
                         for n in sizes:
                             b = bytearray(n)
@@ -410,23 +398,6 @@ class _ReaderProcess:
                 raise
 
 
-def _send(f, data: bytes):
-    f.write(struct.pack("<Q", len(data)))
-    f.write(data)
-    f.flush()
-
-
-def _receive(f) -> bytes:
-    head = f.read(8)
-    if len(head) != 8:
-        raise EOFError
-    n = struct.unpack("<Q", head)[0]
-    data = f.read(n)
-    if len(data) != n:
-        raise EOFError
-    return data
-
-
 def _serve():
     """The reader process: one request at a time on stdin, until it closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # the caller decides
@@ -441,7 +412,7 @@ def _serve():
     inp = sys.stdin.buffer
     while True:
         try:
-            cwd, args, kwargs = pickle.loads(_receive(inp))
+            cwd, args, kwargs = pickle.loads(receive(inp))
         except EOFError:
             return
         if cwd is not None:
@@ -451,10 +422,10 @@ def _serve():
                 args = (Path(os.path.abspath(args[0])), *args[1:])
 
         def progress(x):
-            _send(out, pickle.dumps(("progress", x)))
+            send(out, pickle.dumps(("progress", x)))
 
         def show(message, category, filename, lineno, file=None, line=None):
-            _send(out, pickle.dumps(("warning", (str(message), category))))
+            send(out, pickle.dumps(("warning", (str(message), category))))
 
         try:
             with warnings.catch_warnings():
@@ -466,14 +437,14 @@ def _serve():
                 blob = pickle.dumps(("error", exc))
             except Exception:
                 blob = pickle.dumps(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
-            _send(out, blob)
+            send(out, blob)
             out.close()
             return
         buffers = []
         head = pickle.dumps(result, protocol=5, buffer_callback=buffers.append)
         raws = [b.raw() for b in buffers]
-        _send(out, pickle.dumps(("result", [r.nbytes for r in raws])))
-        _send(out, head)
+        send(out, pickle.dumps(("result", [r.nbytes for r in raws])))
+        send(out, head)
         for r in raws:
             out.write(r)
         out.flush()
