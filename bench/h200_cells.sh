@@ -29,11 +29,4 @@ opaque="$PY bench/spheres.py $common --opaque --counts $COUNTS --accel grid,tree
 --dispatch fragment --brute-limit 0.3 --uber-count 0 --tag $TAG"
 scans="$PY bench/spheres.py $common --no-sweep --scans bunny,bunny-default,frag \
 --accel grid,tree --dispatch fragment,tiled --tag $TAG-scans"
-if [ "$DEVICE" = nvidia ]; then
-    exec bash bench/gpu.sh "$sweep" "$opaque" "$scans"
-fi
-export PYTHONPATH=$PWD
-for cmd in "$sweep" "$opaque" "$scans"; do
-    echo "== $(date +%T) $cmd"
-    $cmd
-done
+DEVICE=$DEVICE exec bash bench/run_cmds.sh "$sweep" "$opaque" "$scans"

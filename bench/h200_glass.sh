@@ -31,11 +31,4 @@ fi
 cmds+=("$PY $speed --bounces $BOUNCES --cases $CASES --label new --out $res/glass_speed_$dev-$TAG-new.json")
 cmds+=("$PY $speed --bounces 2 --cases ${RELAX_CASES:-3000,1000000,bunny} --relax $RELAX --label relax \
 --out $res/glass_speed_$dev-$TAG-relax.json")
-if [ "$DEVICE" = nvidia ]; then
-    exec bash bench/gpu.sh "${cmds[@]}"
-fi
-export PYTHONPATH=$PWD
-for cmd in "${cmds[@]}"; do
-    echo "== $(date +%T) $cmd"
-    (bash -c "$cmd")
-done
+DEVICE=$DEVICE exec bash bench/run_cmds.sh "${cmds[@]}"

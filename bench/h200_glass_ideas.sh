@@ -38,10 +38,5 @@ logging.basicConfig(level=logging.INFO); sys.argv = ['glass_speed', '--device', 
 runpy.run_path('bench/glass_speed.py', run_name='__main__')\" 2>&1 | grep -E 'render_glass|VR_FULL|registers|spill' \
 | grep -A3 \"Function properties for render_glass\" | grep -E 'registers|spill' | head -8")
     done
-    exec bash bench/gpu.sh "${cmds[@]}"
 fi
-export PYTHONPATH=$PWD
-for cmd in "${cmds[@]}"; do
-    echo "== $(date +%T) $cmd"
-    (bash -c "$cmd")
-done
+DEVICE=$DEVICE exec bash bench/run_cmds.sh "${cmds[@]}"
